@@ -1,0 +1,310 @@
+"""Configuration: one TOML file, validated into typed, frozen objects.
+
+``load_config(path)`` reads the file, applies ``--set key.path=value`` overrides and returns a
+:class:`Config`. Any wrong key, type or value raises :class:`~edge.errors.ConfigError` with one line
+naming the file, the dotted key and what is expected. The shipped default is ``config/sim.toml``: the
+simulated rig in a virtual room.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+from edge.errors import ConfigError
+from edge.rig import CAMERA_MODELS, CameraModel, Laser, Mount, Rig, default_rig
+from edge.schema import FieldError, build, require
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def config_dir() -> Path:
+    """Where the shipped configuration lives: ``$EDGE_CONFIG_DIR``, else ``<repo>/config``."""
+    return Path(os.environ.get("EDGE_CONFIG_DIR") or REPO_ROOT / "config")
+
+
+def default_config_path() -> Path:
+    return config_dir() / "sim.toml"
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    id: str = ""  # empty: the host name
+
+    def resolved_id(self) -> str:
+        import socket
+
+        return self.id or socket.gethostname()
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """A named camera model (``edge.rig.CAMERA_MODELS``), optionally with its numbers replaced."""
+
+    model: str = "picam-v2"
+    width: int | None = None
+    height: int | None = None
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    dist: tuple[float, float, float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        require(
+            self.model in CAMERA_MODELS,
+            "model",
+            f"unknown camera model {self.model!r} (known: {', '.join(CAMERA_MODELS)})",
+        )
+        self.build()  # validates the numbers
+
+    def build(self) -> CameraModel:
+        base = CAMERA_MODELS[self.model]
+        changes = {
+            k: getattr(self, k)
+            for k in ("width", "height", "fx", "fy", "cx", "cy", "dist")
+            if getattr(self, k) is not None
+        }
+        return replace(base, **changes)
+
+
+_DEFAULT_RIG = default_rig()
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    lasers: tuple[Laser, ...] = _DEFAULT_RIG.lasers
+    mount: Mount = field(default_factory=Mount)
+    range_limits_m: tuple[float, float] = _DEFAULT_RIG.range_limits_m
+
+    def __post_init__(self) -> None:
+        self.build()  # Rig validates laser names, the reference flag and the limits
+
+    def build(self) -> Rig:
+        return Rig(self.camera.build(), self.lasers, self.mount, self.range_limits_m)
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """Which views a sweep takes and how many frames each."""
+
+    zones: int = 64
+    pan_start_deg: float = 0.0
+    pan_step_deg: float = 360.0 / 64
+    tilt_deg: float = 0.0
+    poses_deg: tuple[tuple[float, float], ...] = ()  # explicit (pan, tilt) list; replaces the above
+    pairs_per_zone: int = 2  # laser-off/laser-on frame pairs per zone
+    # Between pairs the unit is nudged by this much in pan so that each pair sees different laser
+    # speckle (speckle, not pixel noise, limits a pointer's precision; averaging equal speckle does
+    # not help). About one position of a PTU-D46-17 (185.1428″).
+    nudge_deg: float = 0.0514
+
+    def __post_init__(self) -> None:
+        require(1 <= self.zones <= 4096, "zones", f"must be 1-4096, got {self.zones}")
+        require(1 <= self.pairs_per_zone <= 32, "pairs_per_zone", "must be 1-32")
+        require(abs(self.nudge_deg) <= 1.0, "nudge_deg", "must be within ±1°")
+
+    def poses(self) -> list[tuple[float, float]]:
+        """(pan, tilt) in degrees of each zone, in sweep order."""
+        if self.poses_deg:
+            return list(self.poses_deg)
+        return [
+            (_wrap_deg(self.pan_start_deg + i * self.pan_step_deg), self.tilt_deg)
+            for i in range(self.zones)
+        ]
+
+
+def _wrap_deg(a: float) -> float:
+    """Into (-180, 180] so that pan angles read the way the unit's limits are written."""
+    a = math.fmod(a, 360.0)
+    if a > 180.0:
+        a -= 360.0
+    elif a <= -180.0:
+        a += 360.0
+    return round(a, 9)
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """The simulated sensor: photo-electrons to digital numbers."""
+
+    full_well_e: float = 10000.0
+    read_noise_e: float = 3.0
+    adc_bits: int = 10
+    output_bits: Literal[8, 16] = 8
+    analogue_gain: float = 1.0
+    exposure_us: float = 10000.0
+    colour: bool = True
+    jpeg_quality: int = 0  # 0: lossless PNG; 1-100: what a webcam's JPEG stream does to frames
+    frame_rate_hz: float = 30.0
+
+    def __post_init__(self) -> None:
+        require(self.full_well_e > 0, "full_well_e", "must be positive")
+        require(self.read_noise_e >= 0, "read_noise_e", "must be >= 0")
+        require(8 <= self.adc_bits <= 16, "adc_bits", f"must be 8-16, got {self.adc_bits}")
+        require(self.analogue_gain >= 1.0, "analogue_gain", "must be >= 1")
+        require(self.exposure_us > 0, "exposure_us", "must be positive")
+        require(0 <= self.jpeg_quality <= 100, "jpeg_quality", "must be 0-100")
+        require(
+            not (self.jpeg_quality and self.output_bits == 16),
+            "jpeg_quality",
+            "JPEG frames are 8-bit; set output_bits = 8",
+        )
+        require(self.frame_rate_hz > 0, "frame_rate_hz", "must be positive")
+        require(
+            self.exposure_us <= 1e6 / self.frame_rate_hz,
+            "exposure_us",
+            f"must fit in one frame time ({1e6 / self.frame_rate_hz:.0f} µs)",
+        )
+
+
+@dataclass(frozen=True)
+class OpticsConfig:
+    focal_length_mm: float = 3.04  # Pi Camera v2
+    f_number: float = 2.0
+    focus_m: float = 1.2  # fixed-focus distance
+    psf_sigma_px: float = 0.5  # lens + pixel blur of a point in focus
+    vignetting: bool = True
+
+    def __post_init__(self) -> None:
+        require(self.focal_length_mm > 0, "focal_length_mm", "must be positive")
+        require(self.f_number > 0, "f_number", "must be positive")
+        require(self.focus_m > 0, "focus_m", "must be positive")
+        require(self.psf_sigma_px >= 0.2, "psf_sigma_px", "must be >= 0.2")
+
+
+@dataclass(frozen=True)
+class BeamConfig:
+    """The laser pointers as the simulator sees them."""
+
+    # Photo-electrons per ms of exposure that a spot on a white (albedo 1) matte wall squarely at 1 m
+    # sends to the sensor, all pixels together, before vignetting.
+    e_per_ms_at_1m: float = 6000.0
+    waist_m: float = 0.0012  # 1/e² beam radius at the aperture
+    divergence_mrad: float = 0.6  # half-angle
+    # Relative response of the B, G, R pixels to 650 nm light (Bayer filters leak a little).
+    response_bgr: tuple[float, float, float] = (0.03, 0.10, 1.0)
+    speckle: float = 1.0  # 0: no speckle; 1: the modelled speckle of a pointer at f/2
+    speckle_cell_m: float = 0.0002  # how far the spot must move on the surface for new speckle
+
+    def __post_init__(self) -> None:
+        require(self.e_per_ms_at_1m >= 0, "e_per_ms_at_1m", "must be >= 0")
+        require(self.waist_m > 0, "waist_m", "must be positive")
+        require(self.divergence_mrad >= 0, "divergence_mrad", "must be >= 0")
+        require(self.speckle >= 0, "speckle", "must be >= 0")
+        require(self.speckle_cell_m > 0, "speckle_cell_m", "must be positive")
+
+
+@dataclass(frozen=True)
+class AmbientConfig:
+    # Photo-electrons per ms that a white (albedo 1) wall sends to one pixel under room light.
+    white_e_per_ms: float = 300.0
+    # Relative amplitude of the light level's change from frame to frame (mains or LED-driver flicker
+    # beating with the frame rate): each frame's ambient level is uniform in 1 ± flicker.
+    flicker: float = 0.03
+
+    def __post_init__(self) -> None:
+        require(self.white_e_per_ms >= 0, "white_e_per_ms", "must be >= 0")
+        require(0 <= self.flicker < 1, "flicker", "must be in [0, 1)")
+
+
+@dataclass(frozen=True)
+class RigErrorConfig:
+    """How the simulated rig differs from the nominal one (seeded): real rigs are never exact."""
+
+    laser_angle_deg: float = 0.0  # 1-σ tilt of each laser's direction
+    laser_offset_m: float = 0.0  # 1-σ offset of each laser's origin, per axis
+    focal_scale: float = 0.0  # 1-σ relative error of the focal length
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for key in ("laser_angle_deg", "laser_offset_m", "focal_scale"):
+            require(getattr(self, key) >= 0, key, "must be >= 0")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    scene: str = "office"
+    seed: int = 1
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    optics: OpticsConfig = field(default_factory=OpticsConfig)
+    beam: BeamConfig = field(default_factory=BeamConfig)
+    ambient: AmbientConfig = field(default_factory=AmbientConfig)
+    rig_error: RigErrorConfig = field(default_factory=RigErrorConfig)
+
+
+@dataclass(frozen=True)
+class Config:
+    source: str = "<defaults>"  # the file it came from, for messages
+    device: DeviceConfig = field(default_factory=DeviceConfig)
+    rig: RigConfig = field(default_factory=RigConfig)
+    sweep: SweepConfig = field(default_factory=SweepConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``key.path=value`` → (key path, value); the value is read as TOML, else as a string."""
+    key, sep, raw = text.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. --set sim.scene=kitchen")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return key, value
+
+
+def _apply_override(data: dict[str, Any], key: str, value: Any) -> None:
+    node = data
+    parts = key.split(".")
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"--set {key}: {part} is not a table")
+        node = child
+    node[parts[-1]] = value
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> Config:
+    """Read and validate a configuration file (default: ``config/sim.toml``)."""
+    file = Path(path) if path is not None else default_config_path()
+    try:
+        with open(file, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: no such configuration file") from None
+    except OSError as exc:
+        raise ConfigError(f"{file}: cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{file}: not valid TOML: {exc}") from None
+    return config_from_mapping(data, str(file), overrides)
+
+
+def config_from_mapping(
+    data: dict[str, Any], source: str, overrides: list[str] | tuple[str, ...] = ()
+) -> Config:
+    for text in overrides:
+        key, value = parse_override(text)
+        _apply_override(data, key, value)
+    if "source" in data:
+        raise ConfigError(f"{source}: source: unknown key")
+    data = {**data, "source": source}
+    try:
+        return build(Config, data, source)
+    except FieldError as exc:  # raised outside a table walk: still name the file
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def resolve_path(config: Config, name: str) -> Path:
+    """A path written in a config file, relative to that file's folder."""
+    p = Path(name).expanduser()
+    if p.is_absolute() or config.source.startswith("<"):
+        return p
+    return Path(config.source).resolve().parent / p
