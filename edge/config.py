@@ -184,7 +184,7 @@ class BeamConfig:
 
     # Photo-electrons per ms of exposure that a spot on a white (albedo 1) matte wall squarely at 1 m
     # sends to the sensor, all pixels together, before vignetting.
-    e_per_ms_at_1m: float = 6000.0
+    e_per_ms_at_1m: float = 20000.0
     waist_m: float = 0.0012  # 1/e² beam radius at the aperture
     divergence_mrad: float = 0.6  # half-angle
     # Relative response of the B, G, R pixels to 650 nm light (Bayer filters leak a little).
@@ -203,7 +203,7 @@ class BeamConfig:
 @dataclass(frozen=True)
 class AmbientConfig:
     # Photo-electrons per ms that a white (albedo 1) wall sends to one pixel under room light.
-    white_e_per_ms: float = 300.0
+    white_e_per_ms: float = 600.0
     # Relative amplitude of the light level's change from frame to frame (mains or LED-driver flicker
     # beating with the frame rate): each frame's ambient level is uniform in 1 ± flicker.
     flicker: float = 0.03

@@ -1,0 +1,190 @@
+"""The `edge` command: thin wrappers around the library.
+
+Exit status: 0 success, 1 runtime failure, 2 usage or configuration error. Every expected failure
+is one line on stderr (``edge: <what, where, what to do>``), never a traceback; logs go to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+from edge import __version__
+from edge.errors import EdgeError
+
+log = logging.getLogger("edge")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that says `edge: …` in one line and exits 2, as every other error does."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", help="configuration file (default: config/sim.toml)")
+    p.add_argument(
+        "--set",
+        metavar="KEY=VALUE",
+        action="append",
+        default=[],
+        help="change one configuration key, e.g. --set sim.scene=kitchen (repeatable)",
+    )
+    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+
+
+def _config(args: argparse.Namespace):
+    from edge.config import load_config
+
+    return load_config(args.config, args.set)
+
+
+def _progress(label: str):
+    """A one-line progress bar on a terminal; nothing when stderr is not one (logs suffice)."""
+    if not sys.stderr.isatty():
+        return None
+    start = time.monotonic()
+
+    def show(done: int, total: int) -> None:
+        width = 30
+        filled = int(width * done / total)
+        rate = done / max(time.monotonic() - start, 1e-6)
+        sys.stderr.write(f"\r{label} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} {rate:.1f}/s")
+        if done == total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return show
+
+
+def cmd_sim_record(args: argparse.Namespace) -> int:
+    from edge.sim.record import record_sweep
+
+    overrides = list(args.set)
+    if args.scene:
+        overrides.append(f"sim.scene={json.dumps(args.scene)}")
+    if args.seed is not None:
+        overrides.append(f"sim.seed={args.seed}")
+    from edge.config import load_config
+
+    config = load_config(args.config, overrides)
+    pairs = None
+    if args.frames is not None:
+        if args.frames < 2 or args.frames % 2:
+            raise _usage("--frames must be an even number >= 2 (laser-off/laser-on pairs)")
+        pairs = args.frames // 2
+    if args.zones is not None and args.zones < 1:
+        raise _usage("--zones must be >= 1")
+    started = time.monotonic()
+    out = record_sweep(config, Path(args.out), args.zones, pairs, _progress("recording"))
+    print(f"wrote {out} in {time.monotonic() - started:.1f} s")
+    return 0
+
+
+def cmd_sim_show(args: argparse.Namespace) -> int:
+    from edge.contact import contact_sheet
+    from edge.fsutil import write_png
+    from edge.recording import read_recording
+
+    recording = read_recording(args.recording)
+    out = Path(args.out) if args.out else Path(args.recording) / "contact.png"
+    write_png(out, contact_sheet(recording, columns=args.columns))
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Record a simulated sweep of the office and draw its contact sheet."""
+    from edge.contact import contact_sheet
+    from edge.fsutil import write_png
+    from edge.recording import read_recording
+    from edge.sim.record import record_sweep
+
+    config = _config(args)
+    out = Path(args.out)
+    started = time.monotonic()
+    record_sweep(config, out, progress=_progress("sweep"))
+    recording = read_recording(out)
+    sheet = out / "contact.png"
+    write_png(sheet, contact_sheet(recording))
+    print(f"recording: {out} ({len(recording.zones)} zones, {time.monotonic() - started:.1f} s)")
+    print(f"contact sheet: {sheet}")
+    return 0
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    config = _config(args)
+    rig = config.rig.build()
+    print(f"{config.source}: ok")
+    print(f"  camera {rig.camera.width}x{rig.camera.height} fx={rig.camera.fx:g}")
+    for laser in rig.lasers:
+        ref = " (reference)" if laser is rig.reference else ""
+        print(f"  laser {laser.name}: pin {laser.pin}{ref}")
+    print(f"  sweep {len(config.sweep.poses())} zones, {config.sweep.pairs_per_zone} pairs each")
+    print(f"  sim scene {config.sim.scene}")
+    return 0
+
+
+def _usage(message: str) -> EdgeError:
+    from edge.errors import UsageError
+
+    return UsageError(message)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="edge", description="Structured-light range finder on a pan-tilt unit.")
+    parser.add_argument("--version", action="version", version=f"edge {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("demo", help="simulate a sweep of the office and draw it")
+    _common(p)
+    p.add_argument("--out", default="out/demo", help="recording folder (default: out/demo)")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("config", help="check a configuration file and summarise it")
+    _common(p)
+    p.set_defaults(func=cmd_config)
+
+    sim = sub.add_parser("sim", help="the simulator").add_subparsers(
+        dest="sim_command", required=True, parser_class=_Parser
+    )
+    p = sim.add_parser("record", help="write a simulated sweep as an edge-sweep/1 recording")
+    _common(p)
+    p.add_argument("--scene", help="scene name (config/scenes/NAME.toml) or file")
+    p.add_argument("--out", required=True, help="recording folder to write")
+    p.add_argument("--zones", type=int, help="number of zones (default: sweep.zones)")
+    p.add_argument("--frames", type=int, help="frames per zone, even: off/on pairs (default: 2 × sweep.pairs_per_zone)")
+    p.add_argument("--seed", type=int, help="noise and speckle seed (default: sim.seed)")
+    p.set_defaults(func=cmd_sim_record)
+
+    p = sim.add_parser("show", help="draw a recording's contact sheet (PNG)")
+    p.add_argument("recording", help="recording folder")
+    p.add_argument("--out", help="PNG to write (default: RECORDING/contact.png)")
+    p.add_argument("--columns", type=int, default=8)
+    p.add_argument("-v", "--verbose", action="store_true")
+    p.set_defaults(func=cmd_sim_show)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if getattr(args, "verbose", False) else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return int(args.func(args) or 0)
+    except EdgeError as exc:
+        print(f"edge: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("edge: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 1

@@ -1,0 +1,121 @@
+"""Simulated sweeps written as `edge-sweep/1` recordings, with the truth for every zone.
+
+The virtual rig takes, for each zone, ``pairs`` laser-off/laser-on frame pairs on a frame clock,
+nudging the pan by ``sweep.nudge_deg`` between pairs so that each pair sees fresh speckle, exactly
+as the device does. The recording carries the *nominal* rig (what the device believes); the frames
+and the truth come from the *true* rig, which differs when ``sim.rig_error`` says so.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from edge.config import Config, resolve_path
+from edge.recording import RecordingWriter
+from edge.rig import Rig
+from edge.sim.render import Renderer, SpotTruth, perturb_rig
+from edge.sim.scene import Scene, load_scene, scene_dir
+
+log = logging.getLogger(__name__)
+
+# Pan offsets of successive pairs, in nudges: 0, +1, -1, +2, -2, … (stays near the zone's pose).
+_NUDGE_ORDER = [0, 1, -1, 2, -2, 3, -3, 4, -4]
+# The lasers switch this long before a frame's exposure starts (they settle well within it).
+_SWITCH_LEAD_NS = 2_000_000
+
+
+def scene_for(config: Config) -> Scene:
+    """The scene named by ``sim.scene``: a shipped name, or a path relative to the config file."""
+    name = config.sim.scene
+    if name.endswith(".toml"):
+        return load_scene(str(resolve_path(config, name)))
+    return load_scene(name, [scene_dir()])
+
+
+def true_rig(config: Config) -> Rig:
+    return perturb_rig(config.rig.build(), config.sim.rig_error)
+
+
+def nudge_offsets(pairs: int) -> list[int]:
+    if pairs > len(_NUDGE_ORDER):
+        return [(k + 1) // 2 * (1 if k % 2 else -1) for k in range(pairs)]
+    return _NUDGE_ORDER[:pairs]
+
+
+def zone_truth(rig: Rig, spots: dict[str, SpotTruth], pose_to_base) -> dict:
+    """The `truth` object of a zone: the reference laser's point, and each laser's spot."""
+    ref = spots[rig.reference.name]
+    truth: dict = {"range_m": None, "point_m": None}
+    if ref.point_camera is not None:
+        p = ref.point_camera
+        truth["range_m"] = round(float(p[2]), 6)
+        truth["point_m"] = [round(float(c), 6) for c in p]
+        truth["point_base_m"] = [round(float(c), 6) for c in pose_to_base.apply(p)]
+    truth["lasers"] = {
+        name: {
+            "visible": s.visible,
+            "why": s.why,
+            "range_m": None if s.depth_m is None else round(s.depth_m, 6),
+            "pixel": None if s.pixel is None else [round(float(c), 4) for c in s.pixel],
+        }
+        for name, s in spots.items()
+    }
+    return truth
+
+
+def record_sweep(
+    config: Config,
+    out: Path,
+    zones: int | None = None,
+    pairs: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Simulate one sweep of `config` and write it to `out`. Returns `out`."""
+    sweep = config.sweep
+    if zones is not None:
+        sweep = replace(sweep, zones=zones, poses_deg=())
+    pairs = pairs or sweep.pairs_per_zone
+    scene = scene_for(config)
+    nominal = config.rig.build()
+    rig = true_rig(config)
+    renderer = Renderer(scene, rig, config.sim)
+    sensor = config.sim.sensor
+    frame_ns = int(1e9 / sensor.frame_rate_hz)
+    exposure_ns = int(sensor.exposure_us * 1000)
+    names = list(rig.laser_names)
+    poses = sweep.poses()
+    clock_ns = 0
+    with RecordingWriter(out, nominal, device=f"sim-{scene.name}") as writer:
+        for index, (pan, tilt) in enumerate(poses):
+            frames = []
+            zone_t_s = clock_ns / 1e9
+            for nudge in nudge_offsets(pairs):
+                frame_pan = pan + nudge * sweep.nudge_deg
+                for lit in (False, True):
+                    t_s = clock_ns / 1e9
+                    rng = np.random.default_rng([config.sim.seed, index, len(frames)])
+                    image = renderer.render(
+                        frame_pan, tilt, {n: 1.0 for n in names} if lit else {}, t_s, rng
+                    )
+                    extra: dict = {
+                        "t_start_ns": clock_ns,
+                        "exposure_us": sensor.exposure_us,
+                        "laser_switch_ns": clock_ns - _SWITCH_LEAD_NS,
+                    }
+                    if nudge:
+                        extra["pan_deg"] = round(frame_pan, 9)
+                    frames.append((image, names if lit else [], extra))
+                    clock_ns += frame_ns
+            spots = renderer.spots(pan, tilt, zone_t_s)
+            truth = zone_truth(rig, spots, rig.camera_to_base(pan, tilt))
+            writer.add_zone(index, pan, tilt, frames, truth)
+            clock_ns += exposure_ns  # the unit moves between zones; the clock only needs to advance
+            if progress:
+                progress(index + 1, len(poses))
+    log.info("wrote %d zones of scene %s to %s", len(poses), scene.name, out)
+    return out

@@ -1,0 +1,292 @@
+"""The virtual camera: render what the rig's camera sees in a scene, lasers on or off.
+
+A frame is rendered in two steps. Per view (pan, tilt, and the time when movers are about) one ray
+per pixel is cast into the scene and shaded under room light; that image of photo-electrons is
+cached, because a zone's on and off frames share it. Per frame the ambient level flickers, the
+visible laser spots are added (``edge.sim.optics``), then shot and read noise, full-well clipping,
+the ADC, the output bit depth and, for a webcam, JPEG compression.
+
+The renderer works with the *true* rig (which may differ from the nominal one: see
+:func:`perturb_rig`); what ranging believes is the recording's business.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+
+from edge.config import RigErrorConfig, SimConfig
+from edge.rig import Laser, Pose, Rig
+from edge.sim import optics
+from edge.sim.scene import Scene, SceneGeometry
+
+# Shade of room light by surface orientation: floors get most of a ceiling light, ceilings least.
+_AMBIENT_BY_NORMAL_Z = (0.8, 0.2)  # factor = a + b · n_z
+# Luminance weights (R, G, B) of a grey sensor's view of room light; it sees 650 nm fully.
+_GREY_WEIGHTS_RGB = np.array([0.299, 0.587, 0.114])
+_MAX_LASER_DISTANCE_M = 50.0
+_CACHE_VIEWS = 8
+
+
+@dataclass(frozen=True)
+class SpotTruth:
+    """Where one laser meets the scene in one view, and whether the camera can see it."""
+
+    laser: str
+    visible: bool
+    why: str  # "visible", "no_hit", "behind_camera", "occluded", "faces_away", "outside_image"
+    point_world: np.ndarray | None = None  # (3,)
+    point_camera: np.ndarray | None = None  # (3,)
+    pixel: np.ndarray | None = None  # (2,) analytic projection of the spot's centre
+    face: int = -1
+    face_key: int = -1
+    surface_uv: np.ndarray | None = None  # (2,)
+    normal_world: np.ndarray | None = None  # (3,)
+
+    @property
+    def depth_m(self) -> float | None:
+        return None if self.point_camera is None else float(self.point_camera[2])
+
+
+@dataclass
+class _View:
+    camera_to_world: Pose
+    geometry: SceneGeometry
+    electrons: np.ndarray  # (H, W, C) float32: room light at the configured exposure, no flicker
+    vignette: np.ndarray  # (H, W) float32
+
+
+def perturb_rig(rig: Rig, error: RigErrorConfig) -> Rig:
+    """A rig as built, not as designed: each laser tilted and shifted at random, the focal length
+    scaled. Seeded by ``error.seed`` so that a test can build the same flawed rig twice."""
+    if error.laser_angle_deg == 0 and error.laser_offset_m == 0 and error.focal_scale == 0:
+        return rig
+    rng = np.random.default_rng([error.seed, 0x5EED])
+    lasers = []
+    for laser in rig.lasers:
+        d = laser.d
+        axis = np.cross(d, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        angle = math.radians(rng.normal() * error.laser_angle_deg)
+        # Rodrigues: rotate d about an axis ⟂ d.
+        d_new = d * math.cos(angle) + np.cross(axis, d) * math.sin(angle)
+        o_new = laser.o + rng.normal(size=3) * error.laser_offset_m
+        lasers.append(
+            replace(laser, origin_m=tuple(float(v) for v in o_new), direction=tuple(float(v) for v in d_new))
+        )
+    scale = 1.0 + rng.normal() * error.focal_scale
+    camera = replace(rig.camera, fx=rig.camera.fx * scale, fy=rig.camera.fy * scale)
+    return replace(rig, camera=camera, lasers=tuple(lasers))
+
+
+class Renderer:
+    """Renders frames of `rig`'s camera in `scene` with the optics and sensor of `sim`."""
+
+    def __init__(self, scene: Scene, rig: Rig, sim: SimConfig):
+        self.scene = scene
+        self.rig = rig
+        self.sim = sim
+        cam = rig.camera
+        self.channels = 3 if sim.sensor.colour else 1
+        v, u = np.mgrid[0 : cam.height, 0 : cam.width]
+        self._pixel_rays = cam.rays(np.stack([u, v], axis=-1).reshape(-1, 2).astype(np.float64))
+        # cos⁴ fall-off of a simple lens, the same for room light and spots.
+        cos = self._pixel_rays[:, 2].reshape(cam.height, cam.width)
+        self._vignette = (cos**4 if sim.optics.vignetting else np.ones_like(cos)).astype(np.float32)
+        self._base_to_world = scene.base_to_world()
+        self._views: dict[tuple, _View] = {}
+        exposure_ms = sim.sensor.exposure_us / 1000.0
+        self._ambient_e = sim.ambient.white_e_per_ms * exposure_ms
+        self._spot_e_at_1m = sim.beam.e_per_ms_at_1m * exposure_ms
+        response = np.array(sim.beam.response_bgr)
+        self._laser_response = response if self.channels == 3 else np.array([1.0])
+        self._dn_per_e = (2**sim.sensor.adc_bits - 1) / sim.sensor.full_well_e * sim.sensor.analogue_gain
+
+    # --- geometry -----------------------------------------------------------------------------
+
+    def camera_to_world(self, pan_deg: float, tilt_deg: float) -> Pose:
+        return self._base_to_world.compose(self.rig.camera_to_base(pan_deg, tilt_deg))
+
+    def _view(self, pan_deg: float, tilt_deg: float, t_s: float) -> _View:
+        moving = bool(self.scene.movers)
+        key = (round(pan_deg, 9), round(tilt_deg, 9), t_s if moving else None)
+        view = self._views.get(key)
+        if view is None:
+            if len(self._views) >= _CACHE_VIEWS:
+                self._views.pop(next(iter(self._views)))
+            view = self._views[key] = self._render_view(pan_deg, tilt_deg, t_s)
+        return view
+
+    def _render_view(self, pan_deg: float, tilt_deg: float, t_s: float) -> _View:
+        cam = self.rig.camera
+        pose = self.camera_to_world(pan_deg, tilt_deg)
+        geometry = self.scene.at(t_s)
+        hits = geometry.cast(pose.t, pose.rotate(self._pixel_rays))
+        albedo, _, _ = geometry.material(hits.face)
+        texture = geometry.texture(hits.face, hits.surface_uv)
+        light = _AMBIENT_BY_NORMAL_Z[0] + _AMBIENT_BY_NORMAL_Z[1] * hits.normal[:, 2]
+        radiance = albedo * (texture * np.where(hits.hit, light, 0.0))[:, None]  # (N, 3) RGB
+        if self.channels == 3:
+            img = radiance[:, ::-1]  # BGR, as OpenCV reads colour
+        else:
+            img = (radiance @ _GREY_WEIGHTS_RGB)[:, None]
+        img = img.reshape(cam.height, cam.width, self.channels) * self._ambient_e
+        img *= self._vignette[..., None]
+        return _View(pose, geometry, img.astype(np.float32), self._vignette)
+
+    def spots(self, pan_deg: float, tilt_deg: float, t_s: float = 0.0) -> dict[str, SpotTruth]:
+        """Where each laser meets the scene in this view, and whether the camera sees it."""
+        view = self._view(pan_deg, tilt_deg, t_s)
+        return {laser.name: self._spot(view, laser) for laser in self.rig.lasers}
+
+    def _spot(self, view: _View, laser: Laser) -> SpotTruth:
+        pose, geometry = view.camera_to_world, view.geometry
+        origin = pose.apply(laser.o)
+        beam = pose.rotate(laser.d)
+        hit = geometry.cast(origin, beam[None, :], _MAX_LASER_DISTANCE_M)
+        if not hit.hit[0]:
+            return SpotTruth(laser.name, False, "no_hit")
+        point, normal = hit.point[0], hit.normal[0]
+        face = int(hit.face[0])
+        common = dict(
+            point_world=point,
+            face=face,
+            face_key=int(geometry.face_key(hit.face)[0]),
+            surface_uv=hit.surface_uv[0],
+            normal_world=normal,
+        )
+        p_cam = pose.inverse().apply(point)
+        if p_cam[2] <= 1e-3:
+            return SpotTruth(laser.name, False, "behind_camera", point_camera=p_cam, **common)
+        pixel = self.rig.camera.project(p_cam)
+        common.update(point_camera=p_cam, pixel=pixel)
+        to_point = point - pose.t
+        dist = float(np.linalg.norm(to_point))
+        if float(normal @ -to_point) <= 0.0:
+            return SpotTruth(laser.name, False, "faces_away", **common)
+        sight = geometry.cast(pose.t, (to_point / dist)[None, :], dist)
+        if sight.hit[0] and sight.distance[0] < dist - max(1e-3, 1e-4 * dist):
+            return SpotTruth(laser.name, False, "occluded", **common)
+        if not self.rig.camera.contains(pixel):
+            return SpotTruth(laser.name, False, "outside_image", **common)
+        return SpotTruth(laser.name, True, "visible", **common)
+
+    # --- photometry ---------------------------------------------------------------------------
+
+    def _spot_image(self, view: _View, truth: SpotTruth) -> optics.SpotImage | None:
+        cam, sim = self.rig.camera, self.sim
+        pose = view.camera_to_world
+        laser = self.rig.laser(truth.laser)
+        beam = pose.rotate(laser.d)
+        normal = truth.normal_world
+        to_camera = pose.t - truth.point_world
+        dist = float(np.linalg.norm(to_camera))
+        travelled = float(np.linalg.norm(truth.point_world - pose.apply(laser.o)))
+        albedo, gloss, shininess = view.geometry.material(np.array([truth.face]))
+        texture = float(view.geometry.texture(np.array([truth.face]), truth.surface_uv[None])[0])
+        fraction = optics.reflected_fraction(
+            float(albedo[0, 0]) * texture, float(gloss[0]), float(shininess[0]), beam, normal, to_camera / dist
+        )
+        u, v = truth.pixel
+        vig = float(self._vignette[min(max(int(round(v)), 0), cam.height - 1), min(max(int(round(u)), 0), cam.width - 1)])
+        total = self._spot_e_at_1m * fraction * vig / dist**2
+        sigma = 0.5 * optics.beam_radius(sim.beam.waist_m, sim.beam.divergence_mrad * 1e-3, travelled)
+        axis1, axis2, sigmas = optics.surface_footprint(beam, normal, sigma)
+        to_cam = pose.inverse()
+        p_cam = truth.point_camera
+        h = 1e-4
+        j1 = (cam.project(to_cam.apply(truth.point_world + h * axis1)) - truth.pixel) / h
+        j2 = (cam.project(to_cam.apply(truth.point_world + h * axis2)) - truth.pixel) / h
+        defocus = optics.defocus_diameter_px(
+            cam.fx, sim.optics.focal_length_mm, sim.optics.f_number, sim.optics.focus_m, float(p_cam[2])
+        )
+        cov = optics.image_covariance(np.stack([j1, j2], axis=1), sigmas, sim.optics.psf_sigma_px, defocus)
+        rng = None
+        if sim.beam.speckle > 0:
+            cell = sim.beam.speckle_cell_m
+            q = np.floor(truth.surface_uv / cell).astype(np.int64)
+            rng = np.random.default_rng([sim.seed & 0xFFFFFFFF, truth.face_key & 0xFFFFFFFF, int(q[0]) & 0xFFFFFFFF, int(q[1]) & 0xFFFFFFFF])
+        return optics.render_spot(
+            truth.pixel,
+            cov,
+            total,
+            cam.width,
+            cam.height,
+            rng,
+            optics.SPECKLE_CONTRAST_F2 * sim.beam.speckle,
+            sim.optics.f_number / 2.0,
+        )
+
+    def render_electrons(
+        self,
+        pan_deg: float,
+        tilt_deg: float,
+        lasers_on: Mapping[str, float | np.ndarray],
+        t_s: float = 0.0,
+        ambient_scale: float = 1.0,
+    ) -> np.ndarray:
+        """Mean photo-electrons per pixel (H, W, C) float32, before noise and clipping.
+
+        `lasers_on` maps a laser's name to the fraction of the exposure it was on: a number, or an
+        (H,) array with one fraction per row (a rolling shutter sees a switch mid-frame).
+        """
+        view = self._view(pan_deg, tilt_deg, t_s)
+        img = view.electrons * np.float32(ambient_scale)
+        for name, fraction in lasers_on.items():
+            frac = np.asarray(fraction, dtype=np.float64)
+            if frac.ndim == 0 and float(frac) <= 0.0:
+                continue
+            truth = self._spot(view, self.rig.laser(name))
+            if not truth.visible:
+                continue
+            spot = self._spot_image(view, truth)
+            if spot is None:
+                continue
+            h, w = spot.electrons.shape
+            e = spot.electrons
+            e = e * (frac[spot.y0 : spot.y0 + h, None] if frac.ndim == 1 else float(frac))
+            img[spot.y0 : spot.y0 + h, spot.x0 : spot.x0 + w, :] += (
+                e[..., None] * self._laser_response
+            ).astype(np.float32)
+        return img
+
+    def render(
+        self,
+        pan_deg: float,
+        tilt_deg: float,
+        lasers_on: Mapping[str, float | np.ndarray],
+        t_s: float,
+        rng: np.random.Generator,
+        noise: bool = True,
+    ) -> np.ndarray:
+        """A frame as the camera delivers it: (H, W, 3) BGR or (H, W) grey, uint8 or uint16."""
+        flicker = 1.0 + self.sim.ambient.flicker * (2.0 * rng.random() - 1.0) if noise else 1.0
+        electrons = self.render_electrons(pan_deg, tilt_deg, lasers_on, t_s, flicker)
+        return self.digitise(electrons, rng if noise else None)
+
+    def digitise(self, electrons: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+        """Photo-electrons → the frame the camera delivers (noise when `rng` is given)."""
+        sensor = self.sim.sensor
+        e = electrons
+        if rng is not None:
+            # Shot noise (Gaussian approximation of Poisson: the counts here are large) + read noise.
+            sd = np.sqrt(np.maximum(e, 0.0) + np.float32(sensor.read_noise_e**2))
+            e = e + sd * rng.standard_normal(e.shape, dtype=np.float32)
+        e = np.clip(e, 0.0, sensor.full_well_e)
+        top = 2**sensor.adc_bits - 1
+        dn = np.clip(np.rint(e * np.float32(self._dn_per_e)), 0, top)
+        if sensor.output_bits == 8:
+            out = (dn * (255.0 / top)).round().astype(np.uint8)
+        else:
+            # 16-bit PNGs hold the sensor's values scaled to the full 16-bit range (geometry.md).
+            out = (dn * (65535.0 / top)).round().astype(np.uint16)
+        if out.shape[-1] == 1:
+            out = out[..., 0]
+        if sensor.jpeg_quality:
+            ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, sensor.jpeg_quality])
+            out = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+        return out
