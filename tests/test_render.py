@@ -1,0 +1,238 @@
+"""The virtual camera against geometry: spots where the projection says, hidden spots absent,
+speckle of the right size that stays put, and a sensor that behaves like one."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edge.config import Config, RigErrorConfig, load_config
+from edge.rig import Laser, Rig, default_rig
+from edge.sim import optics
+from edge.sim.render import Renderer, perturb_rig
+from edge.sim.scene import load_scene
+
+
+def _quiet(config: Config, **sim_changes) -> Config:
+    """No room light, no speckle: the spot alone, for checking geometry."""
+    sim = config.sim
+    sim = replace(
+        sim,
+        ambient=replace(sim.ambient, white_e_per_ms=0.0, flicker=0.0),
+        beam=replace(sim.beam, speckle=0.0),
+        **sim_changes,
+    )
+    return replace(config, sim=sim)
+
+
+def _centroid(img: np.ndarray, centre: np.ndarray, radius: int) -> np.ndarray:
+    u0, v0 = int(round(centre[0])), int(round(centre[1]))
+    win = img[v0 - radius : v0 + radius + 1, u0 - radius : u0 + radius + 1].astype(np.float64)
+    vv, uu = np.mgrid[v0 - radius : v0 + radius + 1, u0 - radius : u0 + radius + 1]
+    return np.array([(win * uu).sum() / win.sum(), (win * vv).sum() / win.sum()])
+
+
+def _laser_channel(img: np.ndarray) -> np.ndarray:
+    return img[..., -1] if img.ndim == 3 else img  # red of BGR (or the grey value)
+
+
+@pytest.mark.parametrize(
+    ("config_file", "scene"),
+    [("sim.toml", "office"), ("sim.toml", "kitchen"), ("sim-webcam.toml", "office")],
+)
+def test_noiseless_spot_centroids_match_the_analytic_projection(
+    repo: Path, config_file: str, scene: str
+) -> None:
+    config = _quiet(load_config(repo / "config" / config_file))
+    renderer = Renderer(load_scene(scene), config.rig.build(), config.sim)
+    checked = 0
+    worst = 0.0
+    for pan in np.arange(0.0, 360.0, 22.5):
+        for tilt in (0.0, -12.0):
+            for name, truth in renderer.spots(pan, tilt).items():
+                if not truth.visible or not renderer.rig.camera.contains(truth.pixel, margin=8):
+                    continue
+                # One laser at a time: at 5 m two spots are only a few pixels apart.
+                img = _laser_channel(renderer.render_electrons(pan, tilt, {name: 1.0}))
+                got = _centroid(img, truth.pixel, 6)
+                worst = max(worst, float(np.linalg.norm(got - truth.pixel)))
+                checked += 1
+    assert checked >= 40
+    assert worst < 0.05, f"worst centroid error {worst:.4f} px over {checked} spots"
+
+
+def test_digitised_16_bit_frame_keeps_the_centroid(repo: Path) -> None:
+    base = load_config(repo / "config" / "sim.toml")
+    config = _quiet(base, sensor=replace(base.sim.sensor, output_bits=16, read_noise_e=0.0))
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    truth = renderer.spots(45.0, 0.0)["center"]
+    frame = renderer.render(45.0, 0.0, {"center": 1.0}, 0.0, np.random.default_rng(0), noise=False)
+    assert frame.dtype == np.uint16 and frame.shape == (480, 640, 3)
+    got = _centroid(_laser_channel(frame), truth.pixel, 6)
+    assert np.linalg.norm(got - truth.pixel) < 0.05
+
+
+def _occluder_scene(tmp_path: Path) -> Path:
+    """A room with a thin pole that blocks the camera's view of the lasers' spots on the far wall
+    but not the beams themselves (the lasers sit 3.5 cm to the camera's right)."""
+    path = tmp_path / "pole.toml"
+    path.write_text(
+        'name = "pole"\nheight_m = 2.5\noutline_m = [[0, 0], [6, 0], [6, 4], [0, 4]]\n'
+        "[device]\nposition_m = [1.0, 2.0, 1.0]\nyaw_deg = 0.0\n"
+        # Base y = -camera x: the sight line to a spot 3 m ahead passes x_cam ≈ 0.0175 at 1.5 m.
+        '[[boxes]]\nname = "pole"\ncenter_m = [2.5, 1.983]\nsize_m = [0.02, 0.016, 2.4]\nmaterial = "wood"\n'
+    )
+    return path
+
+
+def test_spots_hidden_behind_an_obstacle_are_absent(repo: Path, tmp_path: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml")
+    renderer = Renderer(load_scene(str(_occluder_scene(tmp_path))), config.rig.build(), config.sim)
+    spots = renderer.spots(0.0, 0.0)
+    assert spots["center"].why == "occluded"
+    assert spots["center"].pixel is not None
+    on = renderer.render_electrons(0.0, 0.0, {"center": 1.0})
+    off = renderer.render_electrons(0.0, 0.0, {})
+    assert np.array_equal(on, off)
+    # Control: without the pole the same spot is visible and lit.
+    open_room = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    assert open_room.spots(-90.0, 0.0)["center"].visible
+
+
+def test_spots_beyond_the_image_are_absent(repo: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml")
+    wide = Laser("wide", (0.035, 0.0, 0.0), (math.sin(math.radians(40)), 0.0, math.cos(math.radians(40))))
+    rig = Rig(config.rig.build().camera, (default_rig().lasers[0], wide))
+    renderer = Renderer(load_scene("office"), rig, config.sim)
+    truth = renderer.spots(90.0, 0.0)["wide"]
+    assert truth.why == "outside_image" and not truth.visible
+    assert truth.pixel[0] > rig.camera.width
+    on = renderer.render_electrons(90.0, 0.0, {"wide": 1.0})
+    assert np.array_equal(on, renderer.render_electrons(90.0, 0.0, {}))
+
+
+def test_doorway_beam_is_lost_beyond_the_working_range(repo: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml")
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    pans = [p for p in np.arange(0, 360, 5.625) if (renderer.spots(p, 0.0)["center"].depth_m or 0) > 10]
+    assert pans, "the office's doorway should let some beams out"
+
+
+def _speckle_jitter(renderer: Renderer, pans: np.ndarray, name: str = "center") -> np.ndarray:
+    errors = []
+    for pan in pans:
+        truth = renderer.spots(pan, 0.0)[name]
+        img = _laser_channel(renderer.render_electrons(pan, 0.0, {name: 1.0}))
+        errors.append(_centroid(img, truth.pixel, 7) - truth.pixel)
+    return np.array(errors)
+
+
+def test_speckle_shifts_the_centroid_by_about_a_tenth_of_a_pixel(repo: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml")
+    config = replace(config, sim=replace(config.sim, ambient=replace(config.sim.ambient, white_e_per_ms=0.0)))
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    # The west wall, squarely, nudged a few PTU positions at a time: fresh speckle each view.
+    errors = _speckle_jitter(renderer, -90.0 + 0.0514 * np.arange(60))
+    spread = errors.std(axis=0)
+    # geometry: 0.1 px at 1.3 m is ~0.5 % of range for the 3.5 cm baseline — the thesis rig's floor.
+    assert 0.04 < spread[0] < 0.2 and 0.04 < spread[1] < 0.2, spread
+    assert np.abs(errors.mean(axis=0)).max() < 0.06  # speckle scatters, it does not bias
+
+
+def test_speckle_stays_put_while_the_spot_does_and_changes_when_it_moves(repo: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml")
+    config = replace(config, sim=replace(config.sim, ambient=replace(config.sim.ambient, white_e_per_ms=0.0)))
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    a = renderer.render_electrons(-90.0, 0.0, {"center": 1.0})
+    b = renderer.render_electrons(-90.0, 0.0, {"center": 1.0})
+    assert np.array_equal(a, b)
+    shifts = _speckle_jitter(renderer, np.array([-90.0, -90.0 + 0.0514]))
+    assert np.linalg.norm(shifts[0] - shifts[1]) > 1e-3  # a one-position nudge: new speckle
+
+
+def test_photon_noise_has_the_right_size(repo: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml")
+    config = replace(config, sim=replace(config.sim, ambient=replace(config.sim.ambient, flicker=0.0)))
+    config = replace(config, sim=replace(config.sim, sensor=replace(config.sim.sensor, output_bits=16)))
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    rng = np.random.default_rng(3)
+    f1 = renderer.render(-90.0, 0.0, {}, 0.0, rng).astype(np.float64)
+    f2 = renderer.render(-90.0, 0.0, {}, 0.0, rng).astype(np.float64)
+    mean_e = renderer.render_electrons(-90.0, 0.0, {})[..., 2]
+    sensor = config.sim.sensor
+    dn16_per_e = (2**sensor.adc_bits - 1) / sensor.full_well_e * 65535.0 / (2**sensor.adc_bits - 1)
+    expected = np.sqrt(2.0 * (mean_e.mean() + sensor.read_noise_e**2)) * dn16_per_e
+    measured = (f1[..., 2] - f2[..., 2]).std()
+    assert measured == pytest.approx(expected, rel=0.15)
+
+
+def test_flicker_changes_the_room_light_between_frames(repo: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml")
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    rng = np.random.default_rng(1)
+    means = [renderer.render(0.0, 0.0, {}, 0.0, rng).mean() for _ in range(6)]
+    spread = (max(means) - min(means)) / np.mean(means)
+    assert 0.005 < spread < 2 * 2 * config.sim.ambient.flicker
+
+
+def test_output_formats(repo: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml", ["sim.sensor.colour=false"])
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    grey = renderer.render(0.0, 0.0, {"center": 1.0}, 0.0, np.random.default_rng(0))
+    assert grey.shape == (480, 640) and grey.dtype == np.uint8
+    webcam = load_config(repo / "config" / "sim-webcam.toml")
+    frame = Renderer(load_scene("office"), webcam.rig.build(), webcam.sim).render(
+        0.0, 0.0, {"center": 1.0}, 0.0, np.random.default_rng(0)
+    )
+    assert frame.shape == (288, 352, 3) and frame.dtype == np.uint8
+
+
+def test_saturated_spots_clip_at_full_scale(repo: Path) -> None:
+    config = load_config(repo / "config" / "sim.toml", ["sim.beam.e_per_ms_at_1m=1e6"])
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    frame = renderer.render(-90.0, 0.0, {"center": 1.0}, 0.0, np.random.default_rng(0))
+    assert frame[..., 2].max() == 255
+
+
+def test_rolling_shutter_row_fractions_half_light_a_spot(repo: Path) -> None:
+    config = _quiet(load_config(repo / "config" / "sim.toml"))
+    renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
+    truth = renderer.spots(-90.0, 0.0)["center"]
+    full = renderer.render_electrons(-90.0, 0.0, {"center": 1.0})[..., 2].sum()
+    rows = np.zeros(480)
+    rows[: int(math.floor(truth.pixel[1] + 0.5))] = 1.0  # off from the spot's middle row on
+    part = renderer.render_electrons(-90.0, 0.0, {"center": rows})[..., 2].sum()
+    assert 0.2 * full < part < 0.8 * full
+
+
+def test_perturbed_rig_is_seeded_and_of_the_asked_size() -> None:
+    rig = default_rig()
+    error = RigErrorConfig(laser_angle_deg=0.3, laser_offset_m=0.002, seed=7)
+    a, b = perturb_rig(rig, error), perturb_rig(rig, error)
+    assert a == b
+    assert perturb_rig(rig, replace(error, seed=8)) != a
+    angles = [
+        math.degrees(math.acos(min(1.0, float(x.d @ y.d)))) for x, y in zip(rig.lasers, a.lasers)
+    ]
+    assert all(0.0 < angle < 1.5 for angle in angles)
+    offsets = [np.abs(x.o - y.o).max() for x, y in zip(rig.lasers, a.lasers)]
+    assert all(0.0 < off < 0.01 for off in offsets)
+    assert perturb_rig(rig, RigErrorConfig()) is rig
+
+
+def test_beam_optics_helpers() -> None:
+    assert optics.beam_radius(0.001, 0.0006, 0.0) == pytest.approx(0.001)
+    assert optics.beam_radius(0.001, 0.0006, 5.0) == pytest.approx(math.hypot(0.001, 0.003))
+    assert optics.defocus_diameter_px(530, 3.04, 2.0, 1.2, 1.2) == 0.0
+    n = np.array([0.0, 0.0, -1.0])
+    beam = np.array([0.0, 0.0, 1.0])
+    square = optics.reflected_fraction(1.0, 0.0, 30.0, beam, n, -beam)
+    assert square == pytest.approx(1.0)
+    slanted_n = np.array([0.0, -math.sin(0.5), -math.cos(0.5)])
+    assert optics.reflected_fraction(1.0, 0.0, 30.0, beam, slanted_n, -beam) == pytest.approx(math.cos(0.5) ** 2)
+    glossy = optics.reflected_fraction(1.0, 0.3, 60.0, beam, n, -beam)
+    assert glossy > 5.0  # a glossy surface seen squarely flashes back
