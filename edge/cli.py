@@ -130,6 +130,15 @@ def cmd_config(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from edge import bench
+
+    config = _config(args)
+    lines = {"render": bench.bench_render}[args.what](config, repeats=args.repeats)
+    print("\n".join(lines))
+    return 0
+
+
 def _usage(message: str) -> EdgeError:
     from edge.errors import UsageError
 
@@ -149,6 +158,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("config", help="check a configuration file and summarise it")
     _common(p)
     p.set_defaults(func=cmd_config)
+
+    p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
+    _common(p)
+    p.add_argument("what", choices=["render"], help="what to time")
+    p.add_argument("--repeats", type=int, default=20)
+    p.set_defaults(func=cmd_bench)
 
     sim = sub.add_parser("sim", help="the simulator").add_subparsers(
         dest="sim_command", required=True, parser_class=_Parser

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -57,7 +57,9 @@ class _View:
     camera_to_world: Pose
     geometry: SceneGeometry
     electrons: np.ndarray  # (H, W, C) float32: room light at the configured exposure, no flicker
-    vignette: np.ndarray  # (H, W) float32
+    # Per laser: where its spot is and its image; both fixed for a view (speckle stays put), so a
+    # frame of a cached view costs only the noise.
+    spots: dict[str, tuple[SpotTruth, optics.SpotImage | None]] = field(default_factory=dict)
 
 
 def perturb_rig(rig: Rig, error: RigErrorConfig) -> Rig:
@@ -136,12 +138,20 @@ class Renderer:
             img = (radiance @ _GREY_WEIGHTS_RGB)[:, None]
         img = img.reshape(cam.height, cam.width, self.channels) * self._ambient_e
         img *= self._vignette[..., None]
-        return _View(pose, geometry, img.astype(np.float32), self._vignette)
+        return _View(pose, geometry, img.astype(np.float32))
 
     def spots(self, pan_deg: float, tilt_deg: float, t_s: float = 0.0) -> dict[str, SpotTruth]:
         """Where each laser meets the scene in this view, and whether the camera sees it."""
         view = self._view(pan_deg, tilt_deg, t_s)
-        return {laser.name: self._spot(view, laser) for laser in self.rig.lasers}
+        return {laser.name: self._lit_spot(view, laser.name)[0] for laser in self.rig.lasers}
+
+    def _lit_spot(self, view: _View, name: str) -> tuple[SpotTruth, optics.SpotImage | None]:
+        cached = view.spots.get(name)
+        if cached is None:
+            truth = self._spot(view, self.rig.laser(name))
+            image = self._spot_image(view, truth) if truth.visible else None
+            cached = view.spots[name] = (truth, image)
+        return cached
 
     def _spot(self, view: _View, laser: Laser) -> SpotTruth:
         pose, geometry = view.camera_to_world, view.geometry
@@ -240,10 +250,7 @@ class Renderer:
             frac = np.asarray(fraction, dtype=np.float64)
             if frac.ndim == 0 and float(frac) <= 0.0:
                 continue
-            truth = self._spot(view, self.rig.laser(name))
-            if not truth.visible:
-                continue
-            spot = self._spot_image(view, truth)
+            spot = self._lit_spot(view, name)[1]
             if spot is None:
                 continue
             h, w = spot.electrons.shape
