@@ -29,7 +29,7 @@ import numpy as np
 
 from edge.errors import EdgeError, RecordingError
 from edge.rig import CameraModel, Laser, Mount, Rig
-from edge.schema import FieldError
+from edge.schema import FieldError, describe
 
 FORMAT = "edge-sweep/1"
 SWEEP_JSON = "sweep.json"
@@ -119,20 +119,6 @@ def _show(text: str) -> str:
     return text if text.isprintable() else repr(text)
 
 
-def _describe(value: Any) -> str:
-    if isinstance(value, bool):
-        return f"boolean {str(value).lower()}"
-    if isinstance(value, (int, float)):
-        return f"number {value}"
-    if isinstance(value, str):
-        return f"string {value[:37] + '...' if len(value) > 40 else value!r}"
-    if isinstance(value, Mapping):
-        return "an object"
-    if isinstance(value, list):
-        return f"a list of {len(value)}"
-    return "null" if value is None else type(value).__name__
-
-
 def _frame_where(index: int, file: str) -> str:
     return f"zone {index}, frame {_show(file)}"
 
@@ -163,35 +149,35 @@ class _Checker:
 
     def table(self, value: Any, where: str) -> Mapping[str, Any]:
         if not isinstance(value, Mapping):
-            self.fail(where, f"expected an object, got {_describe(value)}")
+            self.fail(where, f"expected an object, got {describe(value, 'an object')}")
         return value
 
     def array(self, value: Any, where: str) -> list[Any]:
         if not isinstance(value, list):
-            self.fail(where, f"expected a list, got {_describe(value)}")
+            self.fail(where, f"expected a list, got {describe(value, 'an object')}")
         return value
 
     def number(self, value: Any, where: str) -> float:
         # bool is an int in Python but never a number in JSON.
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(where, f"expected a number, got {_describe(value)}")
+            self.fail(where, f"expected a number, got {describe(value, 'an object')}")
         if not math.isfinite(value):
             self.fail(where, f"expected a finite number, got {value}")
         return float(value)
 
     def integer(self, value: Any, where: str) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            self.fail(where, f"expected a whole number, got {_describe(value)}")
+            self.fail(where, f"expected a whole number, got {describe(value, 'an object')}")
         return value
 
     def string(self, value: Any, where: str) -> str:
         if not isinstance(value, str):
-            self.fail(where, f"expected a string, got {_describe(value)}")
+            self.fail(where, f"expected a string, got {describe(value, 'an object')}")
         return value
 
     def boolean(self, value: Any, where: str) -> bool:
         if not isinstance(value, bool):
-            self.fail(where, f"expected true or false, got {_describe(value)}")
+            self.fail(where, f"expected true or false, got {describe(value, 'an object')}")
         return value
 
     def numbers(self, value: Any, where: str, n: int) -> tuple[float, ...]:
@@ -407,7 +393,7 @@ def read_recording(path: str | Path, check_images: bool = True) -> Recording:
     except UnicodeDecodeError:
         chk.fail("", "not valid JSON (not UTF-8 text)")
     if not isinstance(doc, dict):
-        chk.fail("", f"expected a JSON object, got {_describe(doc)}")
+        chk.fail("", f"expected a JSON object, got {describe(doc, 'an object')}")
     fmt = chk.string(chk.get(doc, "format", "format"), "format")
     if fmt != FORMAT:
         chk.fail("format", f"expected {FORMAT!r}, got {fmt!r}")

@@ -85,7 +85,7 @@ class _Loader:
 
     def table(self, cls: type[T], data: Any, path: str) -> T:
         if not isinstance(data, Mapping):
-            self.fail(path, f"expected a table, got {_describe(data)}")
+            self.fail(path, f"expected a table, got {describe(data)}")
         hints = typing.get_type_hints(cls)
         fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
         unknown = [k for k in data if k not in fields]
@@ -131,7 +131,7 @@ class _Loader:
             return value
         if origin is tuple:
             if not isinstance(value, (list, tuple)):
-                self.fail(path, f"expected a list, got {_describe(value)}")
+                self.fail(path, f"expected a list, got {describe(value)}")
             if len(args) == 2 and args[1] is Ellipsis:
                 return tuple(
                     self.value(args[0], item, f"{path}[{i}]") for i, item in enumerate(value)
@@ -143,28 +143,30 @@ class _Loader:
             return self.table(tp, value, path)
         if tp is bool:
             if not isinstance(value, bool):
-                self.fail(path, f"expected true or false, got {_describe(value)}")
+                self.fail(path, f"expected true or false, got {describe(value)}")
             return value
         if tp is int:
             if isinstance(value, bool) or not isinstance(value, int):
-                self.fail(path, f"expected a whole number, got {_describe(value)}")
+                self.fail(path, f"expected a whole number, got {describe(value)}")
             return value
         if tp is float:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                self.fail(path, f"expected a number, got {_describe(value)}")
+                self.fail(path, f"expected a number, got {describe(value)}")
             if not math.isfinite(value):
                 self.fail(path, f"expected a finite number, got {value}")
             return float(value)
         if tp is str:
             if not isinstance(value, str):
-                self.fail(path, f"expected a string, got {_describe(value)}")
+                self.fail(path, f"expected a string, got {describe(value)}")
             return value
         if tp is Any:
             return value
         raise TypeError(f"schema: unsupported field type {tp!r} at {path}")  # a bug, not input
 
 
-def _describe(value: Any) -> str:
+def describe(value: Any, table: str = "a table") -> str:
+    """How a message names a wrong value: `number 3`, `string 'x'`, `a list of 2`, …; `table` is
+    the word for a mapping (TOML says table, JSON says object)."""
     if isinstance(value, bool):
         return f"boolean {str(value).lower()}"
     if isinstance(value, (int, float)):
@@ -173,7 +175,7 @@ def _describe(value: Any) -> str:
         shown = value if len(value) <= 40 else value[:37] + "..."
         return f"string {shown!r}"
     if isinstance(value, Mapping):
-        return "a table"
+        return table
     if isinstance(value, (list, tuple)):
         return f"a list of {len(value)}"
     if value is None:
