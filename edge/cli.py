@@ -130,6 +130,26 @@ def cmd_config(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_replay(args: argparse.Namespace) -> int:
+    from edge.recording import read_recording
+    from edge.replay import Replayer, format_score, replay_document, score
+
+    recording = read_recording(args.recording)
+    rig = recording.rig
+    if args.calibration:
+        from edge.calibration import read_calibration
+
+        rig = read_calibration(args.calibration).apply(rig)
+    replayer = Replayer(rig, args.estimator)
+    results = list(replayer.zones(recording, _progress("ranging")))
+    if args.json:
+        json.dump(replay_document(recording, results), sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        print(format_score(score(recording, results)))
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from edge import bench
 
@@ -158,6 +178,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("config", help="check a configuration file and summarise it")
     _common(p)
     p.set_defaults(func=cmd_config)
+
+    p = sub.add_parser("replay", help="range a recorded sweep again")
+    p.add_argument("recording", help="recording folder (edge-sweep/1)")
+    out = p.add_mutually_exclusive_group()
+    out.add_argument("--json", action="store_true", help="print the edge-ranges/1 document only")
+    out.add_argument("--score", action="store_true", help="per-zone table and error summary against truth (default)")
+    p.add_argument("--estimator", choices=["triangulate", "thesis"], default="triangulate")
+    p.add_argument("--calibration", metavar="FILE", help="calibration file from edge calibrate")
+    p.add_argument("-v", "--verbose", action="store_true")
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
     _common(p)

@@ -1,0 +1,377 @@
+"""From spots to a range you can trust: triangulation, assignment, fusion and honest statuses.
+
+Each laser is a known ray in the camera frame; the camera ray through its spot meets it where the
+light landed, so each found spot gives a depth (*triangulation*) with an uncertainty propagated from
+the spot's pixel uncertainty. The spots of several lasers are then *fused* into the reference
+laser's range through a local surface model (depth varying linearly across the lasers' hit points),
+which is checked against the measurements (χ²) before it is trusted. Candidates that fit no laser,
+or give inconsistent depths, are dropped; when the reference laser's spot cannot be told apart from
+another blob the zone is ``ambiguous``, never a guess.
+
+Statuses and fields follow ``shared/spec/geometry.md`` ("What a zone's result means").
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edge.rig import CameraModel, Laser, Rig
+from edge.vision import Candidate, SpotFinder
+
+OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT = "ok", "no_spot", "ambiguous", "out_of_range", "fault"
+STATUSES = (OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT)
+# χ² acceptance at 99 % for 1…6 degrees of freedom.
+_CHI2_99 = (6.63, 9.21, 11.34, 13.28, 15.09, 16.81)
+# Two spots' depths may differ across their separation by at most this slope (tan of the surface's
+# angle from facing the lasers squarely): 75° still counts as one surface.
+_MAX_SLOPE = math.tan(math.radians(75.0))
+
+
+@dataclass(frozen=True)
+class RangingConfig:
+    """Tuning of the triangulating estimator (``[ranging]`` in the config)."""
+
+    band_halfwidth_px: float = 3.0  # how far from its ideal path a spot may lie
+    min_snr: float = 6.0  # a spot's peak over the difference image's noise
+    # The spot position error that laser speckle adds, per distinct view (1 σ, px). 0.1 px is the
+    # order for a pointer seen at f/2; averaging views with different speckle divides it by √n.
+    speckle_px: float = 0.12
+    fuse: bool = True  # fuse the other lasers' depths into the reference's range
+    # How much a surface may depart from the fused model between two hit points, as a depth change
+    # (1 σ) per metre of their separation: a whiteboard on a wall, a skirting board, a book spine.
+    # It weighs far lasers less and keeps the fused σ honest when the model is only nearly right.
+    surface_sigma_per_m: float = 0.05
+
+
+@dataclass(frozen=True)
+class LaserMeasurement:
+    """One laser's spot and what it says about depth."""
+
+    laser: str
+    pixel: np.ndarray  # (2,) float64
+    sigma_px: float
+    point_m: np.ndarray  # (3,) where the beam meets the surface, camera frame
+    depth_m: float
+    sigma_m: float
+    snr: float
+    views: int  # distinct views (speckle patterns) averaged
+
+    def to_json(self) -> dict:
+        return {
+            "pixel": [round(float(c), 3) for c in self.pixel],
+            "sigma_px": round(self.sigma_px, 4),
+            "depth_m": round(self.depth_m, 5),
+            "sigma_m": round(self.sigma_m, 5),
+            "snr": round(self.snr, 1),
+            "views": self.views,
+        }
+
+
+@dataclass(frozen=True)
+class ZoneResult:
+    index: int
+    pan_deg: float
+    tilt_deg: float
+    status: str
+    range_m: float | None = None
+    sigma_m: float | None = None
+    point_m: np.ndarray | None = None
+    point_base_m: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    lasers: dict[str, LaserMeasurement] = field(default_factory=dict)
+    detail: str = ""  # why a zone is not ok, for people
+
+    def to_json(self) -> dict:
+        def vec(v: np.ndarray | None, nd: int = 5) -> list[float] | None:
+            return None if v is None else [round(float(c), nd) for c in v]
+
+        out: dict = {
+            "index": self.index,
+            "pan_deg": round(self.pan_deg, 6),
+            "tilt_deg": round(self.tilt_deg, 6),
+            "status": self.status,
+            "range_m": None if self.range_m is None else round(self.range_m, 5),
+            "sigma_m": None if self.sigma_m is None else round(self.sigma_m, 5),
+            "point_m": vec(self.point_m),
+            "point_base_m": vec(self.point_base_m),
+        }
+        if self.normal is not None:
+            out["normal"] = vec(self.normal, 4)
+        if self.lasers:
+            out["lasers"] = {name: m.to_json() for name, m in self.lasers.items()}
+        if self.detail:
+            out["detail"] = self.detail
+        return out
+
+
+# --- triangulation ----------------------------------------------------------------------------
+
+
+def triangulate(laser: Laser, camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
+    """Points (N, 3) on `laser`'s beam nearest to the camera rays through `pixels` (N, 2)."""
+    r = camera.rays(np.atleast_2d(pixels))
+    o, d = laser.o, laser.d
+    c = r @ d
+    s = (c * (r @ o) - d @ o) / np.maximum(1.0 - c * c, 1e-12)
+    return o + s[:, None] * d
+
+
+def measure(laser: Laser, camera: CameraModel, pixel: np.ndarray, sigma_px: float, snr: float, views: int) -> LaserMeasurement:
+    """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
+    h = 0.05
+    pts = triangulate(laser, camera, np.array([pixel, pixel + (h, 0.0), pixel + (0.0, h)]))
+    dz = (pts[1:, 2] - pts[0, 2]) / h
+    sigma_m = float(math.hypot(dz[0], dz[1]) * sigma_px)
+    return LaserMeasurement(laser.name, np.asarray(pixel, float), sigma_px, pts[0], float(pts[0, 2]), sigma_m, snr, views)
+
+
+# --- fusion -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Fusion:
+    range_m: float
+    sigma_m: float
+    point_m: np.ndarray
+    normal: np.ndarray | None
+    chi2: float
+    dof: int
+    used: tuple[LaserMeasurement, ...]  # the reference first
+
+    @property
+    def consistent(self) -> bool:
+        return self.dof == 0 or self.chi2 <= _CHI2_99[min(self.dof, len(_CHI2_99)) - 1]
+
+
+def fuse(
+    rig: Rig,
+    reference: LaserMeasurement,
+    others: Sequence[LaserMeasurement],
+    slopes: bool = True,
+    surface_sigma_per_m: float = 0.05,
+) -> Fusion:
+    """The reference laser's range from all measurements through a locally planar surface.
+
+    With `slopes`, the surface is z = a + g·(y − y_ref) + h·(x − x_ref) near the reference's point,
+    the slope terms kept only where the hit points spread enough to measure them (the thesis rig's
+    lasers lie in one vertical plane, so only g); without, it is z = a: a surface facing the camera
+    across the lasers, as walls and furniture fronts do in a level sweep. The reference beam is then
+    intersected with it.
+    """
+    ms = [reference, *others]
+    pts = np.array([m.point_m for m in ms])
+    z = pts[:, 2]
+    dx, dy = pts[:, 0] - pts[0, 0], pts[:, 1] - pts[0, 1]
+    model = surface_sigma_per_m * np.hypot(dx, dy)
+    w = 1.0 / (np.array([max(m.sigma_m, 1e-9) for m in ms]) ** 2 + model**2)
+    cols = [np.ones(len(ms))]
+    use_g = slopes and np.ptp(dy) >= 0.01
+    use_h = slopes and np.ptp(dx) >= 0.01
+    if use_g:
+        cols.append(dy)
+    if use_h:
+        cols.append(dx)
+    A = np.stack(cols, axis=1)
+    if A.shape[0] < A.shape[1]:  # too few points for the slopes: the reference alone
+        return Fusion(reference.depth_m, reference.sigma_m, reference.point_m, None, 0.0, 0, (reference,))
+    AtW = A.T * w
+    cov = np.linalg.inv(AtW @ A)
+    params = cov @ (AtW @ z)
+    resid = z - A @ params
+    chi2 = float((w * resid**2).sum())
+    dof = len(ms) - A.shape[1]
+    g = float(params[1]) if use_g else 0.0
+    h = float(params[1 + use_g]) if use_h else 0.0
+    laser = rig.laser(reference.laser)
+
+    def on_beam(p: np.ndarray) -> np.ndarray:
+        a_, g_, h_ = float(p[0]), (float(p[1]) if use_g else 0.0), (float(p[1 + use_g]) if use_h else 0.0)
+        c = a_ - g_ * pts[0, 1] - h_ * pts[0, 0]
+        o, d = laser.o, laser.d
+        s = (c - o[2] + g_ * o[1] + h_ * o[0]) / (d[2] - g_ * d[1] - h_ * d[0])
+        return o + s * d
+
+    point = on_beam(params)
+    # First-order propagation of the parameters' covariance to the reference's depth.
+    J = np.zeros(len(params))
+    for k in range(len(params)):
+        step = np.zeros(len(params))
+        step[k] = 1e-6 * max(1.0, abs(params[k]))
+        J[k] = (on_beam(params + step)[2] - point[2]) / step[k]
+    sigma = float(math.sqrt(max(J @ cov @ J, 0.0)))
+    normal = None
+    if use_g and use_h:
+        n = np.array([h, g, -1.0])
+        normal = n / np.linalg.norm(n)
+    return Fusion(float(point[2]), sigma, point, normal, chi2, dof, tuple(ms))
+
+
+def _pair_plausible(a: LaserMeasurement, b: LaserMeasurement) -> bool:
+    """Could two spots lie on one surface? Their depth change across their separation must be a
+    slope a surface can have while both lasers still light it."""
+    sep = float(np.linalg.norm((a.point_m - b.point_m)[:2]))
+    dz = abs(a.depth_m - b.depth_m) - 3.0 * math.hypot(a.sigma_m, b.sigma_m)
+    return dz <= _MAX_SLOPE * max(sep, 1e-3)
+
+
+def best_fusion(
+    rig: Rig,
+    reference: LaserMeasurement,
+    others: Mapping[str, Sequence[LaserMeasurement]],
+    surface_sigma_per_m: float = 0.05,
+) -> Fusion:
+    """The most informative consistent fusion of the reference with the other lasers' spots.
+
+    First the largest set of lasers whose depths agree on a surface facing the camera (z = a, the
+    strongest model, and the common case in a level sweep); failing that, all lasers on a sloped
+    plane, which has fewer checks; failing both, the reference alone. A set counts only if every
+    pair is plausible on one surface and χ² accepts it.
+    """
+    names = [n for n, ms in others.items() if ms]
+    for slopes in (False, True):
+        for k in range(len(names), 0, -1):
+            best: Fusion | None = None
+            for subset in itertools.combinations(names, k):
+                for choice in itertools.product(*(others[n] for n in subset)):
+                    group = [reference, *choice]
+                    if any(_same_blob(x, y) for x, y in itertools.combinations(group, 2)):
+                        continue
+                    if not all(_pair_plausible(reference, m) for m in choice):
+                        continue
+                    fusion = fuse(rig, reference, choice, slopes, surface_sigma_per_m)
+                    if fusion.dof > 0 and fusion.consistent and (best is None or fusion.chi2 < best.chi2):
+                        best = fusion
+            if best is not None:
+                return best
+            if slopes:
+                break  # a sloped plane is only worth it with every laser on it
+    return fuse(rig, reference, ())
+
+
+def _same_blob(a: LaserMeasurement, b: LaserMeasurement) -> bool:
+    return float(np.linalg.norm(a.pixel - b.pixel)) < 1.5
+
+
+# --- the estimator -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FrameGroup:
+    """Frames of one pose: laser-on frames (all with the same lasers on) and laser-off frames."""
+
+    on: Sequence[np.ndarray]
+    off: Sequence[np.ndarray]
+    lasers: tuple[str, ...]
+    view: tuple[float, float] = (0.0, 0.0)  # (pan, tilt) the frames were taken at
+
+
+@dataclass
+class _Track:
+    """One spot of one laser followed across frame groups."""
+
+    laser: str
+    found: list[Candidate]
+    views: set[tuple[float, float]]
+
+    def pixel(self, speckle_px: float = 0.0) -> np.ndarray:
+        """Weighted mean position; each sighting's weight counts its speckle too, which dominates
+        a bright spot's error and is the same for every sighting."""
+        w = np.array([1.0 / (max(c.sigma_px, 1e-4) ** 2 + speckle_px**2) for c in self.found])
+        return (np.array([c.pixel for c in self.found]) * w[:, None]).sum(axis=0) / w.sum()
+
+
+class Ranger:
+    """Ranges zones with the triangulating estimator for one rig."""
+
+    def __init__(self, rig: Rig, config: RangingConfig = RangingConfig()):
+        self.rig = rig
+        self.config = config
+        self.finder = SpotFinder(rig, config.band_halfwidth_px, config.min_snr)
+
+    def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:
+        """Range one zone from its frame groups; the result is for the zone's pose."""
+        rig = self.rig
+        ref = rig.reference.name
+        if not groups:
+            return ZoneResult(index, pan_deg, tilt_deg, FAULT, detail="no usable frame pair")
+        tracks = self._tracks(groups)
+        cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
+        refs = cands.get(ref, [])
+        if not refs:
+            return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
+        others = {n: ms for n, ms in cands.items() if n != ref}
+        if len(refs) == 1:
+            chosen = refs[0]
+        else:
+            # Several blobs on the reference's path: the one the other lasers agree with.
+            support = []
+            for r in refs:
+                f = best_fusion(rig, r, others, self.config.surface_sigma_per_m) if others else fuse(rig, r, ())
+                support.append((len(f.used) - 1 if f.dof > 0 or len(f.used) == 2 else 0, r))
+            support.sort(key=lambda s: -s[0])
+            if support[0][0] == 0 or support[0][0] == support[1][0]:
+                return self._result(
+                    index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                    detail=f"{len(refs)} blobs on the {ref} laser's path and nothing to tell them apart",
+                )
+            chosen = support[0][1]
+        fusion = (
+            best_fusion(rig, chosen, others, self.config.surface_sigma_per_m)
+            if self.config.fuse and others
+            else fuse(rig, chosen, ())
+        )
+        lo, hi = rig.range_limits_m
+        if not lo <= fusion.range_m <= hi:
+            return self._result(
+                index, pan_deg, tilt_deg, OUT_OF_RANGE, cands,
+                detail=f"{fusion.range_m:.2f} m is outside the working range {lo}-{hi} m",
+            )
+        base = rig.camera_to_base(pan_deg, tilt_deg).apply(fusion.point_m)
+        return ZoneResult(
+            index, pan_deg, tilt_deg, OK, fusion.range_m, fusion.sigma_m, fusion.point_m, base,
+            fusion.normal, {m.laser: m for m in fusion.used},
+        )
+
+    def _result(self, index, pan, tilt, status, cands, detail="") -> ZoneResult:
+        lasers = {n: ms[0] for n, ms in cands.items() if len(ms) == 1}
+        return ZoneResult(index, pan, tilt, status, lasers=lasers, detail=detail)
+
+    def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[_Track]]:
+        tracks: dict[str, list[_Track]] = {name: [] for name in self.rig.laser_names}
+        expected: dict[str, int] = {name: 0 for name in self.rig.laser_names}
+        for group in groups:
+            found = self.finder.find(group.on, group.off, group.lasers)
+            for name, cands in found.items():
+                expected[name] += 1
+                for cand in cands:
+                    for track in tracks[name]:
+                        if float(np.linalg.norm(track.pixel() - cand.pixel)) < 1.5:
+                            track.found.append(cand)
+                            track.views.add(group.view)
+                            break
+                    else:
+                        tracks[name].append(_Track(name, [cand], {group.view}))
+        # A laser's spot shows in (nearly) every group where the laser was on; a blob that shows
+        # once in several groups is flicker, a blinking light or noise.
+        out = {}
+        for name, ts in tracks.items():
+            need = max(1, math.ceil(expected[name] / 2))
+            kept = [t for t in ts if len(t.found) >= need]
+            kept.sort(key=lambda t: -np.mean([c.snr for c in t.found]))
+            out[name] = kept[:3]
+        return out
+
+    def _measure(self, track: _Track) -> LaserMeasurement:
+        views = len(track.views)
+        speckle = self.config.speckle_px
+        # Pixel noise averages over every sighting, speckle only over distinct views.
+        noise_var = np.mean([c.sigma_px**2 for c in track.found]) / len(track.found)
+        sigma_px = math.sqrt(noise_var + speckle**2 / views)
+        snr = float(np.mean([c.snr for c in track.found]))
+        pixel = track.pixel(speckle if views > 1 else 0.0)
+        return measure(self.rig.laser(track.laser), self.rig.camera, pixel, sigma_px, snr, views)
