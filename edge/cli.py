@@ -81,9 +81,25 @@ def cmd_sim_record(args: argparse.Namespace) -> int:
     if args.zones is not None and args.zones < 1:
         raise _usage("--zones must be >= 1")
     started = time.monotonic()
-    out = record_sweep(config, Path(args.out), args.zones, pairs, _progress("recording"))
+    if args.target:
+        from edge.sim.record import record_targets
+
+        distances = _distances(args.target, "--target")
+        out = record_targets(config, distances, Path(args.out), pairs, progress=_progress("recording"))
+    else:
+        out = record_sweep(config, Path(args.out), args.zones, pairs, _progress("recording"))
     print(f"wrote {out} in {time.monotonic() - started:.1f} s")
     return 0
+
+
+def _distances(text: str, option: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise _usage(f"{option}: expected distances in metres separated by commas, e.g. 0.5,1,2") from None
+    if not values or any(not (0.05 < v < 100.0) for v in values):
+        raise _usage(f"{option}: each distance must be between 0.05 and 100 m, got {text!r}")
+    return values
 
 
 def cmd_sim_show(args: argparse.Namespace) -> int:
@@ -205,6 +221,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--zones", type=int, help="number of zones (default: sweep.zones)")
     p.add_argument("--frames", type=int, help="frames per zone, even: off/on pairs (default: 2 × sweep.pairs_per_zone)")
     p.add_argument("--seed", type=int, help="noise and speckle seed (default: sim.seed)")
+    p.add_argument(
+        "--target",
+        metavar="D1,D2,...",
+        help="instead of a scene: zone i shows a flat target squarely at distance Di (m), for edge calibrate",
+    )
     p.set_defaults(func=cmd_sim_record)
 
     p = sim.add_parser("show", help="draw a recording's contact sheet (PNG)")

@@ -39,3 +39,9 @@ class HardwareError(EdgeError):
     """A part of the rig (camera, lasers, pan-tilt unit) did not deliver."""
 
     exit_code = 1
+
+
+class CalibrationError(EdgeError):
+    """A calibration cannot be fitted from the data given, or a calibration file is wrong."""
+
+    exit_code = 1

@@ -19,7 +19,7 @@ from edge.config import Config, resolve_path
 from edge.recording import RecordingWriter
 from edge.rig import Rig
 from edge.sim.render import Renderer, SpotTruth, perturb_rig
-from edge.sim.scene import Scene, load_scene, scene_dir
+from edge.sim.scene import DevicePlacement, Scene, SceneSpec, load_scene, scene_dir
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +68,20 @@ def zone_truth(rig: Rig, spots: dict[str, SpotTruth], pose_to_base) -> dict:
     return truth
 
 
+def flat_target_scene(distance_m: float, material: str = "paint-white") -> Scene:
+    """A flat wall squarely in front of the rig at pan 0, tilt 0, `distance_m` from the pan-tilt
+    axes along base x: the calibration target, and the simplest test of a range finder."""
+    width, back, height = 8.0, 1.0, 3.0
+    spec = SceneSpec(
+        name=f"target-{distance_m:g}m",
+        height_m=height,
+        outline_m=((-back, -width / 2), (distance_m, -width / 2), (distance_m, width / 2), (-back, width / 2)),
+        device=DevicePlacement((0.0, 0.0, 1.5)),
+        wall_material=material,
+    )
+    return Scene(spec, f"<flat target at {distance_m:g} m>")
+
+
 def record_sweep(
     config: Config,
     out: Path,
@@ -79,23 +93,47 @@ def record_sweep(
     sweep = config.sweep
     if zones is not None:
         sweep = replace(sweep, zones=zones, poses_deg=())
-    pairs = pairs or sweep.pairs_per_zone
     scene = scene_for(config)
-    nominal = config.rig.build()
+    renderer = Renderer(scene, true_rig(config), config.sim)
+    views = [(renderer, pan, tilt) for pan, tilt in sweep.poses()]
+    return _record(config, out, views, pairs or sweep.pairs_per_zone, f"sim-{scene.name}", progress)
+
+
+def record_targets(
+    config: Config,
+    distances_m: list[float],
+    out: Path,
+    pairs: int | None = None,
+    material: str = "paint-white",
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Zone i shows a flat target squarely at distances_m[i] (pan 0, tilt 0): what `edge calibrate`
+    takes, and the wall test of the ranging targets."""
     rig = true_rig(config)
-    renderer = Renderer(scene, rig, config.sim)
+    views = [(Renderer(flat_target_scene(d, material), rig, config.sim), 0.0, 0.0) for d in distances_m]
+    return _record(config, out, views, pairs or config.sweep.pairs_per_zone, "sim-target", progress)
+
+
+def _record(
+    config: Config,
+    out: Path,
+    views: list[tuple[Renderer, float, float]],
+    pairs: int,
+    device: str,
+    progress: Callable[[int, int], None] | None,
+) -> Path:
+    nudge_deg = config.sweep.nudge_deg
     sensor = config.sim.sensor
     frame_ns = int(1e9 / sensor.frame_rate_hz)
     exposure_ns = int(sensor.exposure_us * 1000)
-    names = list(rig.laser_names)
-    poses = sweep.poses()
     clock_ns = 0
-    with RecordingWriter(out, nominal, device=f"sim-{scene.name}") as writer:
-        for index, (pan, tilt) in enumerate(poses):
+    with RecordingWriter(out, config.rig.build(), device=device) as writer:
+        for index, (renderer, pan, tilt) in enumerate(views):
+            names = list(renderer.rig.laser_names)
             frames = []
             zone_t_s = clock_ns / 1e9
             for nudge in nudge_offsets(pairs):
-                frame_pan = pan + nudge * sweep.nudge_deg
+                frame_pan = pan + nudge * nudge_deg
                 for lit in (False, True):
                     t_s = clock_ns / 1e9
                     rng = np.random.default_rng([config.sim.seed, index, len(frames)])
@@ -112,10 +150,10 @@ def record_sweep(
                     frames.append((image, names if lit else [], extra))
                     clock_ns += frame_ns
             spots = renderer.spots(pan, tilt, zone_t_s)
-            truth = zone_truth(rig, spots, rig.camera_to_base(pan, tilt))
+            truth = zone_truth(renderer.rig, spots, renderer.rig.camera_to_base(pan, tilt))
             writer.add_zone(index, pan, tilt, frames, truth)
             clock_ns += exposure_ns  # the unit moves between zones; the clock only needs to advance
             if progress:
-                progress(index + 1, len(poses))
-    log.info("wrote %d zones of scene %s to %s", len(poses), scene.name, out)
+                progress(index + 1, len(views))
+    log.info("wrote %d zones to %s", len(views), out)
     return out
