@@ -40,3 +40,47 @@ def bench_render(config: Config, repeats: int = 20) -> list[str]:
         f"  frame of a cached view, lasers off:    {off_ms[0]:7.1f} / {off_ms[1]:.1f} ms",
         f"  frame of a cached view, lasers on:     {on_ms[0]:7.1f} / {on_ms[1]:.1f} ms",
     ]
+
+
+def bench_ranging(config: Config, repeats: int = 200) -> list[str]:
+    """Time ranging one laser-off/laser-on pair, decoded frames in memory, at 640 × 480 and at
+    1640 × 1232, beside the thesis' straightforward full-frame numpy pipeline on the same frames."""
+    from dataclasses import replace
+
+    from edge import thesis
+    from edge.config import CameraConfig
+    from edge.ranging import FrameGroup, Ranger
+    from edge.sim.record import scene_for, true_rig
+    from edge.sim.render import Renderer
+
+    lines = [f"ranging one on/off pair (median / p90 of {repeats} runs, one core):"]
+    for model in ("picam-v2", "picam-v2-1640"):
+        cfg = replace(config, rig=replace(config.rig, camera=CameraConfig(model=model)))
+        rig = cfg.rig.build()
+        renderer = Renderer(scene_for(cfg), true_rig(cfg), cfg.sim)
+        rng = np.random.default_rng(0)
+        pan = -90.0  # a wall in the office, about 1.3 m away
+        names = {n: 1.0 for n in rig.laser_names}
+        on = renderer.render(pan, 0.0, names, 0.0, rng)
+        off = renderer.render(pan, 0.0, {}, 0.0, rng)
+        ranger = Ranger(rig)
+        group = [FrameGroup([on], [off], rig.laser_names, (pan, 0.0))]
+        result = ranger.range_zone(0, pan, 0.0, group)
+        ours = _median_ms(lambda: ranger.range_zone(0, pan, 0.0, group), repeats)
+        t = thesis.thesis_rig(rig)
+        boxes = thesis.masks(rig)
+
+        def baseline() -> float:
+            p = thesis.spot_positions(on, off, boxes, 0.08 * 255)
+            return thesis.thesis_range(t, p["center"], p["parallel"], p["sloped"])
+
+        r_thesis = baseline()
+        theirs = _median_ms(baseline, max(20, repeats // 5))
+        cam = rig.camera
+        lines += [
+            f"  {cam.width}x{cam.height}: triangulate {ours[0]:.3f} / {ours[1]:.3f} ms "
+            f"(range {result.range_m:.3f} m, {result.status}); thesis full-frame "
+            f"{theirs[0]:.2f} / {theirs[1]:.2f} ms (range {r_thesis:.3f} m); "
+            f"{theirs[0] / ours[0]:.1f}x faster",
+        ]
+    return lines

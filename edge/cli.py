@@ -170,7 +170,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from edge import bench
 
     config = _config(args)
-    lines = {"render": bench.bench_render}[args.what](config, repeats=args.repeats)
+    run = {"render": bench.bench_render, "ranging": bench.bench_ranging}[args.what]
+    lines = run(config, **({"repeats": args.repeats} if args.repeats else {}))
     print("\n".join(lines))
     return 0
 
@@ -207,8 +208,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
     _common(p)
-    p.add_argument("what", choices=["render"], help="what to time")
-    p.add_argument("--repeats", type=int, default=20)
+    p.add_argument("what", choices=["render", "ranging"], help="what to time")
+    p.add_argument("--repeats", type=int, help="runs to take the median of")
     p.set_defaults(func=cmd_bench)
 
     sim = sub.add_parser("sim", help="the simulator").add_subparsers(

@@ -60,6 +60,7 @@ class LaserMeasurement:
     sigma_m: float
     snr: float
     views: int  # distinct views (speckle patterns) averaged
+    beam_dir: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) the laser's
 
     def to_json(self) -> dict:
         return {
@@ -121,13 +122,39 @@ def triangulate(laser: Laser, camera: CameraModel, pixels: np.ndarray) -> np.nda
     return o + s[:, None] * d
 
 
-def measure(laser: Laser, camera: CameraModel, pixel: np.ndarray, sigma_px: float, snr: float, views: int) -> LaserMeasurement:
+def _ray(camera: CameraModel, u: float, v: float) -> tuple[float, float, float]:
+    """Unit camera ray through pixel (u, v), in plain floats (one spot at a time, no array
+    overhead); the same as ``CameraModel.rays``."""
+    x, y = (u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy
+    if camera.distorted:
+        x, y = (float(c) for c in camera.undistort(np.array([x, y])))
+    n = math.sqrt(x * x + y * y + 1.0)
+    return x / n, y / n, 1.0 / n
+
+
+def _on_beam(o: tuple, d: tuple, r: tuple) -> tuple[float, float, float]:
+    """The point of the beam o + s·d nearest to the camera ray through the origin along r."""
+    c = r[0] * d[0] + r[1] * d[1] + r[2] * d[2]
+    ro = r[0] * o[0] + r[1] * o[1] + r[2] * o[2]
+    do = d[0] * o[0] + d[1] * o[1] + d[2] * o[2]
+    s = (c * ro - do) / max(1.0 - c * c, 1e-12)
+    return o[0] + s * d[0], o[1] + s * d[1], o[2] + s * d[2]
+
+
+def measure(
+    laser: Laser, camera: CameraModel, pixel: np.ndarray, sigma_px: float, snr: float, views: int
+) -> LaserMeasurement:
     """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
+    u, v = float(pixel[0]), float(pixel[1])
+    o, d = laser.origin_m, laser.direction
+    p = _on_beam(o, d, _ray(camera, u, v))
     h = 0.05
-    pts = triangulate(laser, camera, np.array([pixel, pixel + (h, 0.0), pixel + (0.0, h)]))
-    dz = (pts[1:, 2] - pts[0, 2]) / h
-    sigma_m = float(math.hypot(dz[0], dz[1]) * sigma_px)
-    return LaserMeasurement(laser.name, np.asarray(pixel, float), sigma_px, pts[0], float(pts[0, 2]), sigma_m, snr, views)
+    dz_du = (_on_beam(o, d, _ray(camera, u + h, v))[2] - p[2]) / h
+    dz_dv = (_on_beam(o, d, _ray(camera, u, v + h))[2] - p[2]) / h
+    sigma_m = math.hypot(dz_du, dz_dv) * sigma_px
+    return LaserMeasurement(
+        laser.name, np.array([u, v]), sigma_px, np.array(p), p[2], sigma_m, snr, views, laser.d
+    )
 
 
 # --- fusion -----------------------------------------------------------------------------------
@@ -164,6 +191,8 @@ def fuse(
     intersected with it.
     """
     ms = [reference, *others]
+    if not slopes:
+        return _fuse_flat(reference, ms, surface_sigma_per_m)
     pts = np.array([m.point_m for m in ms])
     z = pts[:, 2]
     dx, dy = pts[:, 0] - pts[0, 0], pts[:, 1] - pts[0, 1]
@@ -211,10 +240,30 @@ def fuse(
     return Fusion(float(point[2]), sigma, point, normal, chi2, dof, tuple(ms))
 
 
+def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_sigma_per_m: float) -> Fusion:
+    """`fuse` for z = a: a weighted mean, in plain floats (this runs for every zone)."""
+    rx, ry = float(reference.point_m[0]), float(reference.point_m[1])
+    weights = []
+    for m in ms:
+        model = surface_sigma_per_m * math.hypot(float(m.point_m[0]) - rx, float(m.point_m[1]) - ry)
+        weights.append(1.0 / (max(m.sigma_m, 1e-9) ** 2 + model * model))
+    total = sum(weights)
+    z = sum(w * m.depth_m for w, m in zip(weights, ms)) / total
+    chi2 = sum(w * (m.depth_m - z) ** 2 for w, m in zip(weights, ms))
+    point = reference.point_m if len(ms) == 1 else rig_point_at_depth(reference, z)
+    return Fusion(z, math.sqrt(1.0 / total), point, None, chi2, len(ms) - 1, tuple(ms))
+
+
+def rig_point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
+    """The point of `m`'s beam at depth z, from two of its points (the measured one and the
+    camera-frame beam direction implied by the laser), without needing the rig."""
+    return m.point_m + (z - m.depth_m) * m.beam_dir / float(m.beam_dir[2])
+
+
 def _pair_plausible(a: LaserMeasurement, b: LaserMeasurement) -> bool:
     """Could two spots lie on one surface? Their depth change across their separation must be a
     slope a surface can have while both lasers still light it."""
-    sep = float(np.linalg.norm((a.point_m - b.point_m)[:2]))
+    sep = math.hypot(float(a.point_m[0] - b.point_m[0]), float(a.point_m[1] - b.point_m[1]))
     dz = abs(a.depth_m - b.depth_m) - 3.0 * math.hypot(a.sigma_m, b.sigma_m)
     return dz <= _MAX_SLOPE * max(sep, 1e-3)
 
@@ -254,7 +303,7 @@ def best_fusion(
 
 
 def _same_blob(a: LaserMeasurement, b: LaserMeasurement) -> bool:
-    return float(np.linalg.norm(a.pixel - b.pixel)) < 1.5
+    return math.hypot(float(a.pixel[0] - b.pixel[0]), float(a.pixel[1] - b.pixel[1])) < 1.5
 
 
 # --- the estimator -----------------------------------------------------------------------------
@@ -281,8 +330,14 @@ class _Track:
     def pixel(self, speckle_px: float = 0.0) -> np.ndarray:
         """Weighted mean position; each sighting's weight counts its speckle too, which dominates
         a bright spot's error and is the same for every sighting."""
-        w = np.array([1.0 / (max(c.sigma_px, 1e-4) ** 2 + speckle_px**2) for c in self.found])
-        return (np.array([c.pixel for c in self.found]) * w[:, None]).sum(axis=0) / w.sum()
+        if len(self.found) == 1:
+            return self.found[0].pixel
+        w = [1.0 / (max(c.sigma_px, 1e-4) ** 2 + speckle_px**2) for c in self.found]
+        total = sum(w)
+        return np.array([
+            sum(wi * float(c.pixel[0]) for wi, c in zip(w, self.found)) / total,
+            sum(wi * float(c.pixel[1]) for wi, c in zip(w, self.found)) / total,
+        ])
 
 
 class Ranger:
@@ -350,7 +405,8 @@ class Ranger:
                 expected[name] += 1
                 for cand in cands:
                     for track in tracks[name]:
-                        if float(np.linalg.norm(track.pixel() - cand.pixel)) < 1.5:
+                        p = track.pixel()
+                        if math.hypot(float(p[0] - cand.pixel[0]), float(p[1] - cand.pixel[1])) < 1.5:
                             track.found.append(cand)
                             track.views.add(group.view)
                             break
@@ -362,7 +418,7 @@ class Ranger:
         for name, ts in tracks.items():
             need = max(1, math.ceil(expected[name] / 2))
             kept = [t for t in ts if len(t.found) >= need]
-            kept.sort(key=lambda t: -np.mean([c.snr for c in t.found]))
+            kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
             out[name] = kept[:3]
         return out
 
@@ -370,8 +426,9 @@ class Ranger:
         views = len(track.views)
         speckle = self.config.speckle_px
         # Pixel noise averages over every sighting, speckle only over distinct views.
-        noise_var = np.mean([c.sigma_px**2 for c in track.found]) / len(track.found)
+        n = len(track.found)
+        noise_var = sum(c.sigma_px**2 for c in track.found) / n / n
         sigma_px = math.sqrt(noise_var + speckle**2 / views)
-        snr = float(np.mean([c.snr for c in track.found]))
+        snr = sum(c.snr for c in track.found) / n
         pixel = track.pixel(speckle if views > 1 else 0.0)
         return measure(self.rig.laser(track.laser), self.rig.camera, pixel, sigma_px, snr, views)

@@ -7,13 +7,14 @@ the laser-off and laser-on frames (flicker). That keeps one on/off pair well und
 640 × 480 and makes the cost grow with the path length, not the frame size.
 
 Per frame group (on frames and off frames taken at one pose), :meth:`SpotFinder.find` returns the
-candidate spots on each laser's path: sub-pixel position (iteratively Gaussian-windowed centroid on
-the background-subtracted difference), its uncertainty from the pixel noise, and its strength.
+candidate spots on each laser's path: sub-pixel position (centroid of the background-subtracted,
+thresholded difference in a window that follows and fits the spot), its uncertainty from the pixel noise, and its strength.
 Frames may be 8- or 16-bit, grey or BGR; values are scaled to [0, 1] by their type's range.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -26,6 +27,14 @@ from edge.rig import Laser, Rig
 # reported as out of range rather than missed: z from NEAR_FACTOR·near to FAR_FACTOR·far.
 NEAR_FACTOR = 0.8
 FAR_FACTOR = 1.6
+
+
+@functools.lru_cache(maxsize=16)
+def _border_index(size: int) -> np.ndarray:
+    """Flat indices of the outermost ring of a size × size window."""
+    ring = np.ones((size, size), bool)
+    ring[1:-1, 1:-1] = False
+    return np.flatnonzero(ring)
 
 
 @dataclass(frozen=True)
@@ -47,7 +56,9 @@ class _Band:
     v: np.ndarray  # (L, W) int pixel rows of the strip
     u: np.ndarray  # (L, W) int pixel columns
     path: np.ndarray  # (L, 2) path pixels (float)
+    tangent: np.ndarray  # (L, 2) unit direction of the path
     inv_depth: np.ndarray  # (L,)
+    step: float  # mean spacing of the path samples, px
 
 
 class SpotFinder:
@@ -58,20 +69,18 @@ class SpotFinder:
         rig: Rig,
         band_halfwidth_px: float = 3.0,
         min_snr: float = 6.0,
-        window_sigma_px: float = 1.5,
         max_spot_px: float = 6.0,
         lasers: Sequence[str] | None = None,
     ):
         self.rig = rig
         cam = rig.camera
         self.min_snr = min_snr
-        self.window_sigma = window_sigma_px
         self.max_spot_px = max_spot_px
         self.halfwidth = band_halfwidth_px
         names = list(lasers) if lasers is not None else list(rig.laser_names)
         self.bands = {name: self._band(rig.laser(name)) for name in names}
         # Sparse background sample for the flicker gain: a grid over the frame minus the bands.
-        step = max(4, int(math.sqrt(cam.width * cam.height / 3000)))
+        step = max(4, int(math.sqrt(cam.width * cam.height / 1200)))
         gv, gu = np.mgrid[step // 2 : cam.height : step, step // 2 : cam.width : step]
         keep = np.ones(gv.shape, bool)
         for band in self.bands.values():
@@ -87,8 +96,9 @@ class SpotFinder:
             self._slices[name] = slice(start, start + band.v.size)
             start += band.v.size
         self._bg_slice = slice(start, start + self._bg_v.size)
-        r = int(math.ceil(3 * window_sigma_px))
-        self._win = np.arange(-r - 2, r + 3)
+        # Window half-size for localisation; it grows for big spots.
+        self._radius = 4
+        self._flat: dict[int, np.ndarray] = {}
 
     def _band(self, laser: Laser) -> _Band:
         cam = self.rig.camera
@@ -107,7 +117,8 @@ class SpotFinder:
         pts = path[:, None, :] + offsets[None, :, None] * normal[:, None, :]
         u = np.clip(np.rint(pts[..., 0]), 0, cam.width - 1).astype(np.intp)
         v = np.clip(np.rint(pts[..., 1]), 0, cam.height - 1).astype(np.intp)
-        return _Band(laser.name, v, u, path, inv)
+        step = float(np.linalg.norm(np.diff(path, axis=0), axis=1).mean())
+        return _Band(laser.name, v, u, path, tangent, inv, step)
 
     @staticmethod
     def laser_channel(image: np.ndarray) -> np.ndarray:
@@ -118,11 +129,26 @@ class SpotFinder:
     def full_scale(image: np.ndarray) -> float:
         return 65535.0 if image.dtype == np.uint16 else 255.0 if image.dtype == np.uint8 else 1.0
 
-    def _gather(self, frames: Sequence[np.ndarray], v: np.ndarray, u: np.ndarray) -> np.ndarray:
-        acc = None
-        for image in frames:
-            values = self.laser_channel(image)[v, u].astype(np.float32)
-            acc = values if acc is None else acc + values
+    def _flat_index(self, image: np.ndarray) -> np.ndarray:
+        """Indices into ``image.ravel()`` of every strip and background pixel's laser channel."""
+        channels = image.shape[2] if image.ndim == 3 else 1
+        index = self._flat.get(channels)
+        if index is None:
+            pixel = self._all_v.astype(np.intp) * self.rig.camera.width + self._all_u
+            index = self._flat[channels] = pixel * channels + (2 if channels == 3 else 0)
+        return index
+
+    def _gather(self, frames: Sequence[np.ndarray]) -> np.ndarray:
+        index = self._flat_index(frames[0])
+        acc = np.take(np.ascontiguousarray(frames[0]).reshape(-1), index).astype(np.float32)
+        for image in frames[1:]:
+            acc += np.take(np.ascontiguousarray(image).reshape(-1), index)
+        return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
+
+    def _window(self, frames: Sequence[np.ndarray], rows: slice, cols: slice) -> np.ndarray:
+        acc = self.laser_channel(frames[0])[rows, cols].astype(np.float32)
+        for image in frames[1:]:
+            acc += self.laser_channel(image)[rows, cols]
         return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
 
     def find(
@@ -138,21 +164,27 @@ class SpotFinder:
         `lasers`: the lasers that were on (default: all of this finder's).
         """
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
-        on_vals = self._gather(on, self._all_v, self._all_u)
-        off_vals = self._gather(off, self._all_v, self._all_u)
+        on_vals = self._gather(on)
+        off_vals = self._gather(off)
         # Room light may differ between the frames (flicker): scale the off frame to the on frame
         # by least squares on pixels where no laser can land.
         bon, boff = on_vals[self._bg_slice], off_vals[self._bg_slice]
         denom = float(boff @ boff)
         gain = float(bon @ boff) / denom if denom > 0 else 1.0
         diff = on_vals - np.float32(gain) * off_vals
-        # Pixel noise of the difference, robustly, from the background sample.
+        # Pixel noise of the difference, robustly (MAD), from the background sample.
         bg = diff[self._bg_slice]
-        noise = 1.4826 * float(np.median(np.abs(bg - np.median(bg)))) if bg.size else 0.0
+        if bg.size:
+            mid = bg.size // 2
+            centre = float(np.partition(bg, mid)[mid])
+            dev = np.abs(bg - np.float32(centre))
+            noise = 1.4826 * float(np.partition(dev, mid)[mid])
+        else:
+            noise = 0.0
         noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
-        # Shot noise grows with the signal: estimate electrons-per-unit from the background, whose
+        # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
-        shot = noise**2 / (2.0 * max(float(np.mean(boff)) if boff.size else 0.0, 1e-3))
+        shot = noise**2 / (2.0 * max(float(boff.mean()) if boff.size else 0.0, 1e-3))
         found: dict[str, list[Candidate]] = {}
         for name in names:
             band = self.bands[name]
@@ -161,72 +193,105 @@ class SpotFinder:
         return found
 
     def _candidates(self, band, strip, on, off, gain, noise, shot, max_candidates) -> list[Candidate]:
-        level = float(np.median(strip))
-        profile = strip.max(axis=1) - level
+        profile = strip.max(axis=1)
         threshold = self.min_snr * noise
-        left = np.r_[-np.inf, profile[:-1]]
-        right = np.r_[profile[1:], -np.inf]
-        peaks = np.flatnonzero((profile > threshold) & (profile >= left) & (profile > right))
-        if peaks.size == 0:
+        above = profile > threshold
+        if not above.any():
             return []
+        # Local maxima inside the path (its ends lie beyond the working range's margins).
+        mid = profile[1:-1]
+        peaks = 1 + np.flatnonzero(above[1:-1] & (mid >= profile[:-2]) & (mid > profile[2:]))
         peaks = peaks[np.argsort(profile[peaks])[::-1]]
-        out: list[Candidate] = []
+        seeds: list[tuple[int, int, float]] = []
+        rows: dict[tuple[int, int], int] = {}
         for i in peaks:
             j = int(np.argmax(strip[i]))
-            seed = (int(band.u[i, j]), int(band.v[i, j]))
-            if any(abs(seed[0] - c.pixel[0]) <= 2 and abs(seed[1] - c.pixel[1]) <= 2 for c in out):
-                continue  # the same blob seen from the next path sample
-            cand = self._refine(band, seed, on, off, gain, noise, shot, float(profile[i]))
+            u, v = int(band.u[i, j]), int(band.v[i, j])
+            if any(
+                not self._apart((u, v), (su, sv), min(float(profile[i]), sp), on, off, gain)
+                for su, sv, sp in seeds
+            ):
+                continue  # the same blob seen from another path sample
+            seeds.append((u, v, float(profile[i])))
+            rows[(u, v)] = int(i)
+            if len(seeds) >= max_candidates:
+                break
+        out = []
+        for u, v, peak in seeds:
+            others = [(su, sv) for su, sv, _ in seeds if (su, sv) != (u, v)]
+            cand = self._refine(band, (u, v), rows[(u, v)], others, on, off, gain, noise, shot, peak)
             if cand is not None:
                 out.append(cand)
-            if len(out) >= max_candidates:
-                break
         return out
 
-    def _refine(self, band, seed, on, off, gain, noise, shot, peak) -> Candidate | None:
+    def _apart(self, a, b, peak, on, off, gain) -> bool:
+        """Are the peaks at pixels `a` and `b` two spots? Only if the difference image dips below
+        half the weaker peak somewhere between them (a big saturated spot has several maxima)."""
+        gap = math.hypot(a[0] - b[0], a[1] - b[1])
+        if gap <= 2.0:
+            return False
+        if gap > 12.0:
+            return True
+        t = np.linspace(0.0, 1.0, int(gap * 2) + 2)[1:-1]
+        u = np.rint(a[0] + t * (b[0] - a[0])).astype(np.intp)
+        v = np.rint(a[1] + t * (b[1] - a[1])).astype(np.intp)
+        scale = np.float32(1.0 / self.full_scale(on[0]))
+        line = np.mean([self.laser_channel(f)[v, u] for f in on], axis=0) * scale
+        line -= np.float32(gain) * np.mean([self.laser_channel(f)[v, u] for f in off], axis=0) * scale
+        return float(line.min()) < 0.5 * peak
+
+    def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak) -> Candidate | None:
+        """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
+        thresholded difference in a window, which is unbiased for a symmetric spot; the window
+        grows for big (near, defocused, saturated) spots so that it never clips one, and pixels
+        nearer another candidate are left to that one."""
         cam = self.rig.camera
-        u0, v0 = seed
-        us, vs = u0 + self._win, v0 + self._win
-        if us[0] < 0 or vs[0] < 0 or us[-1] >= cam.width or vs[-1] >= cam.height:
-            return None  # too close to the image border to localise honestly
-        gu, gv = np.meshgrid(us, vs)
-        win = self._gather(on, gv, gu) - np.float32(gain) * self._gather(off, gv, gu)
-        border = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
-        signal = np.clip(win - float(np.median(border)), 0.0, None).astype(np.float64)
-        # Iteratively Gaussian-windowed centroid: unbiased for a symmetric spot, and a neighbour
-        # spot a few pixels away barely pulls it.
-        cu, cv = float(u0), float(v0)
-        s2 = 2.0 * self.window_sigma**2
-        for _ in range(6):
-            w = np.exp(-((gu - cu) ** 2 + (gv - cv) ** 2) / s2) * signal
-            total = float(w.sum())
-            if total <= 0:
+        r = self._radius
+        cu, cv = float(seed[0]), float(seed[1])
+        for _ in range(3):
+            u0, v0 = int(round(cu)), int(round(cv))
+            if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
+                return None  # too close to the image border to localise honestly
+            rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
+            win = self._window(on, rows, cols) - np.float32(gain) * self._window(off, rows, cols)
+            border = win.ravel()[_border_index(2 * r + 1)]
+            level = float(np.partition(border, border.size // 2)[border.size // 2])
+            # Subtracting a level and clipping at zero keeps a symmetric spot symmetric.
+            signal = np.maximum(win - np.float32(level + 2.0 * noise), 0.0)
+            offs = np.arange(-r, r + 1, dtype=np.float32)
+            if others:
+                gu, gv = np.meshgrid(offs + u0, offs + v0)
+                mine = (gu - seed[0]) ** 2 + (gv - seed[1]) ** 2
+                for ou, ov in others:
+                    signal = np.where((gu - ou) ** 2 + (gv - ov) ** 2 < mine, 0.0, signal)
+            col, line = signal.sum(axis=0), signal.sum(axis=1)
+            mass = float(col.sum())
+            if mass <= 0.0:
                 return None
-            nu, nv = float((w * gu).sum() / total), float((w * gv).sum() / total)
-            done = abs(nu - cu) < 1e-3 and abs(nv - cv) < 1e-3
-            cu, cv = nu, nv
-            if done:
+            du, dv = float(col @ offs) / mass, float(line @ offs) / mass
+            cu, cv = u0 + du, v0 + dv
+            var_x = float(col @ (offs - du) ** 2) / mass
+            var_y = float(line @ (offs - dv) ** 2) / mass
+            size = math.sqrt((var_x + var_y) / 2)
+            need = max(self._radius, int(math.ceil(3.5 * size)))
+            if need <= r and abs(du) <= 1.0 and abs(dv) <= 1.0:
                 break
-        weights = np.exp(-((gu - cu) ** 2 + (gv - cv) ** 2) / s2)
-        total = float((weights * signal).sum())
-        # Position variance from pixel noise: Σ w² (x − x̄)² σ² / (Σ w I)², σ² including the
-        # spot's own shot noise.
-        var_pix = noise**2 + signal * (shot / len(on))
-        var_u = float((weights**2 * (gu - cu) ** 2 * var_pix).sum()) / total**2
-        var_v = float((weights**2 * (gv - cv) ** 2 * var_pix).sum()) / total**2
-        size = math.sqrt(float((signal * ((gu - cu) ** 2 + (gv - cv) ** 2)).sum()) / max(float(signal.sum()), 1e-12) / 2)
+            r = min(need, 3 * self._radius)  # recentre, and widen for a big spot
         if size > self.max_spot_px:
             return None  # a lamp or a screen, not a pointer's spot
-        # Where along the path, and how far from it.
-        d = band.path - np.array([cu, cv])
-        k = int(np.argmin((d**2).sum(axis=1)))
-        cross = float(np.sqrt((d[k] ** 2).sum()))
-        if k not in (0, len(band.path) - 1):
-            t = band.path[k + 1] - band.path[k - 1]
-            t /= np.linalg.norm(t)
-            cross = abs(float(d[k, 0] * t[1] - d[k, 1] * t[0]))
+        # Position variance from pixel noise: Σ (x − x̄)² σ² / (Σ I)² over the pixels used, σ²
+        # including the spot's own shot noise.
+        var_pix = np.where(signal > 0, noise**2 + (signal + level) * (shot / len(on)), 0.0)
+        var_u = float(((offs - du) ** 2) @ var_pix.sum(axis=0)) / mass**2
+        var_v = float(((offs - dv) ** 2) @ var_pix.sum(axis=1)) / mass**2
+        # Where along the path, and how far from it, from the strip row the seed came from.
+        pu, pv = float(band.path[row, 0]), float(band.path[row, 1])
+        tu, tv = float(band.tangent[row, 0]), float(band.tangent[row, 1])
+        along = (cu - pu) * tu + (cv - pv) * tv
+        cross = abs((cu - pu) * tv - (cv - pv) * tu)
         if cross > self.halfwidth + 0.5:
             return None
+        k = min(max(row + int(round(along / band.step)), 0), len(band.inv_depth) - 1)
         return Candidate(
             band.laser,
             np.array([cu, cv]),
