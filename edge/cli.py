@@ -156,7 +156,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         from edge.calibration import read_calibration
 
         rig = read_calibration(args.calibration).apply(rig)
-    replayer = Replayer(rig, args.estimator)
+    replayer = Replayer(rig, args.estimator, _config(args).ranging)
     results = list(replayer.zones(recording, _progress("ranging")))
     if args.json:
         json.dump(replay_document(recording, results), sys.stdout)
@@ -203,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     out.add_argument("--score", action="store_true", help="per-zone table and error summary against truth (default)")
     p.add_argument("--estimator", choices=["triangulate", "thesis"], default="triangulate")
     p.add_argument("--calibration", metavar="FILE", help="calibration file from edge calibrate")
-    p.add_argument("-v", "--verbose", action="store_true")
+    _common(p)
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")

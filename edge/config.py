@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from edge.errors import ConfigError
+from edge.ranging import RangingConfig
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Mount, Rig, default_rig
 from edge.schema import FieldError, build, require
 
@@ -245,6 +246,7 @@ class Config:
     rig: RigConfig = field(default_factory=RigConfig)
     sweep: SweepConfig = field(default_factory=SweepConfig)
     sim: SimConfig = field(default_factory=SimConfig)
+    ranging: RangingConfig = field(default_factory=RangingConfig)
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
 

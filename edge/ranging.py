@@ -17,10 +17,12 @@ import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
 from edge.rig import CameraModel, Laser, Rig
+from edge.schema import require
 from edge.vision import Candidate, SpotFinder
 
 OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT = "ok", "no_spot", "ambiguous", "out_of_range", "fault"
@@ -36,7 +38,9 @@ _MAX_SLOPE = math.tan(math.radians(75.0))
 class RangingConfig:
     """Tuning of the triangulating estimator (``[ranging]`` in the config)."""
 
-    band_halfwidth_px: float = 3.0  # how far from its ideal path a spot may lie
+    band_halfwidth_px: float = 3.0  # how far from its ideal path a spot is searched for
+    path_tolerance_px: float = 1.5  # how far from it a spot may lie and still be that laser's
+    channel: Literal["red", "luma"] = "red"  # what colour frames are read from (vision.py)
     min_snr: float = 6.0  # a spot's peak over the difference image's noise
     # The spot position error that laser speckle adds, per distinct view (1 σ, px). 0.1 px is the
     # order for a pointer seen at f/2; averaging views with different speckle divides it by √n.
@@ -46,6 +50,17 @@ class RangingConfig:
     # (1 σ) per metre of their separation: a whiteboard on a wall, a skirting board, a book spine.
     # It weighs far lasers less and keeps the fused σ honest when the model is only nearly right.
     surface_sigma_per_m: float = 0.05
+    # A reference spot that the other lasers' spots contradict is only believed this strong
+    # (peak over noise): a weak blob on the path is as likely a stray light as the laser.
+    lone_min_snr: float = 20.0
+
+    def __post_init__(self) -> None:
+        require(0.5 <= self.band_halfwidth_px <= 20, "band_halfwidth_px", "must be 0.5-20 px")
+        require(0 < self.path_tolerance_px <= self.band_halfwidth_px, "path_tolerance_px",
+                "must be positive and at most band_halfwidth_px")
+        require(self.min_snr >= 3, "min_snr", "must be >= 3")
+        require(self.speckle_px >= 0, "speckle_px", "must be >= 0")
+        require(self.surface_sigma_per_m >= 0, "surface_sigma_per_m", "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -346,7 +361,10 @@ class Ranger:
     def __init__(self, rig: Rig, config: RangingConfig = RangingConfig()):
         self.rig = rig
         self.config = config
-        self.finder = SpotFinder(rig, config.band_halfwidth_px, config.min_snr)
+        self.finder = SpotFinder(
+            rig, config.band_halfwidth_px, config.min_snr, channel=config.channel,
+            path_tolerance_px=config.path_tolerance_px,
+        )
 
     def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:
         """Range one zone from its frame groups; the result is for the zone's pose."""
@@ -380,6 +398,12 @@ class Ranger:
             if self.config.fuse and others
             else fuse(rig, chosen, ())
         )
+        contradicted = len(fusion.used) == 1 and any(others.values())
+        if contradicted and chosen.snr < self.config.lone_min_snr:
+            return self._result(
+                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                detail=f"a weak {ref} spot (SNR {chosen.snr:.0f}) that the other lasers' spots contradict",
+            )
         lo, hi = rig.range_limits_m
         if not lo <= fusion.range_m <= hi:
             return self._result(

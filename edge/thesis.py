@@ -4,7 +4,7 @@ Difference image C = on − off on the red channel over the whole frame, one mas
 threshold, the rounded mean position of the pixels above it, and r = k·(b/a)/tan θ with a the image
 distance between the `center` and `parallel` spots, b between `center` and `sloped`. It is exact only
 for a wall facing the camera squarely, and it rounds spot positions to whole pixels, as the thesis
-did. The masks are the bounding boxes of each laser's image path (the thesis drew them by hand).
+did. The masks are bands around each laser's image path (the thesis drew them by hand).
 
 This is deliberately the straightforward full-frame numpy version: ``edge bench ranging`` times it
 beside the real pipeline.
@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from edge.errors import EdgeError
@@ -62,16 +63,22 @@ def thesis_rig(rig: Rig) -> ThesisRig:
     return ThesisRig(center, parallel, sloped, k, theta)
 
 
-def masks(rig: Rig) -> dict[str, tuple[slice, slice]]:
-    """Per laser, the (rows, columns) box that holds its image path over the working range."""
+def masks(rig: Rig) -> dict[str, np.ndarray]:
+    """Per laser, a full-frame 0/1 mask of where its spot can be: the pixels within a few pixels of
+    its image path over the working range, and nearer to it than to any other laser's path (the
+    thesis drew such regions by hand)."""
     cam = rig.camera
-    out = {}
+    distances = []
     for laser in rig.lasers:
-        path = rig.laser_image_path(laser, 64)
-        u0, v0 = np.floor(path.min(axis=0)).astype(int) - _MASK_MARGIN_PX
-        u1, v1 = np.ceil(path.max(axis=0)).astype(int) + _MASK_MARGIN_PX
-        out[laser.name] = (slice(max(v0, 0), min(v1 + 1, cam.height)), slice(max(u0, 0), min(u1 + 1, cam.width)))
-    return out
+        canvas = np.full((cam.height, cam.width), 255, np.uint8)
+        path = np.rint(rig.laser_image_path(laser, 256)).astype(np.int32)
+        cv2.polylines(canvas, [path.reshape(-1, 1, 2)], False, 0, 1)
+        distances.append(cv2.distanceTransform(canvas, cv2.DIST_L2, 3))
+    nearest = np.argmin(np.stack(distances), axis=0)
+    return {
+        laser.name: ((distances[i] <= _MASK_MARGIN_PX) & (nearest == i)).astype(np.float64)
+        for i, laser in enumerate(rig.lasers)
+    }
 
 
 def red(image: np.ndarray) -> np.ndarray:
@@ -79,15 +86,13 @@ def red(image: np.ndarray) -> np.ndarray:
 
 
 def spot_positions(
-    on: np.ndarray, off: np.ndarray, boxes: dict[str, tuple[slice, slice]], min_level: float
+    on: np.ndarray, off: np.ndarray, masks_: dict[str, np.ndarray], min_level: float
 ) -> dict[str, np.ndarray | None]:
-    """The thesis' localisation: in each mask, the rounded mean (u, v) of the pixels of C above half
-    its peak; None where the peak does not exceed `min_level`."""
+    """The thesis' localisation: C = B − A, pattern = C .* mask, and the rounded mean (u, v) of the
+    pixels of the pattern above half its peak; None where the peak does not exceed `min_level`."""
     c = red(on) - red(off)  # C = B − A, the whole frame
     out: dict[str, np.ndarray | None] = {}
-    for name, (rows, cols) in boxes.items():
-        mask = np.zeros_like(c)
-        mask[rows, cols] = 1.0
+    for name, mask in masks_.items():
         pattern = c * mask
         peak = pattern.max()
         if peak <= min_level:

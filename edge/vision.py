@@ -27,6 +27,10 @@ from edge.rig import Laser, Rig
 # reported as out of range rather than missed: z from NEAR_FACTOR·near to FAR_FACTOR·far.
 NEAR_FACTOR = 0.8
 FAR_FACTOR = 1.6
+# What a colour frame's spot is read from, as weights of its B, G, R channels. `red` suits raw or
+# lossless frames of a red pointer; `luma` suits JPEG (MJPEG webcams), which keeps only luminance
+# at full resolution and blurs and shifts a small red spot's chroma by up to a pixel.
+CHANNEL_WEIGHTS = {"red": (0.0, 0.0, 1.0), "luma": (0.114, 0.587, 0.299)}
 
 
 @functools.lru_cache(maxsize=16)
@@ -71,12 +75,18 @@ class SpotFinder:
         min_snr: float = 6.0,
         max_spot_px: float = 6.0,
         lasers: Sequence[str] | None = None,
+        channel: str = "red",
+        path_tolerance_px: float = 1.5,
     ):
         self.rig = rig
         cam = rig.camera
         self.min_snr = min_snr
         self.max_spot_px = max_spot_px
         self.halfwidth = band_halfwidth_px
+        self.path_tolerance = path_tolerance_px
+        if channel not in CHANNEL_WEIGHTS:
+            raise ValueError(f"channel must be one of {', '.join(CHANNEL_WEIGHTS)}, got {channel!r}")
+        self._weights = CHANNEL_WEIGHTS[channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
         self.bands = {name: self._band(rig.laser(name)) for name in names}
         # Sparse background sample for the flicker gain: a grid over the frame minus the bands.
@@ -129,26 +139,43 @@ class SpotFinder:
     def full_scale(image: np.ndarray) -> float:
         return 65535.0 if image.dtype == np.uint16 else 255.0 if image.dtype == np.uint8 else 1.0
 
-    def _flat_index(self, image: np.ndarray) -> np.ndarray:
-        """Indices into ``image.ravel()`` of every strip and background pixel's laser channel."""
+    def _flat_index(self, image: np.ndarray) -> list[tuple[np.ndarray, float]]:
+        """(indices into ``image.ravel()``, weight) per channel read, for every strip and
+        background pixel."""
         channels = image.shape[2] if image.ndim == 3 else 1
         index = self._flat.get(channels)
         if index is None:
             pixel = self._all_v.astype(np.intp) * self.rig.camera.width + self._all_u
-            index = self._flat[channels] = pixel * channels + (2 if channels == 3 else 0)
+            if channels == 1:
+                index = [(pixel, 1.0)]
+            else:
+                index = [(pixel * channels + c, w) for c, w in enumerate(self._weights) if w]
+            self._flat[channels] = index
         return index
 
     def _gather(self, frames: Sequence[np.ndarray]) -> np.ndarray:
-        index = self._flat_index(frames[0])
-        acc = np.take(np.ascontiguousarray(frames[0]).reshape(-1), index).astype(np.float32)
-        for image in frames[1:]:
-            acc += np.take(np.ascontiguousarray(image).reshape(-1), index)
+        acc = None
+        for image in frames:
+            flat = np.ascontiguousarray(image).reshape(-1)
+            for index, weight in self._flat_index(image):
+                values = np.take(flat, index).astype(np.float32)
+                if weight != 1.0:
+                    values *= np.float32(weight)
+                acc = values if acc is None else acc + values
         return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
 
-    def _window(self, frames: Sequence[np.ndarray], rows: slice, cols: slice) -> np.ndarray:
-        acc = self.laser_channel(frames[0])[rows, cols].astype(np.float32)
+    def _plane(self, image: np.ndarray, rows, cols) -> np.ndarray:
+        """The read channel of a region of `image`, float32."""
+        if image.ndim == 2:
+            return image[rows, cols].astype(np.float32)
+        if self._weights == (0.0, 0.0, 1.0):
+            return image[rows, cols, 2].astype(np.float32)
+        return image[rows, cols, :3].astype(np.float32) @ np.array(self._weights, np.float32)
+
+    def _window(self, frames: Sequence[np.ndarray], rows, cols) -> np.ndarray:
+        acc = self._plane(frames[0], rows, cols)
         for image in frames[1:]:
-            acc += self.laser_channel(image)[rows, cols]
+            acc += self._plane(image, rows, cols)
         return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
 
     def find(
@@ -235,9 +262,7 @@ class SpotFinder:
         t = np.linspace(0.0, 1.0, int(gap * 2) + 2)[1:-1]
         u = np.rint(a[0] + t * (b[0] - a[0])).astype(np.intp)
         v = np.rint(a[1] + t * (b[1] - a[1])).astype(np.intp)
-        scale = np.float32(1.0 / self.full_scale(on[0]))
-        line = np.mean([self.laser_channel(f)[v, u] for f in on], axis=0) * scale
-        line -= np.float32(gain) * np.mean([self.laser_channel(f)[v, u] for f in off], axis=0) * scale
+        line = self._window(on, v, u) - np.float32(gain) * self._window(off, v, u)
         return float(line.min()) < 0.5 * peak
 
     def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak) -> Candidate | None:
@@ -289,8 +314,8 @@ class SpotFinder:
         tu, tv = float(band.tangent[row, 0]), float(band.tangent[row, 1])
         along = (cu - pu) * tu + (cv - pv) * tv
         cross = abs((cu - pu) * tv - (cv - pv) * tu)
-        if cross > self.halfwidth + 0.5:
-            return None
+        if cross > self.path_tolerance:
+            return None  # not on this laser's path: another light, or another laser's spot
         k = min(max(row + int(round(along / band.step)), 0), len(band.inv_depth) - 1)
         return Candidate(
             band.laser,

@@ -1,0 +1,568 @@
+"""Calibrating the laser rays (and optionally the focal length) from a flat target.
+
+Zone i of a calibration recording shows a flat target squarely in front of the camera at distance
+D_i, tape-measured from the optical centre along the optical axis: the target is the plane z = D_i
+of the camera frame. A laser's spot at undistorted normalised position (x_n, y_n) in zone i is then
+the beam point D_i·(x_n, y_n, 1). Writing the beam as x = x0 + ax·z, y = y0 + ay·z gives
+
+    x_n = ax + x0 / D_i,    y_n = ay + y0 / D_i
+
+which is linear in (ax, x0) and (ay, y0), and equal weights on x_n are equal weights in pixels: the
+fit minimises the reprojection error directly. The fitted beam is origin (x0, y0, 0), direction
+normalise(ax, ay, 1).
+
+Spots are found without the nominal rig's narrow epipolar bands (a laser a degree off puts its spot
+10 px from where the rig says): a whole-frame laser-on minus laser-off difference, thresholded,
+split into connected blobs, each localised by an iterated Gaussian-windowed centroid. Blobs are
+given to lasers from the nearest target to the farthest, each laser's nominal prediction corrected
+by what the nearer distances showed: after one, by its pixel offset (an angular error shifts a spot
+by a nearly constant number of pixels at every distance); after two or more, by the line through
+them. So the gate can be tight after the first distance, and a spot that two lasers could own, or
+two spots that one laser could own, are left out rather than guessed.
+
+Limits. Uniformly scaled distances (wrong units, or measured from the wrong point) fit perfectly:
+the whole scene scaled is the same picture. So the fitted origins are checked against the nominal,
+mechanically measured ones; a shift beyond ``MAX_ORIGIN_SHIFT_M`` is refused. Spots closer than
+about 4 px (the `center` and `parallel` spots beyond about 5 m) merge and cannot be calibrated there.
+One wrong distance shows in the residuals when it is near; a far one (3.0 m given as 3.3 m) moves a
+spot by less than the 0.5 px allowed and passes, so tape-measure the far targets with most care.
+
+Focal length (``fit_focal``). Scaling f scales every fitted line's x and y by the same factor; the
+triangulated depths come out the same either way, only the lateral coordinates scale. So f and the
+laser geometry cannot both be fitted from this data. With ``fit_focal`` the laser *origins* are held
+at their nominal values and the directions and one shared focal scale (fx/fy keeping the nominal
+ratio) are fitted: for a given scale the directions follow linearly, and the scale minimising the
+pixel residuals is found by Newton steps on that profile cost. A change beyond 10 % is refused:
+something else (a distance, the config) is then wrong.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from edge.errors import CalibrationError, UsageError
+from edge.fsutil import atomic_write_bytes
+from edge.recording import Recording, read_recording, rig_from_json, rig_to_json
+from edge.replay import zone_groups
+from edge.rig import CameraModel, Laser, Rig
+from edge.vision import SpotFinder
+
+log = logging.getLogger(__name__)
+
+FORMAT = "edge-calibration/1"
+THRESHOLD_SIGMAS = 8.0  # blob threshold over the difference image's robust noise
+WINDOW_SIGMA_PX = 1.5  # the Gaussian centroid window, as SpotFinder's: the same bias in both
+MAX_SPOT_PX = 6.0  # RMS radius (per axis) above which a blob is a lamp or a screen, not a spot
+FIRST_GATE_PX = 25.0  # how far from the nominal prediction a spot may be (about 2.5° of error)
+OFFSET_GATE_PX = 10.0  # ... once its offset at one nearer distance is known
+GATE_PX = 6.0  # ... once its line through two or more nearer distances is known
+MIN_POINTS = 3
+MIN_SPAN = 1.5  # max/min distance
+MAX_RMS_PX = 0.5
+MAX_ORIGIN_SHIFT_M = 0.008  # a mounting error of a laser beyond this is a wrong distance or config
+MAX_FOCAL_CHANGE = 0.10
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Fitted laser rays (origin at z = 0 of each line) and the camera they go with."""
+
+    lasers: tuple[Laser, ...]
+    camera: CameraModel
+    distances_m: tuple[float, ...] = ()
+    residuals_px: dict[str, dict] = field(default_factory=dict)
+    created: str = ""
+
+    def apply(self, rig: Rig) -> Rig:
+        """`rig` with its lasers and camera replaced by the calibrated ones (pins, polarity and
+        the reference flag stay `rig`'s)."""
+        mine = {laser.name: laser for laser in self.lasers}
+        for laser in rig.lasers:
+            if laser.name not in mine:
+                raise CalibrationError(
+                    f"the calibration has no laser {laser.name!r} (it has {', '.join(mine)}): "
+                    "calibrate this rig again")
+        cam = rig.camera
+        if (self.camera.width, self.camera.height) != (cam.width, cam.height):
+            raise CalibrationError(
+                f"the calibration is for a {self.camera.width}x{self.camera.height} camera, the "
+                f"rig's is {cam.width}x{cam.height}: calibrate at this resolution")
+        lasers = tuple(
+            replace(mine[ln.name], pin=ln.pin, active_high=ln.active_high, reference=ln.reference)
+            for ln in rig.lasers)
+        return replace(rig, camera=self.camera, lasers=lasers)
+
+    @staticmethod
+    def from_rig(rig: Rig) -> Calibration:
+        """A calibration that is exactly `rig` (e.g. a simulator's true rig)."""
+        return Calibration(rig.lasers, rig.camera, created=_now())
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+# --- checks -------------------------------------------------------------------------------------
+
+
+def _check_distances(zones: int, distances: Sequence[float]) -> tuple[float, ...]:
+    d = tuple(float(x) for x in distances)
+    if len(d) != zones:
+        raise CalibrationError(
+            f"the recording has {zones} zones but {len(d)} distances were given: "
+            "give one distance per zone, in zone order")
+    bad = [x for x in d if not (math.isfinite(x) and x > 0)]
+    if bad:
+        raise CalibrationError(f"distances must be positive metres, got {bad[0]:g}")
+    distinct = sorted(set(d))
+    if len(distinct) < 3:
+        raise CalibrationError(
+            f"only {len(distinct)} distinct distances ({', '.join(f'{x:g}' for x in distinct)} m); "
+            "a fit needs at least 3: record the target at more distances")
+    if distinct[-1] / distinct[0] < MIN_SPAN:
+        raise CalibrationError(
+            f"the distances span only a factor {distinct[-1] / distinct[0]:.2f} "
+            f"({distinct[0]:g} to {distinct[-1]:g} m); they must span at least {MIN_SPAN} "
+            "(e.g. 0.5 to 2 m) to tell each laser's origin from its direction")
+    return d
+
+
+# --- spot detection -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Blob:
+    """A spot found in a zone: mean position over the frame groups that showed it."""
+
+    pixel: np.ndarray  # (2,) sub-pixel (u, v)
+    lasers: frozenset[str]  # lasers on in every group where it showed: the only candidates
+
+
+def _mean(frames: Sequence[np.ndarray]) -> np.ndarray:
+    acc = sum(SpotFinder.laser_channel(f).astype(np.float32) for f in frames)
+    return acc * np.float32(1.0 / (len(frames) * SpotFinder.full_scale(frames[0])))
+
+
+def _difference(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+    """Laser-on minus gain·laser-off, the gain absorbing room-light flicker; and its noise."""
+    a, b = _mean(on), _mean(off)
+    keep = a < np.percentile(a, 99.0)  # the brightest 1 % holds the spots (and lamps)
+    gain = float((a[keep] * b[keep]).sum() / max(float((b[keep] ** 2).sum()), 1e-12))
+    diff = a - np.float32(gain) * b
+    diff -= np.float32(np.median(diff))
+    noise = 1.4826 * float(np.median(np.abs(diff)))
+    floor = 0.5 / (SpotFinder.full_scale(on[0]) * math.sqrt(len(on)))  # quantisation
+    return diff, max(noise, floor)
+
+
+def _refine(diff: np.ndarray, seed: tuple[int, int]) -> np.ndarray | None:
+    """Iterated Gaussian-windowed centroid (mean shift) around `seed`: the mode of the spot
+    smoothed by the window, unbiased for a symmetric spot, barely pulled by a neighbour."""
+    h = int(math.ceil(3 * WINDOW_SIGMA_PX)) + 3
+    u0, v0 = seed
+    if u0 < h or v0 < h or u0 + h >= diff.shape[1] or v0 + h >= diff.shape[0]:
+        return None  # too near the border to localise honestly
+    win = diff[v0 - h: v0 + h + 1, u0 - h: u0 + h + 1].astype(np.float64)
+    border = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
+    signal = np.clip(win - np.median(border), 0.0, None)
+    gv, gu = np.mgrid[v0 - h: v0 + h + 1, u0 - h: u0 + h + 1]
+    cu, cv, s2 = float(u0), float(v0), 2.0 * WINDOW_SIGMA_PX**2
+    for _ in range(40):
+        w = np.exp(-((gu - cu) ** 2 + (gv - cv) ** 2) / s2) * signal
+        total = float(w.sum())
+        if total <= 0:
+            return None
+        nu, nv = float((w * gu).sum() / total), float((w * gv).sum() / total)
+        done = abs(nu - cu) < 1e-4 and abs(nv - cv) < 1e-4
+        cu, cv = nu, nv
+        if done:
+            break
+    if abs(cu - u0) > h - 3 or abs(cv - v0) > h - 3:
+        return None  # wandered off: not a compact spot
+    return np.array([cu, cv])
+
+
+def find_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Spot pixels anywhere in the frame, from laser-on and laser-off frames of one pose."""
+    diff, noise = _difference(on, off)
+    mask = (diff > THRESHOLD_SIGMAS * noise).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    smooth = cv2.GaussianBlur(diff, (0, 0), WINDOW_SIGMA_PX)
+    peaks = smooth >= cv2.dilate(smooth, np.ones((5, 5), np.uint8))
+    found: list[np.ndarray] = []
+    for k in range(1, count):
+        x, y, w, h, area = (int(s) for s in stats[k])
+        if area < 2:
+            continue  # a lone pixel over 8 σ: not a spot's footprint
+        box = (slice(y, y + h), slice(x, x + w))
+        inside = labels[box] == k
+        s = np.where(inside, diff[box], 0.0).astype(np.float64)
+        gv, gu = np.mgrid[y: y + h, x: x + w]
+        total = float(s.sum())
+        mu, mv = float((s * gu).sum()) / total, float((s * gv).sum()) / total
+        size = math.sqrt(float((s * ((gu - mu) ** 2 + (gv - mv) ** 2)).sum()) / total / 2)
+        if size > MAX_SPOT_PX:
+            log.debug("blob at (%.0f, %.0f) has RMS radius %.1f px: not a laser spot", mu, mv, size)
+            continue
+        # Several local maxima in one blob: spots close enough to touch; each refined on its own.
+        vs, us = np.nonzero(peaks[box] & inside)
+        order = np.argsort(-smooth[box][vs, us])[:4]
+        for v, u in zip(vs[order] + y, us[order] + x):
+            spot = _refine(diff, (int(u), int(v)))
+            if spot is not None and all(np.linalg.norm(spot - p) > 1.0 for p in found):
+                found.append(spot)
+    return found
+
+
+def zone_blobs(recording: Recording, zone_index: int) -> list[Blob]:
+    """The zone's spots, found per frame group (each pose, each set of lasers) and merged: a spot
+    must show in at least half the groups that could show it (else flicker or noise)."""
+    zone = recording.zones[zone_index]
+    groups, _ = zone_groups(recording, zone)
+    tracks: list[dict[str, Any]] = []
+    for g in groups:
+        for pixel in find_spots(g.on, g.off):
+            for t in tracks:
+                if np.linalg.norm(np.mean(t["px"], axis=0) - pixel) < 1.5:
+                    t["px"].append(pixel)
+                    t["lasers"] &= set(g.lasers)
+                    break
+            else:
+                tracks.append({"px": [pixel], "lasers": set(g.lasers)})
+    blobs = []
+    for t in tracks:
+        could = sum(1 for g in groups if t["lasers"] & set(g.lasers))
+        if t["lasers"] and len(t["px"]) >= max(1, math.ceil(could / 2)):
+            blobs.append(Blob(np.mean(t["px"], axis=0), frozenset(t["lasers"])))
+    return blobs
+
+
+# --- assignment ---------------------------------------------------------------------------------
+
+
+def _clearly_nearer(d1: float, d2: float) -> bool:
+    return d2 >= 2.0 * d1 and d2 - d1 >= 2.0
+
+
+def _predict(rig: Rig, laser: Laser, known: dict[int, np.ndarray], distances: Sequence[float],
+             depth: float) -> tuple[np.ndarray, float]:
+    """Where `laser`'s spot should be at `depth`, and how far from there to look for it."""
+    nominal = rig.camera.project(laser.point_at_depth(depth))
+    if not known:
+        return nominal, FIRST_GATE_PX
+    if len(known) == 1:  # an angular error: a nearly constant pixel offset at every depth
+        (i, px), = known.items()
+        offset = px - rig.camera.project(laser.point_at_depth(distances[i]))
+        return nominal + offset, OFFSET_GATE_PX
+    # Two or more: the line through them, which also follows an origin (or distance) error.
+    line = fit_line(rig.camera, np.array(list(known.values())),
+                    np.array([distances[i] for i in known]), laser.name)
+    return rig.camera.project(line.point_at_depth(depth)), GATE_PX
+
+
+def assign_spots(rig: Rig, blobs: Sequence[Sequence[Blob]], distances: Sequence[float]
+                 ) -> dict[str, dict[int, np.ndarray]]:
+    """Per laser, zone index → spot pixel. Nearest distance first, each laser's prediction
+    learnt from the distances already assigned (see :func:`_predict`)."""
+    points: dict[str, dict[int, np.ndarray]] = {ln.name: {} for ln in rig.lasers}
+    for i in sorted(range(len(distances)), key=lambda k: distances[k]):
+        claims: dict[int, list[tuple[float, str]]] = {}
+        for laser in rig.lasers:
+            p, gate = _predict(rig, laser, points[laser.name], distances, distances[i])
+            near = sorted((float(np.linalg.norm(b.pixel - p)), k) for k, b in enumerate(blobs[i])
+                          if laser.name in b.lasers)
+            near = [c for c in near if c[0] <= gate]
+            if not near:
+                log.debug("zone %d: no spot of %s within %.0f px of (%.1f, %.1f)",
+                          i, laser.name, gate, *p)
+            elif len(near) > 1 and not _clearly_nearer(near[0][0], near[1][0]):
+                log.info("zone %d: %d spots near %s's prediction: left out", i, len(near), laser.name)
+            else:
+                claims.setdefault(near[0][1], []).append((near[0][0], laser.name))
+        for k, wanted in claims.items():
+            wanted.sort()
+            if len(wanted) > 1 and not _clearly_nearer(wanted[0][0], wanted[1][0]):
+                log.info("zone %d: one spot claimed by %s: left out", i, ", ".join(n for _, n in wanted))
+                continue
+            points[wanted[0][1]][i] = blobs[i][k].pixel
+    return points
+
+
+# --- fitting ------------------------------------------------------------------------------------
+
+
+def _normalised(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
+    r = camera.rays(pixels)
+    return r[:, :2] / r[:, 2:3]
+
+
+def _line(origin_xy: np.ndarray, slope: np.ndarray, name: str) -> Laser:
+    d = np.array([slope[0], slope[1], 1.0])
+    return Laser(name, (float(origin_xy[0]), float(origin_xy[1]), 0.0),
+                 tuple(float(c) for c in d / np.linalg.norm(d)))  # type: ignore[arg-type]
+
+
+def fit_line(camera: CameraModel, pixels: np.ndarray, depths: np.ndarray, name: str) -> Laser:
+    """The beam through the spots: x_n = ax + x0/D, y_n = ay + y0/D by linear least squares."""
+    A = np.stack([np.ones_like(depths), 1.0 / depths], axis=1)
+    (ax, ay), (x0, y0) = np.linalg.lstsq(A, _normalised(camera, pixels), rcond=None)[0]
+    return _line(np.array([x0, y0]), np.array([ax, ay]), name)
+
+
+def residuals(camera: CameraModel, laser: Laser, pixels: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """Pixel distances between the measured spots and the fitted beam reprojected at each depth."""
+    return np.linalg.norm(camera.project(laser.point_at_depth(depths)) - pixels, axis=1)
+
+
+def _scaled(camera: CameraModel, s: float) -> CameraModel:
+    return replace(camera, fx=camera.fx * s, fy=camera.fy * s)
+
+
+def _directions_for(camera: CameraModel, origins: dict[str, np.ndarray],
+                    data: dict[str, tuple[np.ndarray, np.ndarray]]) -> tuple[dict[str, Laser], float]:
+    """With origins fixed, each direction follows linearly (ax = mean(x_n − x0/D)); and the sum
+    of squared pixel residuals."""
+    lasers, cost = {}, 0.0
+    for name, (px, depths) in data.items():
+        slope = (_normalised(camera, px) - origins[name][None, :] / depths[:, None]).mean(axis=0)
+        lasers[name] = _line(origins[name], slope, name)
+        cost += float((residuals(camera, lasers[name], px, depths) ** 2).sum())
+    return lasers, cost
+
+
+def fit_focal_scale(camera: CameraModel, origins: dict[str, np.ndarray],
+                    data: dict[str, tuple[np.ndarray, np.ndarray]]) -> float:
+    """The focal scale minimising the pixel residuals. Without distortion the profile cost is
+    exactly quadratic in the scale (the predictions are linear in it), so Newton's step on it by
+    central differences lands on the minimum at once; a few more steps absorb distortion."""
+
+    def cost(s: float) -> float:
+        return _directions_for(_scaled(camera, s), origins, data)[1]
+
+    s, h = 1.0, 1e-3
+    for _ in range(6):
+        lo, mid, hi = cost(s - h), cost(s), cost(s + h)
+        curvature = hi - 2.0 * mid + lo
+        if curvature <= 0:
+            raise CalibrationError("the focal length cannot be fitted from these spots")
+        step = h * (hi - lo) / (2.0 * curvature)
+        s = min(max(s - step, 0.5), 2.0)
+        if abs(step) < 1e-9:
+            break
+    return s
+
+
+def _check_origins(nominal: Rig, fitted: dict[str, Laser]) -> None:
+    """A uniform scale error of the distances fits perfectly; only the origins can show it."""
+    nom = {ln.name: ln.point_at_depth(0.0)[:2] for ln in nominal.lasers}
+    shift = {n: float(np.linalg.norm(fitted[n].o[:2] - nom[n])) for n in fitted}
+    worst = max(shift, key=lambda n: shift[n])
+    if shift[worst] <= MAX_ORIGIN_SHIFT_M:
+        return
+    hint = "the distances may be wrong, or the rig is not as configured"
+    norm2 = sum(float(nom[n] @ nom[n]) for n in fitted)
+    if norm2 > 1e-6:
+        s = sum(float(fitted[n].o[:2] @ nom[n]) for n in fitted) / norm2
+        if abs(s - 1.0) > 0.05:
+            hint = (f"the origins all sit about {s:.2f}x their nominal distance from the optical "
+                    f"axis: the distances look scaled by {s:.2f} (wrong units, or measured from "
+                    "another point than the optical centre?)")
+    raise CalibrationError(
+        f"laser {worst!r}: fitted origin lies {1000 * shift[worst]:.1f} mm from its nominal "
+        f"position (limit {1000 * MAX_ORIGIN_SHIFT_M:.0f} mm): {hint}")
+
+
+def _laser_data(rig: Rig, points: dict[str, dict[int, np.ndarray]], D: tuple[float, ...]
+                ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per laser, its spot pixels and their depths; refused below MIN_POINTS."""
+    data = {}
+    for laser in rig.lasers:
+        got = sorted(points[laser.name])
+        if len(got) < MIN_POINTS:
+            where = f" ({', '.join(f'{D[i]:g}' for i in got)} m)" if got else ""
+            raise CalibrationError(
+                f"laser {laser.name!r}: spot found at only {len(got)} of {len(D)} distances{where};"
+                f" a fit needs {MIN_POINTS}: check that it is on, its spot is on the target and the"
+                " distances are right")
+        data[laser.name] = (np.array([points[laser.name][i] for i in got]),
+                            np.array([D[i] for i in got]))
+    return data
+
+
+def _fit_focal(camera: CameraModel, rig: Rig, data: dict[str, tuple[np.ndarray, np.ndarray]]
+               ) -> tuple[CameraModel, dict[str, Laser]]:
+    origins = {ln.name: ln.point_at_depth(0.0)[:2] for ln in rig.lasers}
+    s = fit_focal_scale(camera, origins, data)
+    if abs(s - 1.0) > MAX_FOCAL_CHANGE:
+        raise CalibrationError(
+            f"the fitted focal length moves by {100 * (s - 1):+.1f} % (limit "
+            f"{100 * MAX_FOCAL_CHANGE:.0f} %): a distance or the configured rig is probably wrong")
+    log.info("focal length fx %.2f px (nominal %.2f, %+.2f %%)", camera.fx * s, camera.fx, 100 * (s - 1))
+    camera = _scaled(camera, s)
+    return camera, _directions_for(camera, origins, data)[0]
+
+
+def _checked_residuals(camera: CameraModel, fitted: dict[str, Laser],
+                       data: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, dict]:
+    out: dict[str, dict] = {}
+    for name, (px, depths) in data.items():
+        r = residuals(camera, fitted[name], px, depths)
+        rms, worst = float(np.sqrt(np.mean(r**2))), float(r.max())
+        if rms > MAX_RMS_PX:
+            raise CalibrationError(
+                f"laser {name!r}: residual {rms:.2f} px rms (max {worst:.2f} px) exceeds "
+                f"{MAX_RMS_PX} px: the target may not be flat or square to the camera, or a "
+                "distance is wrong")
+        out[name] = {"rms": rms, "max": worst, "n": int(len(r))}
+    return out
+
+
+def fit_calibration(recording: Recording, distances_m: Sequence[float], fit_focal: bool = False
+                    ) -> Calibration:
+    """Fit every laser of `recording.rig` from zone i showing a flat target squarely at
+    distances_m[i] (metres from the optical centre); with `fit_focal` also the focal length,
+    the laser origins then held at their nominal values (see the module docstring)."""
+    rig = recording.rig
+    D = _check_distances(len(recording.zones), distances_m)
+    blobs = [zone_blobs(recording, i) for i in range(len(recording.zones))]
+    data = _laser_data(rig, assign_spots(rig, blobs, D), D)
+    if fit_focal:
+        camera, fitted = _fit_focal(rig.camera, rig, data)
+    else:
+        camera = rig.camera
+        fitted = {n: fit_line(camera, px, depths, n) for n, (px, depths) in data.items()}
+    res = _checked_residuals(camera, fitted, data)
+    if not fit_focal:
+        _check_origins(rig, fitted)
+    lasers = tuple(replace(fitted[ln.name], pin=ln.pin, active_high=ln.active_high,
+                           reference=ln.reference) for ln in rig.lasers)
+    return Calibration(lasers, camera, D, res, _now())
+
+
+# --- files --------------------------------------------------------------------------------------
+
+
+def write_calibration(path: str | Path, cal: Calibration) -> None:
+    """Write `cal` as JSON, atomically (temporary file, fsync, rename)."""
+    rig = rig_to_json(Rig(cal.camera, cal.lasers))
+    doc = {"format": FORMAT, "created": cal.created, "distances_m": list(cal.distances_m),
+           "camera": rig["camera"], "lasers": rig["lasers"], "residuals_px": cal.residuals_px}
+    try:
+        atomic_write_bytes(path, (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot write the calibration: {exc.strerror or exc}") from None
+
+
+def _number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _integer(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def read_calibration(path: str | Path) -> Calibration:
+    """Read a calibration file strictly: every problem is one line naming the file and the key."""
+    src = str(path)
+
+    def fail(key: str, message: str) -> CalibrationError:
+        return CalibrationError(f"{src}: {key}: {message}" if key else f"{src}: {message}")
+
+    try:
+        obj = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise fail("", "no such calibration file (make one with edge calibrate)") from None
+    except json.JSONDecodeError as exc:
+        raise fail("", f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise fail("", f"cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+    if not isinstance(obj, dict):
+        raise fail("", "expected a JSON object")
+    for key in ("format", "created", "distances_m", "camera", "lasers", "residuals_px"):
+        if key not in obj:
+            raise fail(key, "missing required key")
+    if obj["format"] != FORMAT:
+        raise fail("format", f"expected {FORMAT!r}, got {obj['format']!r}")
+    if not isinstance(obj["created"], str):
+        raise fail("created", "must be a string")
+    dist = obj["distances_m"]
+    if not isinstance(dist, list) or not all(_number(d) and d > 0 for d in dist):
+        raise fail("distances_m", "must be a list of positive numbers")
+    if not isinstance(obj["residuals_px"], dict):
+        raise fail("residuals_px", "must be an object")
+    for name, entry in obj["residuals_px"].items():
+        for k, ok, what in (("rms", _number, "a number"), ("max", _number, "a number"),
+                            ("n", _integer, "an integer")):
+            if not isinstance(entry, dict) or not ok(entry.get(k)):
+                raise fail(f"residuals_px.{name}.{k}", f"must be {what}")
+    rig = rig_from_json({"camera": obj["camera"], "lasers": obj["lasers"]}, src, error=CalibrationError)
+    res = {n: {"rms": float(e["rms"]), "max": float(e["max"]), "n": e["n"]}
+           for n, e in obj["residuals_px"].items()}
+    return Calibration(rig.lasers, rig.camera, tuple(float(d) for d in dist), res, obj["created"])
+
+
+# --- command line -------------------------------------------------------------------------------
+
+
+def add_parser(sub: Any) -> None:
+    """Register `edge calibrate` on an argparse sub-parsers object."""
+    p = sub.add_parser("calibrate", help="fit the laser rays from a flat target at known distances")
+    p.add_argument("--recording", metavar="DIR", required=True,
+                   help="recording whose zone i shows a flat target squarely at distance i")
+    p.add_argument("--distances", metavar="D1,D2,...", required=True,
+                   help="target distances in metres from the optical centre, one per zone, e.g. 0.5,1,2")
+    p.add_argument("--out", metavar="FILE", required=True, help="calibration file to write (JSON)")
+    p.add_argument("--fit-focal", action="store_true",
+                   help="also fit the focal length (laser origins then held at their nominal values)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    p.set_defaults(func=run)
+
+
+def parse_distances(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        values = []
+    if not values:
+        raise UsageError(f"--distances: expected metres separated by commas, e.g. 0.5,1,2; got {text!r}")
+    return values
+
+
+def report(cal: Calibration, nominal: Rig) -> list[str]:
+    """Lines for people: per laser the fitted ray, its change from nominal and its residuals."""
+    lines = [f"{'laser':<10} {'origin mm':<22} {'direction':<27} {'change':>8} {'rms px':>7} "
+             f"{'max px':>7} {'points':>6}"]
+    for laser in cal.lasers:
+        nom = {ln.name: ln for ln in nominal.lasers}.get(laser.name)
+        angle = math.degrees(math.acos(min(1.0, float(laser.d @ nom.d)))) if nom else math.nan
+        o = "(" + ", ".join(f"{1000 * c:.1f}" for c in laser.origin_m) + ")"
+        d = "(" + ", ".join(f"{c:.5f}" for c in laser.direction) + ")"
+        r = cal.residuals_px.get(laser.name, {})
+        lines.append(f"{laser.name:<10} {o:<22} {d:<27} {angle:7.3f}° {r.get('rms', math.nan):7.3f} "
+                     f"{r.get('max', math.nan):7.3f} {r.get('n', 0):>3}/{len(cal.distances_m)}")
+    if (cal.camera.fx, cal.camera.fy) != (nominal.camera.fx, nominal.camera.fy):
+        lines.append(f"focal length: fx {cal.camera.fx:.2f} px, fy {cal.camera.fy:.2f} px (nominal fx "
+                     f"{nominal.camera.fx:g}: {100 * (cal.camera.fx / nominal.camera.fx - 1):+.2f} %)")
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    """`edge calibrate`: read, fit, write, report."""
+    distances = parse_distances(args.distances)
+    recording = read_recording(args.recording)
+    cal = fit_calibration(recording, distances, fit_focal=args.fit_focal)
+    write_calibration(args.out, cal)
+    print("\n".join(report(cal, recording.rig)))
+    print(f"wrote {args.out}")
+    return 0
