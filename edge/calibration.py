@@ -202,16 +202,16 @@ def find_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> list[np.n
     peaks = smooth >= cv2.dilate(smooth, np.ones((5, 5), np.uint8))
     found: list[np.ndarray] = []
     for k in range(1, count):
-        x, y, w, h, area = (int(s) for s in stats[k])
+        x, y, w, h, area = (int(c) for c in stats[k])
         if area < 2:
             continue  # a lone pixel over 8 σ: not a spot's footprint
         box = (slice(y, y + h), slice(x, x + w))
         inside = labels[box] == k
-        s = np.where(inside, diff[box], 0.0).astype(np.float64)
+        sig = np.where(inside, diff[box], 0.0).astype(np.float64)
         gv, gu = np.mgrid[y: y + h, x: x + w]
-        total = float(s.sum())
-        mu, mv = float((s * gu).sum()) / total, float((s * gv).sum()) / total
-        size = math.sqrt(float((s * ((gu - mu) ** 2 + (gv - mv) ** 2)).sum()) / total / 2)
+        total = float(sig.sum())
+        mu, mv = float((sig * gu).sum()) / total, float((sig * gv).sum()) / total
+        size = math.sqrt(float((sig * ((gu - mu) ** 2 + (gv - mv) ** 2)).sum()) / total / 2)
         if size > MAX_SPOT_PX:
             log.debug("blob at (%.0f, %.0f) has RMS radius %.1f px: not a laser spot", mu, mv, size)
             continue

@@ -206,6 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.set_defaults(func=cmd_replay)
 
+    from edge import calibration
+
+    calibration.add_parser(sub)
+
     p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
     _common(p)
     p.add_argument("what", choices=["render", "ranging"], help="what to time")

@@ -33,6 +33,35 @@ FAR_FACTOR = 1.6
 CHANNEL_WEIGHTS = {"red": (0.0, 0.0, 1.0), "luma": (0.114, 0.587, 0.299)}
 
 
+# A pixel at this fraction of full scale in a laser-on frame is taken as clipped.
+_SATURATED = 0.985
+
+
+def _fit_unsaturated(
+    signal: np.ndarray, saturated: np.ndarray, offs: np.ndarray, floor: float
+) -> tuple[float, float] | None:
+    """Centre of a spot whose core is clipped, from a Gaussian fitted to its unclipped pixels.
+
+    The centroid of a clipped, pixel-sampled spot is biased by up to ~0.07 px depending on where
+    the spot falls within a pixel ("pixel locking"); the wings still carry the position. The fit is
+    of ln I = a + b·u + c·v + d·u² + e·v² + f·u·v, weighted by I² (the variance of ln I is σ²/I²).
+    Returns (du, dv) relative to the window centre, or None when the fit is not a peak.
+    """
+    use = ~saturated & (signal > floor)
+    if int(use.sum()) < 10:
+        return None
+    gv, gu = np.meshgrid(offs, offs, indexing="ij")
+    u, v, val = gu[use], gv[use], signal[use].astype(np.float64)
+    design = np.stack([np.ones_like(u), u, v, u * u, v * v, u * v], axis=1) * val[:, None]
+    coef = np.linalg.lstsq(design, np.log(val) * val, rcond=None)[0]
+    _, b, c, d, e, f = coef
+    hessian = np.array([[2.0 * d, f], [f, 2.0 * e]])
+    if d >= 0 or e >= 0 or np.linalg.det(hessian) <= 0:
+        return None
+    du, dv = np.linalg.solve(hessian, [-b, -c])
+    return float(du), float(dv)
+
+
 @functools.lru_cache(maxsize=16)
 def _border_index(size: int) -> np.ndarray:
     """Flat indices of the outermost ring of a size × size window."""
@@ -212,44 +241,48 @@ class SpotFinder:
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
         shot = noise**2 / (2.0 * max(float(boff.mean()) if boff.size else 0.0, 1e-3))
+        seeds = {
+            name: self._seeds(
+                self.bands[name], diff[self._slices[name]].reshape(self.bands[name].v.shape),
+                on, off, gain, noise, max_candidates,
+            )
+            for name in names
+        }
+        # Every seed of every laser: a neighbouring spot, whichever laser's, must not pull a
+        # spot's centroid (the centre and parallel spots are 4 px apart at 5 m).
+        everywhere = [(u, v) for ss in seeds.values() for u, v, _, _ in ss]
         found: dict[str, list[Candidate]] = {}
-        for name in names:
-            band = self.bands[name]
-            strip = diff[self._slices[name]].reshape(band.v.shape)
-            found[name] = self._candidates(band, strip, on, off, gain, noise, shot, max_candidates)
+        for name, ss in seeds.items():
+            out = []
+            for u, v, peak, row in ss:
+                others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius]
+                cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, noise, shot, peak)
+                if cand is not None:
+                    out.append(cand)
+            found[name] = out
         return found
 
-    def _candidates(self, band, strip, on, off, gain, noise, shot, max_candidates) -> list[Candidate]:
+    def _seeds(self, band, strip, on, off, gain, noise, max_candidates) -> list[tuple[int, int, float, int]]:
+        """Peaks along the strip above the detection threshold, strongest first, one per blob:
+        (u, v, peak, strip row)."""
         profile = strip.max(axis=1)
-        threshold = self.min_snr * noise
-        above = profile > threshold
+        above = profile > self.min_snr * noise
         if not above.any():
             return []
         # Local maxima inside the path (its ends lie beyond the working range's margins).
         mid = profile[1:-1]
         peaks = 1 + np.flatnonzero(above[1:-1] & (mid >= profile[:-2]) & (mid > profile[2:]))
         peaks = peaks[np.argsort(profile[peaks])[::-1]]
-        seeds: list[tuple[int, int, float]] = []
-        rows: dict[tuple[int, int], int] = {}
+        seeds: list[tuple[int, int, float, int]] = []
         for i in peaks:
             j = int(np.argmax(strip[i]))
-            u, v = int(band.u[i, j]), int(band.v[i, j])
-            if any(
-                not self._apart((u, v), (su, sv), min(float(profile[i]), sp), on, off, gain)
-                for su, sv, sp in seeds
-            ):
+            u, v, peak = int(band.u[i, j]), int(band.v[i, j]), float(profile[i])
+            if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain) for su, sv, sp, _ in seeds):
                 continue  # the same blob seen from another path sample
-            seeds.append((u, v, float(profile[i])))
-            rows[(u, v)] = int(i)
+            seeds.append((u, v, peak, int(i)))
             if len(seeds) >= max_candidates:
                 break
-        out = []
-        for u, v, peak in seeds:
-            others = [(su, sv) for su, sv, _ in seeds if (su, sv) != (u, v)]
-            cand = self._refine(band, (u, v), rows[(u, v)], others, on, off, gain, noise, shot, peak)
-            if cand is not None:
-                out.append(cand)
-        return out
+        return seeds
 
     def _apart(self, a, b, peak, on, off, gain) -> bool:
         """Are the peaks at pixels `a` and `b` two spots? Only if the difference image dips below
@@ -278,10 +311,12 @@ class SpotFinder:
             if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
                 return None  # too close to the image border to localise honestly
             rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
-            win = self._window(on, rows, cols) - np.float32(gain) * self._window(off, rows, cols)
+            lit = self._window(on, rows, cols)
+            win = lit - np.float32(gain) * self._window(off, rows, cols)
             border = win.ravel()[_border_index(2 * r + 1)]
             level = float(np.partition(border, border.size // 2)[border.size // 2])
-            # Subtracting a level and clipping at zero keeps a symmetric spot symmetric.
+            # Subtracting a level a little above the background and clipping at zero keeps the
+            # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
             signal = np.maximum(win - np.float32(level + 2.0 * noise), 0.0)
             offs = np.arange(-r, r + 1, dtype=np.float32)
             if others:
@@ -304,9 +339,17 @@ class SpotFinder:
             r = min(need, 3 * self._radius)  # recentre, and widen for a big spot
         if size > self.max_spot_px:
             return None  # a lamp or a screen, not a pointer's spot
+        saturated = lit >= _SATURATED
+        if saturated.any():
+            fitted = _fit_unsaturated(signal, saturated, offs, 3.0 * noise)
+            if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
+                du, dv = fitted
+                cu, cv = u0 + du, v0 + dv
         # Position variance from pixel noise: Σ (x − x̄)² σ² / (Σ I)² over the pixels used, σ²
         # including the spot's own shot noise.
-        var_pix = np.where(signal > 0, noise**2 + (signal + level) * (shot / len(on)), 0.0)
+        # The difference's noise already holds the background's shot noise; the spot adds its own
+        # (`shot` is per unit of the averaged frames' signal).
+        var_pix = np.where(signal > 0, noise**2 + signal * shot, 0.0)
         var_u = float(((offs - du) ** 2) @ var_pix.sum(axis=0)) / mass**2
         var_v = float(((offs - dv) ** 2) @ var_pix.sum(axis=1)) / mass**2
         # Where along the path, and how far from it, from the strip row the seed came from.

@@ -1,0 +1,146 @@
+"""Spot finding on rendered frames: sub-pixel accuracy, any bit depth and colour, flicker, and
+the lights that are not lasers."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from edge.config import load_config
+from edge.sim.record import flat_target_scene
+from edge.sim.render import Renderer
+from edge.sim.scene import load_scene
+from edge.vision import SpotFinder
+
+
+def _renderer(scene, speckle: float = 0.0, **sensor):
+    config = load_config()
+    sim = replace(
+        config.sim,
+        beam=replace(config.sim.beam, speckle=speckle),
+        sensor=replace(config.sim.sensor, **sensor),
+    )
+    return Renderer(scene, config.rig.build(), sim)
+
+
+def _pair(renderer: Renderer, pan: float = 0.0, seed: int = 0, noise: bool = True):
+    rng = np.random.default_rng(seed)
+    lasers = {n: 1.0 for n in renderer.rig.laser_names}
+    on = renderer.render(pan, 0.0, lasers, 0.0, rng, noise=noise)
+    off = renderer.render(pan, 0.0, {}, 0.0, rng, noise=noise)
+    return on, off
+
+
+@pytest.mark.parametrize("distance", [0.3, 0.6, 1.0, 2.0, 3.0, 4.5])
+def test_subpixel_accuracy_on_rendered_spots(distance: float) -> None:
+    renderer = _renderer(flat_target_scene(distance), output_bits=16)
+    finder = SpotFinder(renderer.rig)
+    on, off = _pair(renderer, noise=False)
+    truth = renderer.spots(0.0, 0.0)
+    found = finder.find([on], [off])
+    for name, spot in truth.items():
+        assert len(found[name]) == 1, (name, found[name])
+        error = np.linalg.norm(found[name][0].pixel - spot.pixel)
+        # Where the centre and parallel spots are only a few pixels apart (far), each one's tail
+        # reaches the other's window: allow a little more there.
+        assert error < (0.05 if distance < 3.0 else 0.1), (name, error)
+
+
+def test_bit_depth_and_colour_do_not_change_the_answer() -> None:
+    scene = flat_target_scene(1.5)
+    results = []
+    for sensor in ({"output_bits": 8}, {"output_bits": 16}, {"colour": False}):
+        renderer = _renderer(scene, **sensor)
+        on, off = _pair(renderer, noise=False)
+        found = SpotFinder(renderer.rig).find([on], [off])
+        results.append(np.array([found[n][0].pixel for n in renderer.rig.laser_names]))
+    assert np.abs(results[0] - results[1]).max() < 0.03
+    assert np.abs(results[0] - results[2]).max() < 0.03
+
+
+def test_flicker_between_frames_is_compensated() -> None:
+    renderer = _renderer(load_scene("office"))
+    rng = np.random.default_rng(1)
+    lasers = {n: 1.0 for n in renderer.rig.laser_names}
+    on = renderer.digitise(renderer.render_electrons(-90.0, 0.0, lasers, 0.0, 1.10), rng)
+    off = renderer.digitise(renderer.render_electrons(-90.0, 0.0, {}, 0.0, 0.90), rng)
+    found = SpotFinder(renderer.rig).find([on], [off])
+    truth = renderer.spots(-90.0, 0.0)
+    for name in renderer.rig.laser_names:
+        assert len(found[name]) == 1
+        assert np.linalg.norm(found[name][0].pixel - truth[name].pixel) < 0.3
+
+
+def test_noise_alone_gives_no_spot() -> None:
+    renderer = _renderer(load_scene("office"))
+    rng = np.random.default_rng(2)
+    a = renderer.render(-90.0, 0.0, {}, 0.0, rng)
+    b = renderer.render(-90.0, 0.0, {}, 0.0, rng)
+    found = SpotFinder(renderer.rig).find([a], [b])
+    assert all(not c for c in found.values())
+
+
+def test_lights_that_are_not_lasers_are_rejected() -> None:
+    renderer = _renderer(flat_target_scene(2.0))
+    on, off = _pair(renderer)
+    on = on.copy()
+    rig = renderer.rig
+    # A small blinking LED well off every laser's path, and a big bright patch (a screen) across
+    # the reference laser's path, both lit only in the laser-on frame.
+    cv2.circle(on, (100, 400), 2, (0, 0, 255), -1)
+    centre_path = rig.laser_image_path(rig.laser("center"), 8)
+    u, v = (int(c) for c in centre_path[1])
+    cv2.rectangle(on, (u - 8, v - 14), (u + 8, v - 6), (255, 255, 255), -1)
+    found = SpotFinder(rig).find([on], [off])
+    truth = renderer.spots(0.0, 0.0)
+    for name in rig.laser_names:
+        assert len(found[name]) == 1, (name, [c.pixel for c in found[name]])
+        assert np.linalg.norm(found[name][0].pixel - truth[name].pixel) < 0.5
+
+
+def test_reported_uncertainty_matches_the_scatter_from_noise() -> None:
+    renderer = _renderer(flat_target_scene(3.0))
+    finder = SpotFinder(renderer.rig)
+    positions, sigmas = [], []
+    for seed in range(40):
+        on, off = _pair(renderer, seed=seed)
+        cand = finder.find([on], [off])["center"][0]
+        positions.append(cand.pixel)
+        sigmas.append(cand.sigma_px)
+    scatter = np.array(positions).std(axis=0).max()
+    assert 0.5 < scatter / np.mean(sigmas) < 2.0, (scatter, np.mean(sigmas))
+
+
+def test_averaging_frames_of_one_pose_reduces_pixel_noise() -> None:
+    renderer = _renderer(flat_target_scene(4.0))
+    finder = SpotFinder(renderer.rig)
+    lasers = {n: 1.0 for n in renderer.rig.laser_names}
+    singles, averaged, sigmas1, sigmas4 = [], [], [], []
+    for seed in range(16):
+        rng = np.random.default_rng(seed)
+        ons = [renderer.render(0.0, 0.0, lasers, 0.0, rng) for _ in range(4)]
+        offs = [renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(4)]
+        one = finder.find(ons[:1], offs[:1])["center"][0]
+        four = finder.find(ons, offs)["center"][0]
+        singles.append(one.pixel)
+        averaged.append(four.pixel)
+        sigmas1.append(one.sigma_px)
+        sigmas4.append(four.sigma_px)
+    scatter1 = np.array(singles).std(axis=0).max()
+    scatter4 = np.array(averaged).std(axis=0).max()
+    assert scatter4 < 0.75 * scatter1  # √4 = 2 in theory
+    assert np.mean(sigmas4) < np.mean(sigmas1)
+
+
+def test_luma_channel_reads_jpeg_frames() -> None:
+    renderer = _renderer(flat_target_scene(1.5), jpeg_quality=75)
+    on, off = _pair(renderer)
+    truth = renderer.spots(0.0, 0.0)["center"].pixel
+    luma = SpotFinder(renderer.rig, channel="luma").find([on], [off])["center"]
+    # JPEG rings around a bright spot; the strongest candidate is the spot.
+    assert luma and np.linalg.norm(luma[0].pixel - truth) < 0.4
+    with pytest.raises(ValueError, match="channel must be one of"):
+        SpotFinder(renderer.rig, channel="green")
