@@ -163,9 +163,9 @@ def measure(
     u, v = float(pixel[0]), float(pixel[1])
     o, d = laser.origin_m, laser.direction
     p = _on_beam(o, d, _ray(camera, u, v))
-    h = 0.05
-    dz_du = (_on_beam(o, d, _ray(camera, u + h, v))[2] - p[2]) / h
-    dz_dv = (_on_beam(o, d, _ray(camera, u, v + h))[2] - p[2]) / h
+    h = 0.05  # central differences: depth is strongly convex in the pixel far away
+    dz_du = (_on_beam(o, d, _ray(camera, u + h, v))[2] - _on_beam(o, d, _ray(camera, u - h, v))[2]) / (2 * h)
+    dz_dv = (_on_beam(o, d, _ray(camera, u, v + h))[2] - _on_beam(o, d, _ray(camera, u, v - h))[2]) / (2 * h)
     sigma_m = math.hypot(dz_du, dz_dv) * sigma_px
     return LaserMeasurement(
         laser.name, np.array([u, v]), sigma_px, np.array(p), p[2], sigma_m, snr, views, laser.d
@@ -317,6 +317,15 @@ def best_fusion(
     return fuse(rig, reference, ())
 
 
+def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
+    """Do at least two of the other lasers have spots that lie on one surface?"""
+    found = [ms for ms in others.values() if ms]
+    for x, y in itertools.combinations(found, 2):
+        if any(_pair_plausible(a, b) and not _same_blob(a, b) for a in x for b in y):
+            return True
+    return False
+
+
 def _same_blob(a: LaserMeasurement, b: LaserMeasurement) -> bool:
     return math.hypot(float(a.pixel[0] - b.pixel[0]), float(a.pixel[1] - b.pixel[1])) < 1.5
 
@@ -398,12 +407,17 @@ class Ranger:
             if self.config.fuse and others
             else fuse(rig, chosen, ())
         )
-        contradicted = len(fusion.used) == 1 and any(others.values())
-        if contradicted and chosen.snr < self.config.lone_min_snr:
-            return self._result(
-                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                detail=f"a weak {ref} spot (SNR {chosen.snr:.0f}) that the other lasers' spots contradict",
-            )
+        if len(fusion.used) == 1 and any(others.values()):
+            # No other laser agrees with the reference spot. A strong spot may still be right (an
+            # edge between the beams), but not if the others agree among themselves elsewhere,
+            # and not a weak one: a stray light on the path looks just like that.
+            agreeing = _agreeing_others(others)
+            if agreeing or chosen.snr < self.config.lone_min_snr:
+                why = "the other lasers agree on another surface" if agreeing else f"it is weak (SNR {chosen.snr:.0f})"
+                return self._result(
+                    index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                    detail=f"no other laser confirms the {ref} spot and {why}",
+                )
         lo, hi = rig.range_limits_m
         if not lo <= fusion.range_m <= hi:
             return self._result(

@@ -1,0 +1,237 @@
+"""The ranging core: triangulation round trips, fusion, assignment where paths cross, stray
+lights, statuses — on frames the simulator renders."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from edge.config import load_config
+from edge.ranging import (
+    AMBIGUOUS, FAULT, NO_SPOT, OK, OUT_OF_RANGE, FrameGroup, LaserMeasurement, Ranger,
+    RangingConfig, fuse, measure, triangulate,
+)
+from edge.rig import CAMERA_MODELS, CameraModel, Laser, Rig, default_rig
+from edge.sim.record import flat_target_scene
+from edge.sim.render import Renderer
+
+
+def _laser(ox: float, oy: float, ax: float, ay: float, name: str = "l") -> Laser:
+    d = np.array([ax, ay, 1.0])
+    d /= np.linalg.norm(d)
+    return Laser(name, (ox, oy, 0.0), tuple(d))
+
+
+@settings(max_examples=200)
+@given(
+    ox=st.floats(-0.1, 0.1), oy=st.floats(-0.1, 0.1), ax=st.floats(-0.3, 0.3), ay=st.floats(-0.3, 0.3),
+    z=st.floats(0.25, 5.0), k1=st.floats(-0.15, 0.05),
+)
+def test_project_then_triangulate_round_trip(ox, oy, ax, ay, z, k1) -> None:
+    laser = _laser(ox, oy, ax, ay)
+    # A beam that passes near the optical centre has no parallax to triangulate with.
+    if np.linalg.norm(np.cross(laser.o, laser.d)) < 0.01:
+        return
+    camera = CameraModel(640, 480, 530.0, 530.0, 319.5, 239.5, (k1, 0.0, 0.0, 0.0, 0.0))
+    point = laser.point_at_depth(z)
+    pixel = camera.project(point)
+    assert triangulate(laser, camera, pixel[None])[0] == pytest.approx(point, abs=1e-6)
+    m = measure(laser, camera, pixel, 0.1, 50.0, 1)
+    assert m.depth_m == pytest.approx(z, rel=1e-7)
+    assert m.point_m == pytest.approx(point, abs=1e-6)
+
+
+@pytest.mark.parametrize("z", [0.5, 1.0, 2.0, 4.0])
+def test_depth_uncertainty_follows_the_triangulation_law(z: float) -> None:
+    """σ_z = z²/(f·b)·σ_p for the centre laser (baseline 3.5 cm across the image)."""
+    rig = default_rig()
+    laser = rig.laser("center")
+    pixel = rig.camera.project(laser.point_at_depth(z))
+    m = measure(laser, rig.camera, pixel, 0.1, 50.0, 1)
+    assert m.sigma_m == pytest.approx(z * z / (530.0 * 0.035) * 0.1, rel=0.01)
+
+
+def _meas(name: str, point, sigma: float, laser: Laser) -> LaserMeasurement:
+    p = np.array(point, float)
+    return LaserMeasurement(name, np.zeros(2), 0.1, p, float(p[2]), sigma, 50.0, 1, laser.d)
+
+
+def test_fusion_of_a_facing_wall_averages_with_the_right_weights() -> None:
+    rig = default_rig()
+    ref = _meas("center", (0.035, 0.0, 2.01), 0.02, rig.laser("center"))
+    par = _meas("parallel", (0.035, -0.04, 1.99), 0.01, rig.laser("parallel"))
+    f = fuse(rig, ref, [par], slopes=False, surface_sigma_per_m=0.0)
+    w1, w2 = 1 / 0.02**2, 1 / 0.01**2
+    assert f.range_m == pytest.approx((w1 * 2.01 + w2 * 1.99) / (w1 + w2))
+    assert f.sigma_m == pytest.approx(1 / math.sqrt(w1 + w2))
+    assert f.consistent and f.dof == 1
+
+
+def test_fusion_on_a_tilted_plane_gives_its_normal() -> None:
+    """Three lasers at 120° round the camera (the thesis' proposed design, fig. 4.4) see any
+    plane's pose; the fused range and normal come back exactly."""
+    lasers = tuple(
+        Laser(f"l{k}", (0.04 * math.cos(a), 0.04 * math.sin(a), 0.0), (0.0, 0.0, 1.0), reference=k == 0)
+        for k, a in enumerate(np.radians([90.0, 210.0, 330.0]))
+    )
+    rig = Rig(CAMERA_MODELS["picam-v2"], lasers)
+    normal = np.array([0.3, -0.2, -1.0])
+    normal /= np.linalg.norm(normal)
+    centre = np.array([0.0, 0.0, 2.0])
+    ms = []
+    for laser in lasers:
+        s = float(normal @ (centre - laser.o)) / float(normal @ laser.d)
+        ms.append(_meas(laser.name, laser.o + s * laser.d, 0.005, laser))
+    f = fuse(rig, ms[0], ms[1:], slopes=True)
+    assert f.range_m == pytest.approx(ms[0].depth_m, abs=1e-9)
+    assert f.normal == pytest.approx(normal, abs=1e-9)
+
+
+def _render_groups(renderer: Renderer, pan: float = 0.0, pairs: int = 2, seed: int = 0, edit=None):
+    groups = []
+    for k in range(pairs):
+        rng = np.random.default_rng([seed, k])
+        view = pan + 0.0514 * k
+        lasers = {n: 1.0 for n in renderer.rig.laser_names}
+        on = renderer.render(view, 0.0, lasers, 0.0, rng)
+        off = renderer.render(view, 0.0, {}, 0.0, rng)
+        if edit is not None:
+            on = edit(on.copy())
+        groups.append(FrameGroup([on], [off], renderer.rig.laser_names, (view, 0.0)))
+    return groups
+
+
+def _wall(distance: float, rig: Rig | None = None) -> Renderer:
+    config = load_config()
+    return Renderer(flat_target_scene(distance), rig or config.rig.build(), config.sim)
+
+
+@pytest.mark.parametrize("distance", [0.3, 0.8, 1.6, 3.2, 4.8])
+def test_walls_range_within_their_sigma(distance: float) -> None:
+    renderer = _wall(distance)
+    result = Ranger(renderer.rig).range_zone(0, 0.0, 0.0, _render_groups(renderer))
+    assert result.status == OK
+    assert abs(result.range_m - distance) <= 2.5 * result.sigma_m
+    assert abs(result.range_m - distance) / distance < 0.02
+    assert result.point_base_m[0] == pytest.approx(result.range_m, rel=1e-6)  # pan 0: base x
+    assert set(result.lasers) == {"center", "parallel", "sloped"}  # all three fused
+
+
+def test_statuses_say_what_happened() -> None:
+    ranger = Ranger(default_rig())
+    for distance in (0.22, 5.6):
+        result = ranger.range_zone(0, 0.0, 0.0, _render_groups(_wall(distance)))
+        assert result.status == OUT_OF_RANGE and result.range_m is None
+        assert "outside the working range" in result.detail
+    # Far beyond, the centre and parallel spots merge: not a range, whatever else it is.
+    assert ranger.range_zone(0, 0.0, 0.0, _render_groups(_wall(7.0))).status in (OUT_OF_RANGE, NO_SPOT)
+    assert ranger.range_zone(0, 0.0, 0.0, []).status == FAULT
+    near = _wall(1.0)
+    # The reference laser did not light: no_spot, whatever the others say.
+    groups = []
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        on = near.render(0.0, 0.0, {"parallel": 1.0, "sloped": 1.0}, 0.0, rng)
+        off = near.render(0.0, 0.0, {}, 0.0, rng)
+        groups.append(FrameGroup([on], [off], ("center", "parallel", "sloped")))
+    result = ranger.range_zone(3, 10.0, 0.0, groups)
+    assert result.status == NO_SPOT and result.range_m is None
+    assert result.to_json()["range_m"] is None and result.to_json()["index"] == 3
+
+
+def _crossing_rig() -> Rig:
+    """Two lasers whose image paths cross: one from the left aimed right and down, one from the
+    right aimed left and down; the reference is a third, plain one."""
+    return Rig(
+        CAMERA_MODELS["picam-v2"],
+        (
+            Laser("ref", (0.035, 0.0, 0.0), (0.0, 0.0, 1.0), reference=True),
+            _laser(-0.05, -0.03, 0.03, 0.02, "a"),
+            _laser(0.05, -0.03, -0.03, 0.02, "b"),
+        ),
+    )
+
+
+def test_paths_that_cross_never_give_a_wrong_range() -> None:
+    rig = _crossing_rig()
+    a, b = rig.laser("a"), rig.laser("b")
+    pa, pb = rig.laser_image_path(a, 400), rig.laser_image_path(b, 400)
+    gaps = np.linalg.norm(pa[:, None, :] - pb[None, :, :], axis=2)
+    assert gaps.min() < 1.0  # the paths do cross
+    config = load_config()
+    ranger = Ranger(rig)
+    for distance in (0.5, 0.8, 1.0, 1.5, 2.5, 4.0):
+        renderer = Renderer(flat_target_scene(distance), rig, config.sim)
+        result = ranger.range_zone(0, 0.0, 0.0, _render_groups(renderer))
+        assert result.status in (OK, AMBIGUOUS)
+        if result.status == OK:
+            assert abs(result.range_m - distance) / distance < 0.02, (distance, result.range_m)
+        for name in ("a", "b"):
+            if name in result.lasers:  # a laser that was used was used with its own spot
+                truth = renderer.spots(0.0, 0.0)[name].pixel
+                assert np.linalg.norm(result.lasers[name].pixel - truth) < 1.0
+
+
+def _blob_on_path(rig: Rig, laser: str, depth: float):
+    """A lamp-like blob lit only in the laser-on frames, exactly where `laser`'s spot would be at
+    `depth`: something flickering that happens to sit on the laser's path."""
+    u, v = (int(round(c)) for c in rig.camera.project(rig.laser(laser).point_at_depth(depth)))
+
+    def edit(on: np.ndarray) -> np.ndarray:
+        cv2.circle(on, (u, v), 1, (0, 0, 230), -1)
+        return on
+
+    return edit
+
+
+def test_a_stray_light_on_the_reference_path_is_outvoted_by_the_other_lasers() -> None:
+    renderer = _wall(2.0)
+    rig = renderer.rig
+    groups = _render_groups(renderer, edit=_blob_on_path(rig, "center", 0.6))
+    result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    assert result.status == OK
+    assert result.range_m == pytest.approx(2.0, rel=0.02)
+
+
+def test_a_stray_light_alone_on_the_reference_path_is_never_a_range() -> None:
+    """The reference spot hidden and a blob on its path: with the other lasers' spots saying
+    otherwise, the blob must not become an `ok` range."""
+    renderer = _wall(2.0)
+    rig = renderer.rig
+    edit = _blob_on_path(rig, "center", 0.6)
+    groups = []
+    rng = np.random.default_rng(4)
+    for k in range(2):
+        on = renderer.render(0.0, 0.0, {"parallel": 1.0, "sloped": 1.0}, 0.0, rng)
+        off = renderer.render(0.0, 0.0, {}, 0.0, rng)
+        groups.append(FrameGroup([edit(on.copy())], [off], rig.laser_names, (0.0514 * k, 0.0)))
+    result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    assert result.status != OK or abs(result.range_m - 2.0) / 2.0 < 0.02
+
+
+def test_sigma_is_honest_over_many_walls() -> None:
+    config = load_config()
+    rig = config.rig.build()
+    ranger = Ranger(rig)
+    ratios = []
+    for i, distance in enumerate(np.linspace(0.4, 4.6, 15)):
+        renderer = Renderer(flat_target_scene(float(distance)), rig, config.sim)
+        result = ranger.range_zone(0, 0.0, 0.0, _render_groups(renderer, seed=i))
+        assert result.status == OK
+        ratios.append(abs(result.range_m - distance) / result.sigma_m)
+    assert np.mean(np.array(ratios) <= 2.0) >= 0.85, ratios
+
+
+def test_config_validation() -> None:
+    from edge.schema import FieldError
+
+    with pytest.raises(FieldError, match="path_tolerance_px"):
+        RangingConfig(band_halfwidth_px=2.0, path_tolerance_px=3.0)
+    with pytest.raises(FieldError, match="min_snr"):
+        replace(RangingConfig(), min_snr=1.0)
