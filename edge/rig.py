@@ -10,6 +10,7 @@ Everything here is pure: numbers in, numbers out.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -213,7 +214,7 @@ class Mount:
     origin_m: Vec3 = (0.0, 0.0, 0.0)
     rpy_deg: Vec3 = (0.0, 0.0, 0.0)
 
-    @property
+    @functools.cached_property
     def camera_in_head(self) -> Pose:
         R = rpy_matrix(*self.rpy_deg) @ _NOMINAL_CAMERA_IN_HEAD
         return Pose(R, np.array(self.origin_m, dtype=np.float64))
@@ -256,8 +257,9 @@ class Rig:
 
     def camera_to_base(self, pan_deg: float, tilt_deg: float) -> Pose:
         """Transform from the camera frame to the base frame at this pan and tilt."""
-        head = Pose(head_rotation(pan_deg, tilt_deg), np.zeros(3))
-        return head.compose(self.mount.camera_in_head)
+        R = head_rotation(pan_deg, tilt_deg)
+        mount = self.mount.camera_in_head
+        return Pose(R @ mount.R, R @ mount.t)
 
     def laser_image_path(self, laser: Laser, n: int = 64) -> np.ndarray:
         """Pixels (n, 2) where `laser`'s spot can appear over the working range (its epipolar

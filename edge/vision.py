@@ -129,11 +129,13 @@ class SpotFinder:
         # Every strip pixel in one gather: cheaper than one gather per laser.
         self._all_v = np.concatenate([b.v.ravel() for b in self.bands.values()] + [self._bg_v])
         self._all_u = np.concatenate([b.u.ravel() for b in self.bands.values()] + [self._bg_u])
-        self._slices: dict[str, slice] = {}
+        self._strip_width = next(iter(self.bands.values())).v.shape[1]
+        self._rows: dict[str, slice] = {}  # each laser's path samples among all strips' rows
         start = 0
         for name, band in self.bands.items():
-            self._slices[name] = slice(start, start + band.v.size)
-            start += band.v.size
+            self._rows[name] = slice(start, start + band.v.shape[0])
+            start += band.v.shape[0]
+        start *= self._strip_width
         self._bg_slice = slice(start, start + self._bg_v.size)
         # Window half-size for localisation; it grows for big spots.
         self._radius = 4
@@ -241,13 +243,17 @@ class SpotFinder:
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
         shot = noise**2 / (2.0 * max(float(boff.mean()) if boff.size else 0.0, 1e-3))
-        seeds = {
-            name: self._seeds(
-                self.bands[name], diff[self._slices[name]].reshape(self.bands[name].v.shape),
-                on, off, gain, noise, max_candidates,
+        # Every strip has the same width: one reduction finds each path sample's brightest pixel.
+        width = self._strip_width
+        strips = diff[: self._bg_slice.start].reshape(-1, width)
+        best = strips.argmax(axis=1)
+        profile = strips[np.arange(strips.shape[0]), best]
+        seeds = {}
+        for name in names:
+            rows = self._rows[name]
+            seeds[name] = self._seeds(
+                self.bands[name], profile[rows], best[rows], on, off, gain, noise, max_candidates
             )
-            for name in names
-        }
         # Every seed of every laser: a neighbouring spot, whichever laser's, must not pull a
         # spot's centroid (the centre and parallel spots are 4 px apart at 5 m).
         everywhere = [(u, v) for ss in seeds.values() for u, v, _, _ in ss]
@@ -262,10 +268,10 @@ class SpotFinder:
             found[name] = out
         return found
 
-    def _seeds(self, band, strip, on, off, gain, noise, max_candidates) -> list[tuple[int, int, float, int]]:
-        """Peaks along the strip above the detection threshold, strongest first, one per blob:
-        (u, v, peak, strip row)."""
-        profile = strip.max(axis=1)
+    def _seeds(self, band, profile, best, on, off, gain, noise, max_candidates) -> list[tuple[int, int, float, int]]:
+        """Peaks along a laser's strip above the detection threshold, strongest first, one per
+        blob: (u, v, peak, strip row). `profile` is each path sample's brightest value across the
+        strip and `best` where across it that is."""
         above = profile > self.min_snr * noise
         if not above.any():
             return []
@@ -275,7 +281,7 @@ class SpotFinder:
         peaks = peaks[np.argsort(profile[peaks])[::-1]]
         seeds: list[tuple[int, int, float, int]] = []
         for i in peaks:
-            j = int(np.argmax(strip[i]))
+            j = int(best[i])
             u, v, peak = int(band.u[i, j]), int(band.v[i, j]), float(profile[i])
             if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain) for su, sv, sp, _ in seeds):
                 continue  # the same blob seen from another path sample
