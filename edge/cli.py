@@ -115,10 +115,11 @@ def cmd_sim_show(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Record a simulated sweep of the office and draw its contact sheet."""
+    """Simulate a sweep of the office, range it, score it against the truth and draw it."""
     from edge.contact import contact_sheet
     from edge.fsutil import write_png
     from edge.recording import read_recording
+    from edge.replay import Replayer, format_score, score
     from edge.sim.record import record_sweep
 
     config = _config(args)
@@ -126,6 +127,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     started = time.monotonic()
     record_sweep(config, out, progress=_progress("sweep"))
     recording = read_recording(out)
+    results = list(Replayer(recording.rig, "triangulate", config.ranging).zones(recording))
+    print(format_score(score(recording, results)))
     sheet = out / "contact.png"
     write_png(sheet, contact_sheet(recording))
     print(f"recording: {out} ({len(recording.zones)} zones, {time.monotonic() - started:.1f} s)")
@@ -187,7 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"edge {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    p = sub.add_parser("demo", help="simulate a sweep of the office and draw it")
+    p = sub.add_parser("demo", help="simulate a sweep of the office, range it and draw it")
     _common(p)
     p.add_argument("--out", default="out/demo", help="recording folder (default: out/demo)")
     p.set_defaults(func=cmd_demo)
