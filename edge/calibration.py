@@ -62,7 +62,7 @@ log = logging.getLogger(__name__)
 
 FORMAT = "edge-calibration/1"
 THRESHOLD_SIGMAS = 8.0  # blob threshold over the difference image's robust noise
-WINDOW_SIGMA_PX = 1.5  # the Gaussian centroid window, as SpotFinder's: the same bias in both
+WINDOW_SIGMA_PX = 1.5  # the Gaussian centroid (mean-shift) window
 MAX_SPOT_PX = 6.0  # RMS radius (per axis) above which a blob is a lamp or a screen, not a spot
 FIRST_GATE_PX = 25.0  # how far from the nominal prediction a spot may be (about 2.5° of error)
 OFFSET_GATE_PX = 10.0  # ... once its offset at one nearer distance is known

@@ -394,7 +394,7 @@ class Ranger:
             support = []
             for r in refs:
                 f = best_fusion(rig, r, others, self.config.surface_sigma_per_m) if others else fuse(rig, r, ())
-                support.append((len(f.used) - 1 if f.dof > 0 or len(f.used) == 2 else 0, r))
+                support.append((len(f.used) - 1, r))  # other lasers that agree with it
             support.sort(key=lambda s: -s[0])
             if support[0][0] == 0 or support[0][0] == support[1][0]:
                 return self._result(
