@@ -131,6 +131,74 @@ def _wrap_deg(a: float) -> float:
 
 
 @dataclass(frozen=True)
+class CameraSettings:
+    """How the camera is driven (``[camera]``): the same for the real camera and the simulated one.
+
+    A zone's laser-on and laser-off frames must be taken with the same fixed exposure and gain, so
+    that their difference shows the lasers and nothing else.
+    """
+
+    backend: Literal["sim", "picamera2", "opencv"] = "sim"
+    device: str = "0"  # opencv: a device index or path (/dev/video0)
+    exposure_us: float = 10000.0
+    analogue_gain: float = 1.0
+    frame_rate_hz: float = 30.0
+    # Webcams give no exposure timestamps: the time from a frame's delivery back to its exposure
+    # start, measured once (edge camera latency), stands in for them.
+    latency_ms: float = 0.0
+    timeout_s: float = 1.0  # no frame for this long is a camera fault
+
+    def __post_init__(self) -> None:
+        require(self.analogue_gain >= 1.0, "analogue_gain", "must be >= 1")
+        require(self.exposure_us > 0, "exposure_us", "must be positive")
+        require(self.frame_rate_hz > 0, "frame_rate_hz", "must be positive")
+        require(
+            self.exposure_us <= 1e6 / self.frame_rate_hz,
+            "exposure_us",
+            f"must fit in one frame time ({1e6 / self.frame_rate_hz:.0f} µs)",
+        )
+        require(self.latency_ms >= 0, "latency_ms", "must be >= 0")
+        require(self.timeout_s > 0, "timeout_s", "must be positive")
+
+    @property
+    def frame_ns(self) -> int:
+        return int(round(1e9 / self.frame_rate_hz))
+
+
+@dataclass(frozen=True)
+class LasersConfig:
+    """How the lasers are switched (``[lasers]``); pins and polarity are in ``[[rig.lasers]]``."""
+
+    backend: Literal["sim", "gpio"] = "sim"  # gpio: gpiozero's default pin factory (lgpio on a Pi)
+    max_on_s: float = 2.0  # eye safety: a laser on longer than this is switched off
+    settle_ms: float = 1.0  # from the GPIO edge to full (or no) light: driver and diode
+
+    def __post_init__(self) -> None:
+        require(0 < self.max_on_s <= 60, "max_on_s", "must be 0-60 s")
+        require(0 <= self.settle_ms <= 100, "settle_ms", "must be 0-100 ms")
+
+
+@dataclass(frozen=True)
+class PtuConfig:
+    """The pan-tilt unit (``[ptu]``): a PTU-D46 on a serial port, or ``sim://`` for the emulator."""
+
+    port: str = "sim://"
+    baudrate: int = 9600
+    timeout_s: float = 0.5  # for one reply; moves wait as long as their distance needs
+    speed_deg_s: float = 60.0
+    accel_deg_s2: float = 240.0
+    settle_ms: float = 30.0  # let the head stop ringing before a frame is taken
+
+    def __post_init__(self) -> None:
+        require(self.baudrate in (600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
+                "baudrate", f"not a PTU-D46 baud rate: {self.baudrate}")
+        require(self.timeout_s > 0, "timeout_s", "must be positive")
+        require(self.speed_deg_s > 0, "speed_deg_s", "must be positive")
+        require(self.accel_deg_s2 > 0, "accel_deg_s2", "must be positive")
+        require(self.settle_ms >= 0, "settle_ms", "must be >= 0")
+
+
+@dataclass(frozen=True)
 class SensorConfig:
     """The simulated sensor: photo-electrons to digital numbers."""
 
@@ -138,29 +206,18 @@ class SensorConfig:
     read_noise_e: float = 3.0
     adc_bits: int = 10
     output_bits: Literal[8, 16] = 8
-    analogue_gain: float = 1.0
-    exposure_us: float = 10000.0
     colour: bool = True
     jpeg_quality: int = 0  # 0: lossless PNG; 1-100: what a webcam's JPEG stream does to frames
-    frame_rate_hz: float = 30.0
 
     def __post_init__(self) -> None:
         require(self.full_well_e > 0, "full_well_e", "must be positive")
         require(self.read_noise_e >= 0, "read_noise_e", "must be >= 0")
         require(8 <= self.adc_bits <= 16, "adc_bits", f"must be 8-16, got {self.adc_bits}")
-        require(self.analogue_gain >= 1.0, "analogue_gain", "must be >= 1")
-        require(self.exposure_us > 0, "exposure_us", "must be positive")
         require(0 <= self.jpeg_quality <= 100, "jpeg_quality", "must be 0-100")
         require(
             not (self.jpeg_quality and self.output_bits == 16),
             "jpeg_quality",
             "JPEG frames are 8-bit; set output_bits = 8",
-        )
-        require(self.frame_rate_hz > 0, "frame_rate_hz", "must be positive")
-        require(
-            self.exposure_us <= 1e6 / self.frame_rate_hz,
-            "exposure_us",
-            f"must fit in one frame time ({1e6 / self.frame_rate_hz:.0f} µs)",
         )
 
 
@@ -247,6 +304,9 @@ class Config:
     sweep: SweepConfig = field(default_factory=SweepConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     ranging: RangingConfig = field(default_factory=RangingConfig)
+    camera: CameraSettings = field(default_factory=CameraSettings)
+    lasers: LasersConfig = field(default_factory=LasersConfig)
+    ptu: PtuConfig = field(default_factory=PtuConfig)
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
 

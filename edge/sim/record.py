@@ -94,7 +94,7 @@ def record_sweep(
     if zones is not None:
         sweep = replace(sweep, zones=zones, poses_deg=())
     scene = scene_for(config)
-    renderer = Renderer(scene, true_rig(config), config.sim)
+    renderer = Renderer(scene, true_rig(config), config.sim, config.camera)
     views = [(renderer, pan, tilt) for pan, tilt in sweep.poses()]
     return _record(config, out, views, pairs or sweep.pairs_per_zone, f"sim-{scene.name}", progress)
 
@@ -110,7 +110,7 @@ def record_targets(
     """Zone i shows a flat target squarely at distances_m[i] (pan 0, tilt 0): what `edge calibrate`
     takes, and the wall test of the ranging targets."""
     rig = true_rig(config)
-    views = [(Renderer(flat_target_scene(d, material), rig, config.sim), 0.0, 0.0) for d in distances_m]
+    views = [(Renderer(flat_target_scene(d, material), rig, config.sim, config.camera), 0.0, 0.0) for d in distances_m]
     return _record(config, out, views, pairs or config.sweep.pairs_per_zone, "sim-target", progress)
 
 
@@ -123,9 +123,9 @@ def _record(
     progress: Callable[[int, int], None] | None,
 ) -> Path:
     nudge_deg = config.sweep.nudge_deg
-    sensor = config.sim.sensor
-    frame_ns = int(1e9 / sensor.frame_rate_hz)
-    exposure_ns = int(sensor.exposure_us * 1000)
+    camera = config.camera
+    frame_ns = camera.frame_ns
+    exposure_ns = int(camera.exposure_us * 1000)
     clock_ns = 0
     with RecordingWriter(out, config.rig.build(), device=device) as writer:
         for index, (renderer, pan, tilt) in enumerate(views):
@@ -142,7 +142,7 @@ def _record(
                     )
                     extra: dict = {
                         "t_start_ns": clock_ns,
-                        "exposure_us": sensor.exposure_us,
+                        "exposure_us": camera.exposure_us,
                         "laser_switch_ns": clock_ns - _SWITCH_LEAD_NS,
                     }
                     if nudge:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from edge.config import RigErrorConfig, SimConfig
+from edge.config import CameraSettings, RigErrorConfig, SimConfig
 from edge.rig import Laser, Pose, Rig
 from edge.sim import optics
 from edge.sim.scene import Scene, SceneGeometry
@@ -88,10 +88,11 @@ def perturb_rig(rig: Rig, error: RigErrorConfig) -> Rig:
 class Renderer:
     """Renders frames of `rig`'s camera in `scene` with the optics and sensor of `sim`."""
 
-    def __init__(self, scene: Scene, rig: Rig, sim: SimConfig):
+    def __init__(self, scene: Scene, rig: Rig, sim: SimConfig, camera: CameraSettings = CameraSettings()):
         self.scene = scene
         self.rig = rig
         self.sim = sim
+        self.camera = camera
         cam = rig.camera
         self.channels = 3 if sim.sensor.colour else 1
         v, u = np.mgrid[0 : cam.height, 0 : cam.width]
@@ -101,12 +102,12 @@ class Renderer:
         self._vignette = (cos**4 if sim.optics.vignetting else np.ones_like(cos)).astype(np.float32)
         self._base_to_world = scene.base_to_world()
         self._views: dict[tuple, _View] = {}
-        exposure_ms = sim.sensor.exposure_us / 1000.0
+        exposure_ms = camera.exposure_us / 1000.0
         self._ambient_e = sim.ambient.white_e_per_ms * exposure_ms
         self._spot_e_at_1m = sim.beam.e_per_ms_at_1m * exposure_ms
         response = np.array(sim.beam.response_bgr)
         self._laser_response = response if self.channels == 3 else np.array([1.0])
-        self._dn_per_e = (2**sim.sensor.adc_bits - 1) / sim.sensor.full_well_e * sim.sensor.analogue_gain
+        self._dn_per_e = (2**sim.sensor.adc_bits - 1) / sim.sensor.full_well_e * camera.analogue_gain
 
     # --- geometry -----------------------------------------------------------------------------
 
