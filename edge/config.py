@@ -110,6 +110,12 @@ class SweepConfig:
         require(1 <= self.pairs_per_zone <= 32, "pairs_per_zone", "must be 1-32")
         require(abs(self.nudge_deg) <= 1.0, "nudge_deg", "must be within ±1°")
 
+    def nudges_deg(self, pairs: int | None = None) -> list[float]:
+        """Pan offset of each pair's view from the zone's pose: 0, +1, −1, +2, … nudges, so that
+        the views stay near the zone's pose."""
+        n = self.pairs_per_zone if pairs is None else pairs
+        return [((k + 1) // 2) * (1 if k % 2 else -1) * self.nudge_deg if k else 0.0 for k in range(n)]
+
     def poses(self) -> list[tuple[float, float]]:
         """(pan, tilt) in degrees of each zone, in sweep order."""
         if self.poses_deg:

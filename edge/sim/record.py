@@ -23,8 +23,6 @@ from edge.sim.scene import DevicePlacement, Scene, SceneSpec, load_scene, scene_
 
 log = logging.getLogger(__name__)
 
-# Pan offsets of successive pairs, in nudges: 0, +1, -1, +2, -2, … (stays near the zone's pose).
-_NUDGE_ORDER = [0, 1, -1, 2, -2, 3, -3, 4, -4]
 # The lasers switch this long before a frame's exposure starts (they settle well within it).
 _SWITCH_LEAD_NS = 2_000_000
 
@@ -39,12 +37,6 @@ def scene_for(config: Config) -> Scene:
 
 def true_rig(config: Config) -> Rig:
     return perturb_rig(config.rig.build(), config.sim.rig_error)
-
-
-def nudge_offsets(pairs: int) -> list[int]:
-    if pairs > len(_NUDGE_ORDER):
-        return [(k + 1) // 2 * (1 if k % 2 else -1) for k in range(pairs)]
-    return _NUDGE_ORDER[:pairs]
 
 
 def zone_truth(rig: Rig, spots: dict[str, SpotTruth], pose_to_base) -> dict:
@@ -122,7 +114,6 @@ def _record(
     device: str,
     progress: Callable[[int, int], None] | None,
 ) -> Path:
-    nudge_deg = config.sweep.nudge_deg
     camera = config.camera
     frame_ns = camera.frame_ns
     exposure_ns = int(camera.exposure_us * 1000)
@@ -132,8 +123,8 @@ def _record(
             names = list(renderer.rig.laser_names)
             frames = []
             zone_t_s = clock_ns / 1e9
-            for nudge in nudge_offsets(pairs):
-                frame_pan = pan + nudge * nudge_deg
+            for nudge in config.sweep.nudges_deg(pairs):
+                frame_pan = pan + nudge
                 for lit in (False, True):
                     t_s = clock_ns / 1e9
                     rng = np.random.default_rng([config.sim.seed, index, len(frames)])
