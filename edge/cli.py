@@ -210,10 +210,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_replay)
 
     from edge import calibration
-    from edge.hw import ptu
+    from edge.hw import lasers, ptu
 
     calibration.add_parser(sub)
     ptu.add_parser(sub)
+    lasers.add_parser(sub)
 
     p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
     _common(p)

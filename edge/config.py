@@ -149,8 +149,8 @@ class CameraSettings:
     exposure_us: float = 10000.0
     analogue_gain: float = 1.0
     frame_rate_hz: float = 30.0
-    # Webcams give no exposure timestamps: the time from a frame's delivery back to its exposure
-    # start, measured once (edge camera latency), stands in for them.
+    # Webcams give no exposure timestamps: the time from the end of a frame's exposure to its
+    # delivery, measured once, stands in for them (t_start = delivery − latency − exposure).
     latency_ms: float = 0.0
     timeout_s: float = 1.0  # no frame for this long is a camera fault
 

@@ -1,0 +1,339 @@
+"""Cameras: the Pi camera through picamera2, a USB webcam through OpenCV, or the simulator.
+
+All three answer ``frame_after(t_ns)`` with the first frame whose exposure *starts* at or after
+`t_ns` on the monotonic clock — frames are picked by their timestamps, never by counting, because
+a frame that was being exposed while the lasers switched shows them half on.
+
+Exposure and gain are fixed (a zone's laser-on and laser-off frames must differ by the lasers
+alone), and anything that mixes frames is off: on a Pi 5 any noise reduction mode but Off turns on
+temporal denoise, which blends the previous frame into the next — laser-on into laser-off.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from edge.config import CameraSettings, Config
+from edge.errors import HardwareError
+from edge.hw.base import Camera, Frame
+
+log = logging.getLogger(__name__)
+
+PICAMERA2_MISSING = (
+    "picamera2 is not installed: on Raspberry Pi OS `sudo apt install python3-picamera2` and make "
+    "the venv with --system-site-packages"
+)
+# The Pi Camera v2 (IMX219) binned 2 × 2 over its whole field of view: the raw mode that keeps the
+# field of view the `picam-v2*` camera models describe.
+PICAM_V2_BINNED = (1640, 1232)
+
+
+class Picamera2Camera:
+    """The Pi camera through picamera2 (implements :class:`edge.hw.base.Camera`)."""
+
+    def __init__(
+        self,
+        settings: CameraSettings,
+        size: tuple[int, int],
+        *,
+        raw_size: tuple[int, int] | None = None,
+        camera_num: int = 0,
+        colour_gains: tuple[float, float] = (1.0, 1.0),
+    ) -> None:
+        try:
+            from picamera2 import Picamera2
+        except ImportError:
+            raise HardwareError(PICAMERA2_MISSING) from None
+        self.settings = settings
+        self.frame_ns = settings.frame_ns
+        self.size = size
+        self.skipped = 0  # frames read and discarded by frame_after
+        self._first_t: int | None = None
+        self._flush = True  # picamera2 picks frames by timestamp itself (capture_request(flush=))
+        try:
+            self._cam = Picamera2(camera_num)
+        except Exception as exc:
+            raise HardwareError(f"camera: cannot open Pi camera {camera_num}: {exc}") from None
+        frame_us = int(round(1e6 / settings.frame_rate_hz))
+        self.controls: dict[str, Any] = {
+            "AeEnable": False,
+            "ExposureTime": int(round(settings.exposure_us)),
+            "AnalogueGain": float(settings.analogue_gain),
+            "FrameDurationLimits": (frame_us, frame_us),
+            "NoiseReductionMode": _noise_reduction_off(),
+            # Fixed white balance: AWB would re-colour laser-on frames (a red spot) differently.
+            "AwbEnable": False,
+            "ColourGains": tuple(colour_gains),
+        }
+        try:
+            # RGB888 is [B, G, R] in memory: OpenCV's BGR, as the rest of the project expects.
+            kwargs: dict[str, Any] = {"main": {"size": tuple(size), "format": "RGB888"}, "controls": self.controls}
+            if raw_size is not None:
+                kwargs["raw"] = {"size": tuple(raw_size)}
+            self._cam.configure(self._cam.create_video_configuration(**kwargs))
+        except Exception as exc:
+            self._close_quietly()
+            raise HardwareError(f"camera: cannot configure the Pi camera: {exc}") from None
+        # The readout (row 0 to the last row) is not in the metadata. The shortest frame duration
+        # of the sensor mode bounds it (that is the readout plus the least vertical blanking).
+        # FrameDuration − exposure would not bound it: a longer exposure does not make the rows read
+        # out faster, it only makes successive frames' row windows overlap.
+        self.min_frame_ns: int | None = None
+        limits = getattr(self._cam, "camera_controls", {}).get("FrameDurationLimits")
+        if limits:
+            self.min_frame_ns = int(limits[0]) * 1000
+
+    def start(self) -> None:
+        try:
+            self._cam.start()
+        except Exception as exc:
+            raise HardwareError(f"camera: cannot start the Pi camera: {exc}") from None
+
+    def stop(self) -> None:
+        try:
+            self._cam.stop()
+        except Exception as exc:
+            log.warning("camera: stop failed: %s", exc)
+
+    def close(self) -> None:
+        self.stop()
+        self._close_quietly()
+
+    def _close_quietly(self) -> None:
+        try:
+            self._cam.close()
+        except Exception as exc:
+            log.debug("camera: close failed: %s", exc)
+
+    def __enter__(self) -> Picamera2Camera:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def frame_after(self, t_ns: int, timeout_s: float | None = None) -> Frame:
+        """The first frame whose exposure starts at or after `t_ns`; HardwareError on timeout."""
+        timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
+            # flush: picamera2 itself releases the frames that started earlier (it tests
+            # SensorTimestamp − ExposureTime, as below); flush=0 would mean "no flush".
+            try:
+                if self._flush:
+                    request = self._cam.capture_request(wait=left, flush=max(int(t_ns), 1))
+                else:
+                    request = self._cam.capture_request(wait=left)
+            except TypeError as exc:
+                if not self._flush:
+                    raise HardwareError(f"camera: capture failed: {exc}") from None
+                # An older picamera2 without flush: the check below then skips early frames.
+                log.info("picamera2 has no capture_request(flush=...): skipping early frames here")
+                self._flush = False
+                continue
+            except TimeoutError:
+                raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s") from None
+            except Exception as exc:
+                raise HardwareError(f"camera: capture failed: {exc}") from None
+            try:
+                image = request.make_array("main")
+                metadata = dict(request.get_metadata())
+            finally:
+                request.release()
+            frame = self._frame(image, metadata)
+            if frame.t_start_ns >= t_ns:
+                return frame
+            self.skipped += 1
+
+    def _frame(self, image: np.ndarray, metadata: dict[str, Any]) -> Frame:
+        try:
+            sensor_ns = int(metadata["SensorTimestamp"])
+            exposure_us = float(metadata["ExposureTime"])
+        except KeyError as exc:
+            raise HardwareError(f"camera: frame metadata lacks {exc.args[0]}") from None
+        # SensorTimestamp marks the first row's readout (the end of its exposure), not its start.
+        t_start = sensor_ns - int(round(exposure_us * 1000))
+        period_ns = int(metadata.get("FrameDuration", 1e6 / self.settings.frame_rate_hz)) * 1000
+        readout_ns = min(period_ns, self.min_frame_ns) if self.min_frame_ns else period_ns
+        if self._first_t is None:
+            self._first_t = t_start
+        sequence = int(round((t_start - self._first_t) / self.frame_ns))
+        width, height = self.size
+        image = np.ascontiguousarray(image[:height, :width, :3])  # drop any stride padding
+        return Frame(image, t_start, exposure_us, readout_ns, sequence, metadata)
+
+
+def _noise_reduction_off() -> Any:
+    try:
+        from libcamera import controls
+
+        return controls.draft.NoiseReductionModeEnum.Off
+    except Exception:  # libcamera's enum not importable: its value
+        return 0
+
+
+class OpenCVCamera:
+    """A USB webcam through OpenCV (implements :class:`edge.hw.base.Camera`).
+
+    A webcam gives no exposure timestamps. A thread reads frames as they arrive (so that none waits
+    in the driver's queue and its delivery time means something) and dates each one back:
+    ``t_start = delivery − latency_ms − exposure``; the readout is bounded by the frame period.
+    """
+
+    def __init__(
+        self, settings: CameraSettings, size: tuple[int, int] | None = None, *, open_timeout_s: float = 5.0
+    ) -> None:
+        self.settings = settings
+        self.frame_ns = settings.frame_ns
+        self.size = size
+        self.exposure_ns = int(round(settings.exposure_us * 1000))
+        self.latency_ns = int(round(settings.latency_ms * 1e6))
+        self.skipped = 0
+        self.exposure_fixed = False
+        self._frames: deque[tuple[int, int, np.ndarray]] = deque(maxlen=4)  # (t_start, seq, image)
+        self._cond = threading.Condition()
+        self._opened = threading.Event()
+        self._go = threading.Event()
+        self._stopping = threading.Event()
+        self._error: str | None = None
+        self._taken = -1  # sequence of the last frame handed out
+        # Opened in the reading thread, so that a driver that blocks cannot hang the caller.
+        self._thread = threading.Thread(target=self._run, name="webcam", daemon=True)
+        self._thread.start()
+        if not self._opened.wait(open_timeout_s):
+            self._stopping.set()
+            raise HardwareError(f"camera: opening video device {settings.device!r} took over {open_timeout_s:g} s")
+        if self._error:
+            raise HardwareError(self._error)
+
+    def _open(self) -> Any:
+        import cv2
+
+        device = self.settings.device
+        source: int | str = int(device) if device.isdigit() else device
+        # V4L2 directly on Linux: other backends may probe slowly for a missing device.
+        v4l2 = sys.platform.startswith("linux") and (isinstance(source, int) or device.startswith("/dev/"))
+        api = cv2.CAP_V4L2 if v4l2 else cv2.CAP_ANY
+        cap = cv2.VideoCapture(source, api)
+        if not cap.isOpened():
+            cap.release()
+            raise HardwareError(
+                f"camera: cannot open video device {device!r} ([camera] device; is the webcam plugged in?)"
+            )
+        if self.size:
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.size[0])
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.size[1])
+        cap.set(cv2.CAP_PROP_FPS, self.settings.frame_rate_hz)
+        cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
+        # Manual exposure: V4L2 says 1 (others 0.25); its absolute exposure is in 100 µs units.
+        manual = cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1) or cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 0.25)
+        self.exposure_fixed = bool(manual and cap.set(cv2.CAP_PROP_EXPOSURE, self.settings.exposure_us / 100.0))
+        if not self.exposure_fixed:
+            log.warning("camera: the driver refused a fixed exposure; frame timing and brightness may drift")
+        cap.set(cv2.CAP_PROP_AUTO_WB, 0)
+        return cap
+
+    def _run(self) -> None:
+        try:
+            cap = self._open()
+        except HardwareError as exc:
+            self._error = str(exc)
+            self._opened.set()
+            return
+        except Exception as exc:
+            self._error = f"camera: cannot open video device {self.settings.device!r}: {exc}"
+            self._opened.set()
+            return
+        self._opened.set()
+        try:
+            self._go.wait()
+            sequence, failures = 0, 0
+            while not self._stopping.is_set():
+                ok, image = cap.read()
+                delivered = time.monotonic_ns()
+                if not ok:
+                    failures += 1
+                    if failures >= 10:
+                        with self._cond:
+                            self._error = f"camera: video device {self.settings.device!r} stopped delivering frames"
+                            self._cond.notify_all()
+                        return
+                    time.sleep(0.01)
+                    continue
+                failures = 0
+                t_start = delivered - self.latency_ns - self.exposure_ns
+                with self._cond:
+                    self._frames.append((t_start, sequence, image))
+                    self._cond.notify_all()
+                sequence += 1
+        finally:
+            cap.release()
+
+    def start(self) -> None:
+        self._go.set()
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self._go.set()
+        self._thread.join(timeout=2.0)
+
+    close = stop
+
+    def frame_after(self, t_ns: int, timeout_s: float | None = None) -> Frame:
+        """The first frame whose (estimated) exposure start is at or after `t_ns`."""
+        timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                while self._frames:
+                    t_start, seq, image = self._frames.popleft()
+                    if seq <= self._taken:
+                        continue
+                    if t_start >= t_ns:
+                        self._taken = seq
+                        delivered = t_start + self.latency_ns + self.exposure_ns
+                        # The readout is unknown: the frame period bounds it.
+                        return Frame(image, t_start, self.settings.exposure_us, self.frame_ns, seq,
+                                     {"delivered_ns": delivered})
+                    self.skipped += 1
+                if self._error:
+                    raise HardwareError(self._error)
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
+                self._cond.wait(left)
+
+
+def open_camera(config: Config, sim_world: Any = None) -> Camera:
+    """The configured camera (``[camera] backend``), not yet started.
+
+    For ``sim``, `sim_world` is the simulated :class:`~edge.hw.lasers.Lasers` (or their mock pin
+    factory), or a mapping with ``factory`` and optionally ``pose_at`` (the pan-tilt emulator's pose as a
+    function of monotonic ns) and other :class:`edge.sim.camera.SimCamera` keywords.
+    """
+    settings = config.camera
+    model = config.rig.build().camera
+    if settings.backend == "picamera2":
+        raw = PICAM_V2_BINNED if config.rig.camera.model.startswith("picam-v2") else None
+        return Picamera2Camera(settings, (model.width, model.height), raw_size=raw)
+    if settings.backend == "opencv":
+        return OpenCVCamera(settings, (model.width, model.height))
+    from edge.sim.camera import SimCamera
+
+    if sim_world is None:
+        raise HardwareError("camera: the simulated camera needs the simulated lasers' pin factory (sim_world)")
+    if isinstance(sim_world, dict):
+        kwargs = dict(sim_world)
+    else:  # the simulated Lasers, or their factory
+        kwargs = {"factory": getattr(sim_world, "factory", None) or sim_world}
+    factory = kwargs.pop("factory")
+    return SimCamera.from_config(config, factory, **kwargs)

@@ -1,0 +1,327 @@
+"""The three laser pointers, switched by GPIO through gpiozero — and kept safe.
+
+:class:`Lasers` drives one ``gpiozero.DigitalOutputDevice`` per laser. Everything here errs towards
+*off*: the lasers are off at construction, on ``close()`` (idempotent, run at interpreter exit too,
+and by ``with``), and a watchdog switches off any laser that has been on continuously for longer
+than ``[lasers] max_on_s`` (eye safety: a hung sweep must not leave a beam on). Signals belong to
+the service that owns the lasers; for everything that cannot run our ``close()`` — a crash, a
+``kill -9``, systemd's ``ExecStopPost`` — :func:`force_all_off` drives every configured pin to its
+off level from a fresh process, without needing any state (``edge lasers off``).
+
+Backends (``[lasers] backend``): ``gpio`` uses gpiozero's default pin factory (lgpio on a Pi;
+``GPIOZERO_PIN_FACTORY`` chooses another); ``sim`` a ``MockFactory`` of
+:class:`edge.sim.gpio.LaserPin`, whose logs the simulated camera reads to light its spots.
+"""
+
+from __future__ import annotations
+
+import argparse
+import atexit
+import functools
+import logging
+import threading
+import time
+import weakref
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from edge.config import Config, LasersConfig
+from edge.errors import HardwareError
+from edge.rig import Laser
+
+log = logging.getLogger(__name__)
+
+
+def _default_factory() -> Any:
+    """gpiozero's default pin factory (what ``Device`` would pick), as a HardwareError if none."""
+    import warnings
+
+    from gpiozero import Device
+
+    try:
+        # gpiozero warns for each factory it falls back from; one line of our own says it better.
+        with warnings.catch_warnings(record=True) as fallbacks:
+            warnings.simplefilter("always")
+            Device.ensure_pin_factory()
+        for w in fallbacks:
+            log.info("gpiozero: %s", w.message)
+    except Exception as exc:  # gpiozero raises several kinds (BadPinFactory, ImportError, ...)
+        raise HardwareError(
+            f"lasers: no GPIO available ({exc}); on a Raspberry Pi install python3-lgpio, elsewhere "
+            "use [lasers] backend = \"sim\""
+        ) from None
+    return Device.pin_factory
+
+
+def make_factory(settings: LasersConfig) -> Any:
+    """The pin factory of a backend: gpiozero's default for ``gpio``, mock laser pins for ``sim``."""
+    if settings.backend == "sim":
+        from edge.sim.gpio import laser_factory
+
+        return laser_factory()
+    return _default_factory()
+
+
+def _wired(lasers: Iterable[Laser]) -> list[Laser]:
+    lasers = list(lasers)
+    missing = [laser.name for laser in lasers if laser.pin is None]
+    if missing:
+        raise HardwareError(f"lasers: no GPIO pin configured for {', '.join(missing)} (rig.lasers[].pin)")
+    return lasers
+
+
+def _close_if_alive(ref: weakref.ReferenceType) -> None:
+    obj = ref()
+    if obj is not None:
+        obj.close()
+
+
+class Lasers:
+    """A bank of lasers on GPIO pins (implements :class:`edge.hw.base.LaserBank`)."""
+
+    def __init__(
+        self, lasers: Sequence[Laser], settings: LasersConfig = LasersConfig(), factory: Any = None
+    ) -> None:
+        from gpiozero import DigitalOutputDevice
+
+        wired = _wired(lasers)
+        self.names: tuple[str, ...] = tuple(laser.name for laser in wired)
+        self.settings = settings
+        self.factory = factory if factory is not None else make_factory(settings)
+        self.settle_ns = int(round(settings.settle_ms * 1e6))
+        self.max_on_ns = int(round(settings.max_on_s * 1e9))
+        self.watchdog_trips = 0
+        self._lock = threading.RLock()
+        self._wake = threading.Condition(self._lock)
+        self._devices: dict[str, Any] = {}
+        self._on_since: dict[str, int] = {}  # laser → when it was last switched on (monotonic ns)
+        self._closed = False
+        self._watchdog: threading.Thread | None = None
+        try:
+            for laser in wired:
+                # initial_value=False: configured as an output already at its off level.
+                self._devices[laser.name] = DigitalOutputDevice(
+                    laser.pin, active_high=laser.active_high, initial_value=False, pin_factory=self.factory
+                )
+        except Exception as exc:
+            self._close_devices()
+            if isinstance(exc, HardwareError):
+                raise
+            raise HardwareError(f"lasers: cannot set up GPIO: {exc}") from None
+        self._last_switch_ns = time.monotonic_ns()
+        # Run close() at interpreter exit, without the registry keeping this object alive.
+        self._atexit = functools.partial(_close_if_alive, weakref.ref(self))
+        atexit.register(self._atexit)
+        log.debug("lasers %s ready on %s, all off", ", ".join(self.names), type(self.factory).__name__)
+
+    # --- the LaserBank interface -----------------------------------------------------------------
+
+    def set(self, on: Iterable[str]) -> int:
+        """Switch exactly `on` on and the others off. Returns the monotonic time (ns) by which the
+        new state has taken effect: the last GPIO write plus the settle time. If nothing changes,
+        that is the previous switch's time."""
+        wanted = frozenset((on,) if isinstance(on, str) else on)  # set("center") means that laser
+        unknown = sorted(wanted - set(self.names))
+        if unknown:
+            raise ValueError(f"unknown laser {', '.join(map(repr, unknown))} (known: {', '.join(self.names)})")
+        with self._lock:
+            if self._closed:
+                raise HardwareError("lasers: already closed")
+            changed = False
+            # Off before on, so that for a moment fewer lasers are lit, never more.
+            for name in self.names:
+                if name not in wanted and name in self._on_since:
+                    self._devices[name].off()
+                    del self._on_since[name]
+                    changed = True
+            now = time.monotonic_ns()
+            for name in self.names:
+                if name in wanted and name not in self._on_since:
+                    self._devices[name].on()
+                    # A laser already on keeps its original time: the watchdog limits continuous
+                    # on-time, which repeated set() calls must not extend.
+                    self._on_since[name] = now
+                    changed = True
+            if changed:
+                self._last_switch_ns = time.monotonic_ns()
+                self._arm_watchdog()
+            return self._last_switch_ns + self.settle_ns
+
+    def off(self) -> int:
+        return self.set(())
+
+    @property
+    def lit(self) -> frozenset[str]:
+        with self._lock:
+            return frozenset(self._on_since)
+
+    @property
+    def last_switch_ns(self) -> int:
+        """When the lasers last changed state (the last GPIO write), monotonic ns."""
+        return self._last_switch_ns
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def close(self) -> None:
+        """Lasers off, then the pins released. Safe to call any number of times, from any thread."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._on_since.clear()
+            self._wake.notify_all()  # the watchdog thread ends
+            self._close_devices()
+        atexit.unregister(self._atexit)
+
+    def __enter__(self) -> Lasers:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- internals -----------------------------------------------------------------------------
+
+    def _close_devices(self) -> None:
+        for name, device in self._devices.items():
+            try:
+                device.off()
+            except Exception as exc:  # keep going: the other lasers must still go off
+                log.error("laser %s: could not switch off: %s", name, exc)
+        for device in self._devices.values():
+            try:
+                device.close()
+            except Exception as exc:
+                log.error("laser GPIO: could not release: %s", exc)
+        self._last_switch_ns = time.monotonic_ns()
+
+    def _arm_watchdog(self) -> None:
+        """Wake the watchdog (under the lock) so that it sees the new deadlines."""
+        if self._on_since and (self._watchdog is None or not self._watchdog.is_alive()):
+            self._watchdog = threading.Thread(target=self._watch, name="laser-watchdog", daemon=True)
+            self._watchdog.start()
+        self._wake.notify_all()
+
+    def _watch(self) -> None:
+        with self._lock:
+            while not self._closed:
+                if not self._on_since:
+                    self._wake.wait()
+                    continue
+                now = time.monotonic_ns()
+                overdue = [n for n, t in self._on_since.items() if now - t >= self.max_on_ns]
+                if overdue:
+                    for name in overdue:
+                        try:
+                            self._devices[name].off()
+                        except Exception as exc:
+                            log.error("laser %s: watchdog could not switch it off: %s", name, exc)
+                        del self._on_since[name]
+                    self._last_switch_ns = time.monotonic_ns()
+                    self.watchdog_trips += 1
+                    log.warning(
+                        "laser %s on for more than %.3g s: switched off (eye safety, [lasers] max_on_s)",
+                        ", ".join(overdue), self.settings.max_on_s,
+                    )
+                    continue
+                first = min(self._on_since.values())
+                self._wake.wait(timeout=max(first + self.max_on_ns - now, 0) / 1e9)
+
+
+def open_lasers(config: Config, factory: Any = None) -> Lasers:
+    """The configured lasers (``[lasers]``, pins and polarity from ``[[rig.lasers]]``), all off."""
+    return Lasers(config.rig.build().lasers, config.lasers, factory)
+
+
+def force_all_off(config: Config, factory: Any = None) -> list[tuple[str, int, bool]]:
+    """Drive every configured laser pin to its off level and leave it there; returns
+    ``(laser, BCM pin, level driven: True = high)`` for each.
+
+    Keeps no state and needs none: meant for a fresh process after a crash (``edge lasers off``,
+    systemd's ``ExecStopPost``). It uses the pins directly rather than devices, so it works even
+    while another object in this process holds them. On real GPIO the pins are then detached from
+    gpiozero, because gpiozero's exit handler would turn them back into floating inputs; released
+    lines keep their output level on Raspberry Pi OS. (Still, give each driver a pull resistor to
+    its off level: at boot, before anything runs, the pins are inputs.)
+    """
+    from gpiozero.pins.mock import MockFactory
+
+    factory = factory if factory is not None else make_factory(config.lasers)
+    driven: list[tuple[str, int, bool]] = []
+    pins = []
+    errors = []
+    for laser in config.rig.build().lasers:
+        if laser.pin is None:
+            log.warning("laser %s has no pin configured: cannot switch it off", laser.name)
+            continue
+        level = not laser.active_high
+        try:
+            pin = factory.pin(laser.pin)
+            if pin.function == "output":
+                pin.state = level  # already driven: just the level, no glitch through input
+            else:
+                pin.output_with_state(level)
+        except Exception as exc:  # try every pin before reporting
+            errors.append(f"{laser.name} (GPIO{laser.pin}): {exc}")
+            continue
+        pins.append(pin)
+        driven.append((laser.name, laser.pin, level))
+    if not isinstance(factory, MockFactory):
+        table = getattr(factory, "pins", None)
+        if isinstance(table, dict):
+            for key in [k for k, p in table.items() if any(p is q for q in pins)]:
+                del table[key]
+    if errors:
+        raise HardwareError(f"lasers off: could not drive {'; '.join(errors)}")
+    return driven
+
+
+# --- `edge lasers off` -------------------------------------------------------------------------
+
+
+def add_parser(sub: Any) -> argparse.ArgumentParser:
+    """Register `edge lasers` on an argparse sub-parsers object."""
+    p = sub.add_parser("lasers", help="drive the laser pins: `edge lasers off` switches every laser off")
+    p.add_argument("action", choices=["off"], help="off: drive every configured laser pin to its off level")
+    p.add_argument("--config", metavar="FILE", help="configuration file (default: config/sim.toml)")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
+                   help="change one configuration key, e.g. --set lasers.backend=gpio (repeatable)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from edge.config import load_config
+
+    config = load_config(args.config, args.set)
+    for name, pin, level in force_all_off(config):
+        print(f"laser {name}: GPIO{pin} driven {'high' if level else 'low'} (off)")
+    if config.lasers.backend == "sim":
+        print("(lasers.backend is sim: no real pins were touched)")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m edge.hw.lasers off …``: the same as ``edge lasers off`` without the rest of the
+    command line (for systemd's ExecStopPost, and tests)."""
+    import sys
+
+    parser = argparse.ArgumentParser(prog="edge")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["lasers", *(sys.argv[1:] if argv is None else argv)])
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
+    )
+    from edge.errors import EdgeError
+
+    try:
+        return args.func(args)
+    except EdgeError as exc:
+        print(f"edge: {exc}", file=sys.stderr)
+        return exc.exit_code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,164 @@
+"""The simulated camera: the renderer behind a real frame clock and a rolling shutter.
+
+:class:`SimCamera` behaves like the Pi camera as far as timing goes. Once started, frames begin
+every frame period on ``time.monotonic_ns()``, whether anyone asks for them or not. Row r of a
+frame starts its exposure ``r·readout/(H−1)`` after row 0 and is exposed for the configured time;
+the frame is delivered when its last row has been read. ``frame_after(t)`` sleeps until the first
+frame starting at or after `t` has been delivered, then renders it: the pose comes from
+``pose_at(t)`` (the pan-tilt unit's emulator), and each laser's brightness in each row from what
+its GPIO pin actually did during that row's exposure (:class:`edge.sim.gpio.LaserWiring`). So a
+laser switched mid-frame lights only some rows of its spot, as on the real sensor.
+
+Rendering takes real time (10–70 ms); frame times follow the clock regardless. A camera keeps only
+a short queue of delivered frames: a frame delivered more than ``queue_frames`` periods before the
+request is gone (dropped, as a real camera drops frames nobody collects).
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from edge.config import CameraSettings, Config
+from edge.errors import HardwareError
+from edge.hw.base import Frame
+from edge.sim.gpio import LaserWiring
+from edge.sim.render import Renderer
+
+log = logging.getLogger(__name__)
+
+PoseAt = Callable[[int], tuple[float, float]]
+
+
+def _ceil_div(a: int, b: int) -> int:
+    return -((-a) // b)
+
+
+class SimCamera:
+    """A simulated camera on a real frame clock (implements :class:`edge.hw.base.Camera`)."""
+
+    def __init__(
+        self,
+        renderer: Renderer,
+        wiring: LaserWiring,
+        settings: CameraSettings,
+        *,
+        pose_at: Callable[..., tuple[float, float]] | None = None,
+        pose_deg: tuple[float, float] = (0.0, 0.0),
+        readout_fraction: float = 0.7,
+        queue_frames: int = 2,
+        seed: int = 0,
+        scene_epoch_ns: int = 0,
+        noise: bool = True,
+    ) -> None:
+        if not 0.0 <= readout_fraction < 1.0:
+            raise ValueError(f"readout_fraction must be in [0, 1), got {readout_fraction}")
+        self.renderer = renderer
+        self.wiring = wiring
+        self.settings = settings
+        self.frame_ns = settings.frame_ns
+        self.exposure_ns = int(round(settings.exposure_us * 1000))
+        # The time from row 0's exposure start to the last row's: a sensor reads its rows out one
+        # after another over most of the frame period.
+        self.readout_ns = int(round(readout_fraction * self.frame_ns))
+        self.pose_at: PoseAt = _as_pose_at(pose_at) if pose_at is not None else (lambda _t, p=pose_deg: p)
+        self.queue_frames = queue_frames
+        self.seed = seed
+        # Scene time (movers) is (t − epoch)/1e9 s: by default the monotonic clock itself.
+        self.scene_epoch_ns = scene_epoch_ns
+        self.noise = noise
+        height = renderer.rig.camera.height
+        self._row_offsets = (np.arange(height, dtype=np.int64) * self.readout_ns) // max(height - 1, 1)
+        self._t0: int | None = None
+        self._last_k = -1
+        self.frames_rendered = 0
+
+    @classmethod
+    def from_config(cls, config: Config, lasers_factory, **kwargs) -> SimCamera:
+        """The camera of `config`'s simulated rig in its scene, watching the laser pins of
+        `lasers_factory` (the mock factory the simulated lasers were opened on)."""
+        from edge.sim.record import scene_for, true_rig
+
+        renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+        wiring = LaserWiring(
+            config.rig.build().lasers, lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6))
+        )
+        kwargs.setdefault("seed", config.sim.seed)
+        return cls(renderer, wiring, config.camera, **kwargs)
+
+    # --- the Camera interface --------------------------------------------------------------------
+
+    def start(self) -> None:
+        if self._t0 is None:
+            self._t0 = time.monotonic_ns()
+            self._last_k = -1
+            log.debug("simulated camera started: %d ns frames, readout %d ns", self.frame_ns, self.readout_ns)
+
+    def stop(self) -> None:
+        self._t0 = None
+
+    def frame_start_ns(self, k: int) -> int:
+        """When frame k's first row starts its exposure."""
+        if self._t0 is None:
+            raise HardwareError("camera: not started")
+        return self._t0 + k * self.frame_ns
+
+    def frame_after(self, t_ns: int, timeout_s: float | None = None) -> Frame:
+        """The first frame whose exposure starts at or after `t_ns`, once it has been read out.
+        Raises HardwareError when that takes longer than `timeout_s` (default: the settings')."""
+        if self._t0 is None:
+            raise HardwareError("camera: not started")
+        timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
+        now = time.monotonic_ns()
+        deadline = now + int(timeout_s * 1e9)
+        span = self.readout_ns + self.exposure_ns  # first row's start to last row's end
+        k = max(_ceil_div(int(t_ns) - self._t0, self.frame_ns), 0, self._last_k + 1)
+        # Frames delivered too long ago have been dropped from the queue.
+        oldest = _ceil_div(now - self.queue_frames * self.frame_ns - self._t0 - span, self.frame_ns)
+        k = max(k, oldest)
+        ready = self.frame_start_ns(k) + span
+        if ready > deadline:
+            _sleep_until(deadline)
+            raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
+        _sleep_until(ready)
+        self._last_k = k
+        return self._render(k)
+
+    # --- internals -----------------------------------------------------------------------------
+
+    def _render(self, k: int) -> Frame:
+        t_start = self.frame_start_ns(k)
+        fractions = self.wiring.row_fractions(t_start + self._row_offsets, self.exposure_ns)
+        lasers_on = {name: f for name, f in fractions.items() if f.any()}
+        pan, tilt = self.pose_at(t_start + (self.readout_ns + self.exposure_ns) // 2)
+        rng = np.random.default_rng([self.seed & 0xFFFFFFFF, k])
+        t_s = (t_start - self.scene_epoch_ns) / 1e9
+        image = self.renderer.render(pan, tilt, lasers_on, t_s, rng, noise=self.noise)
+        self.frames_rendered += 1
+        metadata = {
+            "simulated": True,
+            "pan_deg": float(pan),
+            "tilt_deg": float(tilt),
+            # Per laser: the least and most of an exposure any row saw it lit (truth, for tests).
+            "laser_fraction_range": {n: (float(f.min()), float(f.max())) for n, f in fractions.items()},
+        }
+        return Frame(image, t_start, self.settings.exposure_us, self.readout_ns, k, metadata)
+
+
+def _as_pose_at(pose: Callable[..., tuple[float, float]]) -> PoseAt:
+    """`pose(t_ns)`, or a pose of now such as the PTU emulator's ``pose()`` (then read when the
+    frame is rendered, just after its readout: exact whenever the unit stood still for it)."""
+    try:
+        takes_time = bool(inspect.signature(pose).parameters)
+    except (TypeError, ValueError):  # no signature to read: assume the documented form
+        takes_time = True
+    return pose if takes_time else (lambda _t: pose())
+
+
+def _sleep_until(t_ns: int) -> None:
+    while (left := t_ns - time.monotonic_ns()) > 0:
+        time.sleep(left / 1e9)

@@ -1,0 +1,228 @@
+"""Cameras: the simulated one keeps a real frame clock; the Pi camera's timestamps are read right
+and its settings fixed; missing hardware is one clear error, never a hang."""
+
+from __future__ import annotations
+
+import sys
+import time
+import types
+
+import numpy as np
+import pytest
+
+from edge.config import CameraSettings, load_config
+from edge.errors import HardwareError
+from edge.hw.lasers import open_lasers
+from edge.hw.camera import PICAMERA2_MISSING, OpenCVCamera, Picamera2Camera, open_camera
+from edge.sim.camera import SimCamera
+from edge.sim.gpio import LaserWiring, laser_factory
+from edge.sim.record import flat_target_scene, true_rig
+from edge.sim.render import Renderer
+
+# --- the simulated camera -----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sim_camera():
+    config = load_config(None, ["rig.camera.model=\"webcam-cif\""])  # small frames: quick renders
+    renderer = Renderer(flat_target_scene(1.5), true_rig(config), config.sim, config.camera)
+    wiring = LaserWiring(config.rig.build().lasers, laser_factory())
+    # A queue long enough that a slow render (a busy CI machine) never loses a frame here.
+    camera = SimCamera(renderer, wiring, config.camera, queue_frames=10**6)
+    camera.start()
+    yield camera
+    camera.stop()
+
+
+def test_sim_frames_follow_the_frame_clock(sim_camera):
+    cam = sim_camera
+    period = cam.frame_ns
+    t = time.monotonic_ns()
+    f1 = cam.frame_after(t)
+    assert f1.t_start_ns >= t and f1.t_start_ns - t <= period
+    assert time.monotonic_ns() >= f1.t_end_ns  # delivered only once read out
+    assert f1.exposure_us == 10000.0 and f1.readout_ns == round(0.7 * period)
+    assert f1.image.shape == (288, 352, 3)
+    f2 = cam.frame_after(f1.t_start_ns + 1)
+    assert f2.t_start_ns - f1.t_start_ns == period and f2.sequence == f1.sequence + 1
+    f3 = cam.frame_after(f2.t_start_ns + period + period // 2)
+    assert f3.t_start_ns - f2.t_start_ns == 2 * period and f3.sequence == f2.sequence + 2
+
+
+def test_sim_frame_after_takes_a_frame_starting_exactly_then(sim_camera):
+    cam = sim_camera
+    f1 = cam.frame_after(time.monotonic_ns())
+    f2 = cam.frame_after(f1.t_start_ns + 3 * cam.frame_ns)
+    assert f2.t_start_ns == f1.t_start_ns + 3 * cam.frame_ns
+    # Never the same frame twice, even when asked for an earlier time.
+    f3 = cam.frame_after(f1.t_start_ns)
+    assert f3.sequence > f2.sequence
+
+
+def test_sim_camera_drops_frames_nobody_collected():
+    config = load_config(None, ["rig.camera.model=\"webcam-cif\""])
+    renderer = Renderer(flat_target_scene(1.5), true_rig(config), config.sim, config.camera)
+    camera = SimCamera(renderer, LaserWiring((), laser_factory()), config.camera, queue_frames=2)
+    camera.start()
+    t = time.monotonic_ns()
+    time.sleep(8 * camera.frame_ns / 1e9)
+    frame = camera.frame_after(t)  # long gone: the oldest frame still queued instead
+    assert frame.t_start_ns >= t + 3 * camera.frame_ns
+
+
+def test_sim_camera_times_out(sim_camera):
+    start = time.monotonic()
+    with pytest.raises(HardwareError, match="no frame"):
+        sim_camera.frame_after(time.monotonic_ns() + 10**10, timeout_s=0.05)
+    assert time.monotonic() - start < 1.0
+
+
+def test_sim_camera_must_be_started():
+    config = load_config(None, ["rig.camera.model=\"webcam-cif\""])
+    renderer = Renderer(flat_target_scene(1.5), true_rig(config), config.sim, config.camera)
+    camera = SimCamera(renderer, LaserWiring((), laser_factory()), config.camera)
+    with pytest.raises(HardwareError, match="not started"):
+        camera.frame_after(0)
+
+
+# --- the Pi camera, with picamera2 standing in --------------------------------------------------
+
+
+def test_picamera2_missing_is_one_clear_error(monkeypatch):
+    monkeypatch.setitem(sys.modules, "picamera2", None)  # import fails as if not installed
+    with pytest.raises(HardwareError) as info:
+        Picamera2Camera(CameraSettings(), (640, 480))
+    assert str(info.value) == PICAMERA2_MISSING and "\n" not in str(info.value)
+
+
+class _FakeRequest:
+    def __init__(self, image: np.ndarray, metadata: dict) -> None:
+        self.image, self.metadata, self.released = image, metadata, False
+
+    def make_array(self, name: str) -> np.ndarray:
+        assert name == "main"
+        return self.image
+
+    def get_metadata(self) -> dict:
+        return self.metadata
+
+    def release(self) -> None:
+        self.released = True
+
+
+class _FakePicamera2:
+    """Just what Picamera2Camera uses. Its queue holds requests; flush is recorded, not applied,
+    so that the camera's own check of the start time is exercised too."""
+
+    last: _FakePicamera2 | None = None
+
+    def __init__(self, camera_num: int = 0) -> None:
+        _FakePicamera2.last = self
+        self.camera_controls = {"FrameDurationLimits": (23_000, 1_000_000, 33_333)}
+        self.queue: list[_FakeRequest] = []
+        self.flushes: list[int] = []
+
+    def create_video_configuration(self, main, controls, raw=None):
+        return {"main": main, "controls": dict(controls), "raw": raw}
+
+    def configure(self, config) -> None:
+        self.config = config
+
+    def start(self) -> None:
+        self.started = True
+
+    def stop(self) -> None:
+        self.started = False
+
+    def close(self) -> None:
+        pass
+
+    def capture_request(self, wait=None, flush=None):
+        self.flushes.append(flush)
+        if not self.queue:
+            raise TimeoutError
+        return self.queue.pop(0)
+
+
+def _request(sensor_ts: int, exposure_us: int = 10_000) -> _FakeRequest:
+    image = np.zeros((480, 640, 3), np.uint8)
+    image[..., 0] = 200  # byte 0 of RGB888 is blue
+    md = {"SensorTimestamp": sensor_ts, "ExposureTime": exposure_us, "FrameDuration": 33_333}
+    return _FakeRequest(image, md)
+
+
+@pytest.fixture
+def fake_picamera2(monkeypatch):
+    module = types.ModuleType("picamera2")
+    module.Picamera2 = _FakePicamera2
+    monkeypatch.setitem(sys.modules, "picamera2", module)
+    monkeypatch.setitem(sys.modules, "libcamera", None)  # the enum's plain value is used
+    return _FakePicamera2
+
+
+def test_picamera2_fixed_settings(fake_picamera2):
+    overrides = ["camera.backend=\"picamera2\"", "camera.exposure_us=8000.0", "camera.analogue_gain=2.0"]
+    config = load_config(None, overrides)
+    cam = open_camera(config)
+    fake = fake_picamera2.last
+    controls = fake.config["controls"]
+    assert controls["AeEnable"] is False and controls["AwbEnable"] is False
+    assert controls["ExposureTime"] == 8000 and controls["AnalogueGain"] == 2.0
+    assert controls["FrameDurationLimits"] == (33_333, 33_333)
+    assert controls["NoiseReductionMode"] == 0  # Off: no temporal denoise mixing frames
+    assert fake.config["main"] == {"size": (640, 480), "format": "RGB888"}
+    assert fake.config["raw"] == {"size": (1640, 1232)}  # the binned full field of view
+    assert isinstance(cam, Picamera2Camera)
+
+
+def test_picamera2_timestamps_and_frame_choice(fake_picamera2):
+    cam = Picamera2Camera(CameraSettings(), (640, 480))
+    fake = fake_picamera2.last
+    t = 5_000_000_000
+    early, good = _request(t + 5_000_000), _request(t + 12_000_000)  # exposure 10 ms
+    fake.queue += [early, good]
+    frame = cam.frame_after(t, timeout_s=0.5)
+    # SensorTimestamp is the first row's readout: the exposure began ExposureTime before it.
+    assert frame.t_start_ns == t + 2_000_000 and frame.exposure_us == 10_000
+    assert cam.skipped == 1 and early.released and good.released  # started before t: dropped
+    assert fake.flushes[0] == t  # picamera2 is asked to pick by timestamp itself
+    # Readout bounded by the mode's shortest frame (23 ms), tighter than the 33 ms period.
+    assert frame.readout_ns == 23_000_000
+    assert frame.metadata["SensorTimestamp"] == t + 12_000_000
+    assert frame.image.shape == (480, 640, 3) and tuple(frame.image[0, 0]) == (200, 0, 0)  # BGR
+    with pytest.raises(HardwareError, match="no frame"):
+        cam.frame_after(t, timeout_s=0.05)
+
+
+# --- the webcam -----------------------------------------------------------------------------------
+
+
+def test_opencv_missing_device_is_an_error_not_a_hang():
+    start = time.monotonic()
+    with pytest.raises(HardwareError, match="video device"):
+        OpenCVCamera(CameraSettings(backend="opencv", device="/dev/video-edge-test-missing"), (640, 480))
+    assert time.monotonic() - start < 6.0
+
+
+def test_open_camera_sim_sees_the_simulated_lasers():
+    config = load_config(None, ["sim.scene=\"office\""])
+    with open_lasers(config) as lasers:
+        camera = open_camera(config, {"factory": lasers.factory, "pose_at": lambda t_ns: (10.0, 0.0)})
+        camera.start()
+        lasers.set(lasers.names)
+        frame = camera.frame_after(lasers.last_switch_ns + 2_000_000, timeout_s=2.0)
+        assert frame.metadata["pan_deg"] == 10.0
+        assert frame.metadata["laser_fraction_range"]["center"] == (1.0, 1.0)
+        dark_from = lasers.off()
+        # A pose of now, as the PTU emulator's pose() gives it, will do too.
+        camera = open_camera(config, {"factory": lasers.factory, "pose_at": lambda: (-5.0, 2.0)})
+        camera.start()
+        frame = camera.frame_after(dark_from, timeout_s=2.0)
+        assert (frame.metadata["pan_deg"], frame.metadata["tilt_deg"]) == (-5.0, 2.0)
+        assert frame.metadata["laser_fraction_range"]["center"] == (0.0, 0.0)
+        assert open_camera(config, lasers).frame_ns == config.camera.frame_ns
+
+
+def test_sim_backend_needs_the_lasers_factory():
+    with pytest.raises(HardwareError, match="simulated lasers"):
+        open_camera(load_config(None))
