@@ -169,6 +169,28 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """One sweep on the configured rig: a table, the results as JSON and the map as a PNG."""
+    from edge.fsutil import atomic_write_bytes, write_png
+    from edge.mapping import draw_map, results_document
+    from edge.sweep import run_configured_sweep
+
+    config = _config(args)
+    report = run_configured_sweep(config, _progress("sweep"))
+    for r in report.results:
+        rng = f"{r.range_m:7.3f} m" if r.range_m is not None else "      -  "
+        print(f"{r.index:4d} {r.pan_deg:9.3f} {r.status:<12} {rng} {r.detail}")
+    print(f"sweep took {report.duration_s:.1f} s (limit of the rig {report.limit_s:.1f} s); "
+          f"{report.dropped_frames} frames exposed across a switch were not used")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = results_document(report.results, duration_s=round(report.duration_s, 3))
+    atomic_write_bytes(out / "sweep.json", json.dumps(doc, indent=1).encode())
+    write_png(out / "map.png", draw_map(report.results, range_limit_m=config.rig.range_limits_m[1]))
+    print(f"results: {out / 'sweep.json'}; map: {out / 'map.png'}")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from edge import bench
 
@@ -198,6 +220,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("config", help="check a configuration file and summarise it")
     _common(p)
     p.set_defaults(func=cmd_config)
+
+    p = sub.add_parser("sweep", help="run one sweep on the configured rig (simulated by default)")
+    _common(p)
+    p.add_argument("--out", default="out/sweep", help="folder for sweep.json and map.png")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("replay", help="range a recorded sweep again")
     p.add_argument("recording", help="recording folder (edge-sweep/1)")

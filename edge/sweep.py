@@ -1,0 +1,197 @@
+"""The sweep: for each zone move, settle, capture the laser-off/laser-on frames, range, hand on.
+
+Written against the driver interfaces (``edge.hw.base``), so the same code runs the Pi's parts and
+the simulated ones. A part that fails for a zone makes that zone a ``fault`` and the sweep goes on;
+a part that keeps failing (the unit hung, the camera gone) ends the sweep with a clear error. The
+lasers are off between zones and whenever anything goes wrong (``edge.capture``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from edge.capture import Capture
+from edge.config import Config
+from edge.errors import HardwareError
+from edge.hw.base import PanTilt
+from edge.ranging import FAULT, FrameGroup, Ranger, ZoneResult
+from edge.recording import RecordingWriter
+
+log = logging.getLogger(__name__)
+
+# This many zones failing in a row means the part is gone, not hiccuping: end the sweep.
+MAX_FAULTS_IN_A_ROW = 3
+
+
+@dataclass
+class SweepReport:
+    results: list[ZoneResult] = field(default_factory=list)
+    duration_s: float = 0.0
+    limit_s: float = 0.0  # what the camera's frame rate and the unit's motion allow at best
+    dropped_frames: int = 0  # frames exposed across a laser switch, never used
+
+    @property
+    def faults(self) -> int:
+        return sum(r.status == FAULT for r in self.results)
+
+
+def sweep_limit_s(config: Config, ptu: PanTilt, poses: Sequence[tuple[float, float]], start: tuple[float, float]) -> float:
+    """The fastest a sweep of `poses` can be: every frame one frame period, every move (to each
+    zone and each speckle nudge within it) as fast as the configured speed and acceleration."""
+    pairs = config.sweep.pairs_per_zone
+    frame_s = config.camera.frame_ns / 1e9
+    total, here = 0.0, start
+    for pan, tilt in poses:
+        for nudge in config.sweep.nudges_deg():
+            target = (pan + nudge, tilt)
+            total += ptu.move_time_s(here[0], here[1], *target)
+            here = target
+        total += 2 * pairs * frame_s
+    return total
+
+
+def visiting_order(poses: Sequence[tuple[float, float]], start: tuple[float, float]) -> list[int]:
+    """Zone indices in the order to visit them: one pass in pan from the end nearer to where the
+    unit is (a full turn read in index order would swing the head round by 354° at the wrap)."""
+    order = sorted(range(len(poses)), key=lambda i: (poses[i][0], poses[i][1]))
+    if order and abs(poses[order[-1]][0] - start[0]) < abs(poses[order[0]][0] - start[0]):
+        order.reverse()
+    return order
+
+
+class Sweeper:
+    """Runs sweeps with one set of parts."""
+
+    def __init__(
+        self,
+        config: Config,
+        ptu: PanTilt,
+        capture: Capture,
+        ranger: Ranger,
+        on_zone: Callable[[ZoneResult], None] | None = None,
+        truth: Callable[[int, float, float], dict | None] | None = None,
+    ):
+        self.config = config
+        self.ptu = ptu
+        self.capture = capture
+        self.ranger = ranger
+        self.on_zone = on_zone
+        self.truth = truth  # the simulator's truth for a zone, for recordings and scoring
+
+    def run(
+        self,
+        poses: Sequence[tuple[float, float]] | None = None,
+        recorder: RecordingWriter | None = None,
+        progress: Callable[[int, int], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
+    ) -> SweepReport:
+        poses = list(poses if poses is not None else self.config.sweep.poses())
+        report = SweepReport()
+        try:
+            start = self.ptu.position()
+        except HardwareError as exc:
+            raise HardwareError(f"cannot start the sweep: {exc}") from None
+        order = visiting_order(poses, start)
+        report.limit_s = sweep_limit_s(self.config, self.ptu, [poses[i] for i in order], start)
+        dropped_before = self.capture.dropped
+        started = time.monotonic()
+        in_a_row = 0
+        for done, index in enumerate(order):
+            pan, tilt = poses[index]
+            if should_stop is not None and should_stop():
+                break
+            result = self.zone(index, pan, tilt, recorder)
+            in_a_row = in_a_row + 1 if result.status == FAULT else 0
+            report.results.append(result)
+            if self.on_zone is not None:
+                self.on_zone(result)
+            if progress is not None:
+                progress(done + 1, len(poses))
+            if in_a_row >= MAX_FAULTS_IN_A_ROW:
+                raise HardwareError(
+                    f"sweep stopped after {in_a_row} failed zones in a row (last: {result.detail})"
+                )
+        report.results.sort(key=lambda r: r.index)
+        report.duration_s = time.monotonic() - started
+        report.dropped_frames = self.capture.dropped - dropped_before
+        return report
+
+    def zone(self, index: int, pan: float, tilt: float, recorder: RecordingWriter | None = None) -> ZoneResult:
+        """Move, capture and range one zone. A part failing makes it a `fault`, not an exception."""
+        cfg = self.config.sweep
+        taken = []
+        reached = (pan, tilt)
+        try:
+            for k, nudge in enumerate(cfg.nudges_deg()):
+                at = self.ptu.move(pan + nudge, tilt)
+                if k == 0:
+                    reached = at
+                for frame, lasers_on, switch_ns in self.capture.zone(pairs=1):
+                    taken.append((frame, tuple(lasers_on), switch_ns, at))
+        except HardwareError as exc:
+            log.warning("zone %d (pan %.2f°, tilt %.2f°): %s", index, pan, tilt, exc)
+            return ZoneResult(index, pan, tilt, FAULT, detail=str(exc))
+        groups = _groups(taken)
+        result = self.ranger.range_zone(index, reached[0], reached[1], groups)
+        if recorder is not None:
+            truth = self.truth(index, *reached) if self.truth else None
+            recorder.add_zone(index, reached[0], reached[1], _recorded(taken, reached), truth)
+        return result
+
+
+def _groups(taken) -> list[FrameGroup]:
+    """Frames of each view as one group: its laser-on frames against its laser-off frames."""
+    views: dict[tuple[float, float], dict[str, list]] = {}
+    lasers: dict[tuple[float, float], tuple[str, ...]] = {}
+    for frame, lasers_on, _, view in taken:
+        kind = "on" if lasers_on else "off"
+        views.setdefault(view, {"on": [], "off": []})[kind].append(frame.image)
+        if lasers_on:
+            lasers[view] = lasers_on
+    return [
+        FrameGroup(v["on"], v["off"], lasers[view], view)
+        for view, v in views.items()
+        if v["on"] and v["off"]
+    ]
+
+
+def _recorded(taken, reached: tuple[float, float]) -> list:
+    frames = []
+    for frame, lasers_on, switch_ns, view in taken:
+        extra: dict = {
+            "t_start_ns": frame.t_start_ns,
+            "exposure_us": frame.exposure_us,
+            "laser_switch_ns": switch_ns,
+        }
+        if not math.isclose(view[0], reached[0], abs_tol=1e-9) or not math.isclose(view[1], reached[1], abs_tol=1e-9):
+            extra["pan_deg"], extra["tilt_deg"] = view
+        frames.append((frame.image, list(lasers_on), extra))
+    return frames
+
+
+def run_configured_sweep(config: Config, progress=None) -> SweepReport:
+    """One sweep on the configured parts (real or simulated), lasers off and parts closed after."""
+    from edge.hw.camera import open_camera
+    from edge.hw.lasers import open_lasers
+    from edge.hw.ptu import open_ptu
+
+    unit, emulator = open_ptu(config.ptu)
+    lasers = None
+    camera = None
+    try:
+        lasers = open_lasers(config)
+        world = {"factory": lasers.factory, "pose_at": emulator.pose} if emulator else None
+        camera = open_camera(config, world)
+        camera.start()
+        sweeper = Sweeper(config, unit, Capture(camera, lasers, config), Ranger(config.rig.build(), config.ranging))
+        return sweeper.run(progress=progress)
+    finally:
+        if lasers is not None:
+            lasers.close()
+        if camera is not None:
+            camera.stop()
+        unit.close()
