@@ -88,7 +88,7 @@ def draw_map(
     cv2.fillPoly(img, [tri], (0, 200, 255), cv2.LINE_AA)
     ok = sum(r.status == OK for r in results)
     lines = [title] if title else []
-    lines.append(f"{ok}/{len(results)} zones ok; grid 1 m; grey: true room")
+    lines.append(f"{ok}/{len(results)} zones ok; grid 1 m" + ("; grey: true room" if room else ""))
     for i, text in enumerate(lines):
         cv2.putText(img, text, (10, 22 + 20 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _TEXT, 1, cv2.LINE_AA)
     return img
