@@ -14,21 +14,17 @@ import cv2
 import numpy as np
 
 from edge.recording import Recording, ZoneRecord
+from edge.vision import SpotFinder
 
 # Circle colours (BGR) for the 1st, 2nd, 3rd … laser.
 _LASER_COLOURS = [(0, 255, 255), (255, 200, 0), (255, 0, 255), (0, 255, 0), (0, 128, 255)]
 _LABEL_HEIGHT = 18
 
 
-def laser_channel(image: np.ndarray) -> np.ndarray:
-    """The channel that carries a red laser's spot: red of BGR, or the grey value. float32."""
-    return (image[..., 2] if image.ndim == 3 else image).astype(np.float32)
-
-
 def difference_image(recording: Recording, zone: ZoneRecord) -> np.ndarray:
     """Mean of the zone's laser-on frames minus the mean of its laser-off frames, (H, W) float32."""
     def mean(frames) -> np.ndarray:
-        return np.mean([laser_channel(recording.load_image(zone, f)) for f in frames], axis=0)
+        return np.mean([SpotFinder.laser_channel(recording.load_image(zone, f)).astype(np.float32) for f in frames], axis=0)
 
     return mean(zone.on_frames) - mean(zone.off_frames)
 

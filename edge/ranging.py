@@ -265,13 +265,12 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
     total = sum(weights)
     z = sum(w * m.depth_m for w, m in zip(weights, ms)) / total
     chi2 = sum(w * (m.depth_m - z) ** 2 for w, m in zip(weights, ms))
-    point = reference.point_m if len(ms) == 1 else rig_point_at_depth(reference, z)
+    point = reference.point_m if len(ms) == 1 else _point_at_depth(reference, z)
     return Fusion(z, math.sqrt(1.0 / total), point, None, chi2, len(ms) - 1, tuple(ms))
 
 
-def rig_point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
-    """The point of `m`'s beam at depth z, from two of its points (the measured one and the
-    camera-frame beam direction implied by the laser), without needing the rig."""
+def _point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
+    """The point of `m`'s beam at depth z: from its measured point along its beam direction."""
     return m.point_m + (z - m.depth_m) * m.beam_dir / float(m.beam_dir[2])
 
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from edge.errors import EdgeError
 from edge.rig import Laser, Rig
+from edge.vision import SpotFinder
 
 # Rounding a position to whole pixels leaves a uniform error of ±0.5 px: σ = 1/√12.
 _ROUNDING_SIGMA_PX = 1.0 / math.sqrt(12.0)
@@ -82,7 +83,7 @@ def masks(rig: Rig) -> dict[str, np.ndarray]:
 
 
 def red(image: np.ndarray) -> np.ndarray:
-    return (image[..., 2] if image.ndim == 3 else image).astype(np.float64)
+    return SpotFinder.laser_channel(image).astype(np.float64)
 
 
 def spot_positions(
