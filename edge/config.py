@@ -214,12 +214,16 @@ class SensorConfig:
     output_bits: Literal[8, 16] = 8
     colour: bool = True
     jpeg_quality: int = 0  # 0: lossless PNG; 1-100: what a webcam's JPEG stream does to frames
+    # Rolling shutter: row 0's exposure start to the last row's. The IMX219's 640×480 mode runs at
+    # up to 206 fps, so it reads out in under 5 ms; a webcam takes most of its frame period.
+    readout_ms: float = 5.0
 
     def __post_init__(self) -> None:
         require(self.full_well_e > 0, "full_well_e", "must be positive")
         require(self.read_noise_e >= 0, "read_noise_e", "must be >= 0")
         require(8 <= self.adc_bits <= 16, "adc_bits", f"must be 8-16, got {self.adc_bits}")
         require(0 <= self.jpeg_quality <= 100, "jpeg_quality", "must be 0-100")
+        require(self.readout_ms >= 0, "readout_ms", "must be >= 0")
         require(
             not (self.jpeg_quality and self.output_bits == 16),
             "jpeg_quality",

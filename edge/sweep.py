@@ -39,19 +39,32 @@ class SweepReport:
         return sum(r.status == FAULT for r in self.results)
 
 
-def sweep_limit_s(config: Config, ptu: PanTilt, poses: Sequence[tuple[float, float]], start: tuple[float, float]) -> float:
-    """The fastest a sweep of `poses` can be: every frame one frame period, every move (to each
-    zone and each speckle nudge within it) as fast as the configured speed and acceleration."""
-    pairs = config.sweep.pairs_per_zone
+def sweep_limit_s(
+    config: Config, ptu: PanTilt, views: Sequence[Sequence[tuple[float, float]]], start: tuple[float, float]
+) -> float:
+    """The fastest a sweep can be: per zone, its `views` (the zone's pose and its speckle nudges)
+    each reached as fast as the configured speed and acceleration allow, let settle for
+    ``ptu.settle_ms``, and filmed for one laser-off and one laser-on frame period."""
     frame_s = config.camera.frame_ns / 1e9
+    settle_s = config.ptu.settle_ms / 1000.0
     total, here = 0.0, start
-    for pan, tilt in poses:
-        for nudge in config.sweep.nudges_deg():
-            target = (pan + nudge, tilt)
-            total += ptu.move_time_s(here[0], here[1], *target)
+    for zone in views:
+        for target in zone:
+            total += ptu.move_time_s(here[0], here[1], *target) + settle_s + 2 * frame_s
             here = target
-        total += 2 * pairs * frame_s
     return total
+
+
+def zone_views(config: Config, pan: float, tilt: float, pan_limits: tuple[float, float] | None = None) -> list[tuple[float, float]]:
+    """Where the unit points for each of a zone's laser-off/laser-on pairs: the zone's pose, then
+    the speckle nudges; a nudge that would pass a pan limit goes the other way instead."""
+    views = []
+    for nudge in config.sweep.nudges_deg():
+        p = pan + nudge
+        if pan_limits is not None and not pan_limits[0] <= p <= pan_limits[1]:
+            p = pan - nudge
+        views.append((p, tilt))
+    return views
 
 
 def visiting_order(poses: Sequence[tuple[float, float]], start: tuple[float, float]) -> list[int]:
@@ -96,7 +109,8 @@ class Sweeper:
         except HardwareError as exc:
             raise HardwareError(f"cannot start the sweep: {exc}") from None
         order = visiting_order(poses, start)
-        report.limit_s = sweep_limit_s(self.config, self.ptu, [poses[i] for i in order], start)
+        views = [self.views(*poses[i]) for i in order]
+        report.limit_s = sweep_limit_s(self.config, self.ptu, views, start)
         dropped_before = self.capture.dropped
         started = time.monotonic()
         in_a_row = 0
@@ -120,14 +134,17 @@ class Sweeper:
         report.dropped_frames = self.capture.dropped - dropped_before
         return report
 
+    def views(self, pan: float, tilt: float) -> list[tuple[float, float]]:
+        limits = getattr(self.ptu, "limits_deg", None)
+        return zone_views(self.config, pan, tilt, limits[0] if limits else None)
+
     def zone(self, index: int, pan: float, tilt: float, recorder: RecordingWriter | None = None) -> ZoneResult:
         """Move, capture and range one zone. A part failing makes it a `fault`, not an exception."""
-        cfg = self.config.sweep
         taken = []
         reached = (pan, tilt)
         try:
-            for k, nudge in enumerate(cfg.nudges_deg()):
-                at = self.ptu.move(pan + nudge, tilt)
+            for k, view in enumerate(self.views(pan, tilt)):
+                at = self.ptu.move(*view)
                 if k == 0:
                     reached = at
                 for frame, lasers_on, switch_ns in self.capture.zone(pairs=1):
@@ -184,7 +201,7 @@ def run_configured_sweep(config: Config, progress=None) -> SweepReport:
     camera = None
     try:
         lasers = open_lasers(config)
-        world = {"factory": lasers.factory, "pose_at": emulator.pose} if emulator else None
+        world = {"factory": lasers.factory, "pose_at": emulator.pose, "heading": emulator.heading} if emulator else None
         camera = open_camera(config, world)
         camera.start()
         sweeper = Sweeper(config, unit, Capture(camera, lasers, config), Ranger(config.rig.build(), config.ranging))

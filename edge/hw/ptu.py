@@ -200,8 +200,11 @@ class PanTiltUnit:
                 t_move = self.move_time_s(p0 * rp, t0 * rt, target[0] * rp, target[1] * rt)
                 self._moving = True
                 self._pos = None  # unknown until the move is seen to end
-                self._exchange(f"PP{target[0]}")
-                self._exchange(f"TP{target[1]}")
+                # Every exchange costs a round trip (≈10 ms at 9600 baud): send only what changes.
+                if target[0] != p0:
+                    self._exchange(f"PP{target[0]}")
+                if target[1] != t0:
+                    self._exchange(f"TP{target[1]}")
                 self._exchange("A", timeout=t_move * 1.5 + self.config.timeout_s)
                 if self.resets == resets:
                     break
@@ -211,9 +214,13 @@ class PanTiltUnit:
                 raise HardwareError(f"pan-tilt unit on {self.port} reset itself twice during one move; "
                                     "check its power supply")
             self._moving = False
+            # The await answered: both axes are at the target (a stepper reports the position it
+            # was sent to, so asking again would only cost two more round trips).
+            self._pos = target
         if self.config.settle_ms > 0:
             time.sleep(self.config.settle_ms / 1000.0)
-        return self.position()
+        rp, rt = self.resolution_deg
+        return target[0] * rp, target[1] * rt
 
     def home(self) -> tuple[float, float]:
         return self.move(0.0, 0.0)
@@ -459,6 +466,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"position: pan {pan:+.4f}°, tilt {tilt:+.4f}°")
         else:
             target = (args.pan, args.tilt) if args.ptu_action == "move" else (0.0, 0.0)
-            pan, tilt = unit.move(*target)
+            unit.move(*target)
+            pan, tilt = unit.position()  # as the unit reports it
             print(f"position: pan {pan:+.4f}°, tilt {tilt:+.4f}°")
     return 0

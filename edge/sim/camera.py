@@ -9,7 +9,9 @@ frame starting at or after `t` has been delivered, then renders it: the pose com
 its GPIO pin actually did during that row's exposure (:class:`edge.sim.gpio.LaserWiring`). So a
 laser switched mid-frame lights only some rows of its spot, as on the real sensor.
 
-Rendering takes real time (10–70 ms); frame times follow the clock regardless. A camera keeps only
+Rendering takes real time (a new view 50–70 ms, a frame of a known view about 10 ms); frame times
+follow the clock regardless. Given ``heading`` (where the unit is going: the emulator's), a thread
+renders the view there while the unit is still moving, as a real camera would simply have it. A camera keeps only
 a short queue of delivered frames: a frame delivered more than ``queue_frames`` periods before the
 request is gone (dropped, as a real camera drops frames nobody collects).
 """
@@ -18,13 +20,14 @@ from __future__ import annotations
 
 import inspect
 import logging
+import threading
 import time
 from collections.abc import Callable
 
 import numpy as np
 
 from edge.config import CameraSettings, Config
-from edge.errors import HardwareError
+from edge.errors import ConfigError, HardwareError
 from edge.hw.base import Frame
 from edge.sim.gpio import LaserWiring
 from edge.sim.render import Renderer
@@ -49,6 +52,7 @@ class SimCamera:
         *,
         pose_at: Callable[..., tuple[float, float]] | None = None,
         pose_deg: tuple[float, float] = (0.0, 0.0),
+        heading: Callable[[], tuple[float, float]] | None = None,
         readout_fraction: float = 0.7,
         queue_frames: int = 2,
         seed: int = 0,
@@ -73,6 +77,9 @@ class SimCamera:
         self.noise = noise
         height = renderer.rig.camera.height
         self._row_offsets = (np.arange(height, dtype=np.int64) * self.readout_ns) // max(height - 1, 1)
+        self.heading = heading
+        self._prefetcher: threading.Thread | None = None
+        self._stopping = threading.Event()
         self._t0: int | None = None
         self._last_k = -1
         self.frames_rendered = 0
@@ -84,6 +91,13 @@ class SimCamera:
         from edge.sim.record import scene_for, true_rig
 
         renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+        readout_ns = config.sim.sensor.readout_ms * 1e6
+        if readout_ns >= config.camera.frame_ns:
+            raise ConfigError(
+                f"sim.sensor.readout_ms: {config.sim.sensor.readout_ms:g} ms does not fit in a frame of "
+                f"{config.camera.frame_ns / 1e6:.3g} ms (camera.frame_rate_hz); make it shorter"
+            )
+        kwargs.setdefault("readout_fraction", readout_ns / config.camera.frame_ns)
         wiring = LaserWiring(
             config.rig.build().lasers, lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6))
         )
@@ -97,9 +111,30 @@ class SimCamera:
             self._t0 = time.monotonic_ns()
             self._last_k = -1
             log.debug("simulated camera started: %d ns frames, readout %d ns", self.frame_ns, self.readout_ns)
+        # A moving scene changes every view with time: nothing to render ahead.
+        if self.heading is not None and self._prefetcher is None and not self.renderer.scene.movers:
+            self._stopping.clear()
+            self._prefetcher = threading.Thread(target=self._prefetch, name="sim-camera prefetch", daemon=True)
+            self._prefetcher.start()
 
     def stop(self) -> None:
         self._t0 = None
+        if self._prefetcher is not None:
+            self._stopping.set()
+            self._prefetcher.join()
+            self._prefetcher = None
+
+    def _prefetch(self) -> None:
+        last = None
+        while not self._stopping.wait(0.004):
+            try:
+                pose = self.heading()
+                if pose != last:
+                    self.renderer.prefetch(*pose)
+                    last = pose
+            except Exception as exc:  # the frame's own render will meet (and report) it again
+                log.debug("prefetch failed: %s", exc)
+                last = None
 
     def frame_start_ns(self, k: int) -> int:
         """When frame k's first row starts its exposure."""

@@ -162,6 +162,12 @@ class Emulator:
             k = self.resolution_arcsec / 3600.0
             return self.pan.at(now) * k, self.tilt.at(now) * k
 
+    def heading(self) -> tuple[float, float]:
+        """Where the current move ends (degrees): equal to ``pose()`` once the unit is there."""
+        with self._lock:
+            k = self.resolution_arcsec / 3600.0
+            return self.pan.target * k, self.tilt.target * k
+
     def positions(self) -> tuple[int, int]:
         """(pan, tilt) in whole positions, as a query would answer now."""
         with self._lock:

@@ -13,7 +13,9 @@ The renderer works with the *true* rig (which may differ from the nominal one: s
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Mapping
+from concurrent.futures import Future
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -101,7 +103,10 @@ class Renderer:
         cos = self._pixel_rays[:, 2].reshape(cam.height, cam.width)
         self._vignette = (cos**4 if sim.optics.vignetting else np.ones_like(cos)).astype(np.float32)
         self._base_to_world = scene.base_to_world()
-        self._views: dict[tuple, _View] = {}
+        # Views by key; a view being rendered (by a prefetch) is a Future the others wait on.
+        self._views: dict[tuple, Future[_View]] = {}
+        self._views_lock = threading.Lock()
+        self._normal_bank: np.ndarray | None = None
         exposure_ms = camera.exposure_us / 1000.0
         self._ambient_e = sim.ambient.white_e_per_ms * exposure_ms
         self._spot_e_at_1m = sim.beam.e_per_ms_at_1m * exposure_ms
@@ -117,12 +122,30 @@ class Renderer:
     def _view(self, pan_deg: float, tilt_deg: float, t_s: float) -> _View:
         moving = bool(self.scene.movers)
         key = (round(pan_deg, 9), round(tilt_deg, 9), t_s if moving else None)
-        view = self._views.get(key)
-        if view is None:
-            if len(self._views) >= _CACHE_VIEWS:
-                self._views.pop(next(iter(self._views)))
-            view = self._views[key] = self._render_view(pan_deg, tilt_deg, t_s)
-        return view
+        with self._views_lock:
+            pending = self._views.get(key)
+            mine = pending is None
+            if mine:
+                if len(self._views) >= _CACHE_VIEWS:
+                    self._views.pop(next(iter(self._views)))
+                pending = self._views[key] = Future()
+        if mine:
+            try:
+                view = self._render_view(pan_deg, tilt_deg, t_s)
+                for laser in self.rig.lasers:  # the spots too, so a frame costs only its noise
+                    self._lit_spot(view, laser.name)
+            except BaseException as exc:
+                with self._views_lock:
+                    self._views.pop(key, None)
+                pending.set_exception(exc)
+                raise
+            pending.set_result(view)
+        return pending.result()
+
+    def prefetch(self, pan_deg: float, tilt_deg: float, t_s: float = 0.0) -> None:
+        """Render the view at (pan, tilt) now, so that frames there later cost only their noise
+        (the simulated camera calls this from a thread while the unit is on its way)."""
+        self._view(pan_deg, tilt_deg, t_s)
 
     def _render_view(self, pan_deg: float, tilt_deg: float, t_s: float) -> _View:
         cam = self.rig.camera
@@ -276,22 +299,39 @@ class Renderer:
         electrons = self.render_electrons(pan_deg, tilt_deg, lasers_on, t_s, flicker)
         return self.digitise(electrons, rng if noise else None)
 
+    def _normals(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """`n` standard normal numbers: a slice at a random offset of a bank made once. Drawing a
+        frame's worth afresh takes most of a frame's render time; two slices at different offsets
+        are as independent as the frames' noise needs to be (a difference image never pairs a
+        pixel's noise with itself unless the offsets coincide: one chance in about a million)."""
+        bank = self._normal_bank
+        if bank is None or bank.size < 2 * n:
+            seed = np.random.default_rng([self.sim.seed & 0xFFFFFFFF, 0xB4A1])
+            bank = self._normal_bank = seed.standard_normal(2 * n + (1 << 20), dtype=np.float32)
+        start = int(rng.integers(0, bank.size - n + 1))
+        return bank[start : start + n]
+
     def digitise(self, electrons: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
         """Photo-electrons → the frame the camera delivers (noise when `rng` is given)."""
         sensor = self.sim.sensor
-        e = electrons
+        e = np.array(electrons, dtype=np.float32)  # a copy, worked on in place from here
         if rng is not None:
             # Shot noise (Gaussian approximation of Poisson: the counts here are large) + read noise.
-            sd = np.sqrt(np.maximum(e, 0.0) + np.float32(sensor.read_noise_e**2))
-            e = e + sd * rng.standard_normal(e.shape, dtype=np.float32)
-        e = np.clip(e, 0.0, sensor.full_well_e)
+            sd = np.maximum(e, 0.0)
+            sd += np.float32(sensor.read_noise_e**2)
+            np.sqrt(sd, out=sd)
+            sd *= self._normals(e.size, rng).reshape(e.shape)
+            e += sd
+        np.clip(e, 0.0, sensor.full_well_e, out=e)
         top = 2**sensor.adc_bits - 1
-        dn = np.clip(np.rint(e * np.float32(self._dn_per_e)), 0, top)
-        if sensor.output_bits == 8:
-            out = (dn * (255.0 / top)).round().astype(np.uint8)
-        else:
-            # 16-bit PNGs hold the sensor's values scaled to the full 16-bit range (geometry.md).
-            out = (dn * (65535.0 / top)).round().astype(np.uint16)
+        e *= np.float32(self._dn_per_e)
+        np.rint(e, out=e)
+        np.clip(e, 0, top, out=e)
+        # 16-bit PNGs hold the sensor's values scaled to the full 16-bit range (geometry.md).
+        full = 255.0 if sensor.output_bits == 8 else 65535.0
+        e *= np.float32(full / top)
+        np.rint(e, out=e)
+        out = e.astype(np.uint8 if sensor.output_bits == 8 else np.uint16)
         if out.shape[-1] == 1:
             out = out[..., 0]
         if sensor.jpeg_quality:
