@@ -205,6 +205,72 @@ class PtuConfig:
 
 
 @dataclass(frozen=True)
+class TlsConfig:
+    """TLS to the broker (``[mqtt.tls]``); off unless ``enabled``."""
+
+    enabled: bool = False
+    ca_file: str = ""  # empty: the system's trust store
+    cert_file: str = ""  # client certificate (both or neither of cert_file and key_file)
+    key_file: str = ""
+    insecure: bool = False  # skip the host-name check (test brokers only)
+
+    def __post_init__(self) -> None:
+        require(bool(self.cert_file) == bool(self.key_file), "cert_file", "give both cert_file and key_file, or neither")
+
+
+@dataclass(frozen=True)
+class MqttConfig:
+    """The broker link (``[mqtt]``), per ../spec/mqtt.md."""
+
+    enabled: bool = True
+    host: str = "localhost"
+    port: int = 1883
+    prefix: str = "edge"
+    client_id: str = ""  # empty: "<prefix>-<device id>"
+    username: str = ""
+    password: str = ""
+    password_file: str = ""  # read at start: keeps the secret out of the config file
+    keepalive_s: int = 30
+    session_expiry_s: int = 86400  # the broker keeps our session (and QoS 1 messages) this long
+    reconnect_min_s: float = 1.0
+    reconnect_max_s: float = 60.0
+    max_payload_bytes: int = 65536  # commands larger than this are refused before parsing
+    discovery: bool = True  # Home Assistant MQTT discovery
+    discovery_prefix: str = "homeassistant"
+    tls: TlsConfig = field(default_factory=TlsConfig)
+
+    def __post_init__(self) -> None:
+        require(1 <= self.port <= 65535, "port", f"must be 1-65535, got {self.port}")
+        for key in ("prefix", "discovery_prefix"):
+            value = getattr(self, key)
+            require(bool(value) and not any(c in value for c in "#+\0") and not value.startswith("/")
+                    and not value.endswith("/"), key, f"not a usable topic prefix: {value!r}")
+        require(not (self.password and self.password_file), "password", "give password or password_file, not both")
+        require(5 <= self.keepalive_s <= 3600, "keepalive_s", "must be 5-3600 s")
+        require(self.session_expiry_s >= 0, "session_expiry_s", "must be >= 0")
+        require(0 < self.reconnect_min_s <= self.reconnect_max_s, "reconnect_min_s",
+                "must be positive and at most reconnect_max_s")
+        require(256 <= self.max_payload_bytes <= 1 << 20, "max_payload_bytes", "must be 256 B - 1 MiB")
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """The headless loop (``[service]``)."""
+
+    state_dir: str = ""  # empty: $STATE_DIRECTORY (systemd), else ./state
+    sweep_interval_s: float = 60.0  # a sweep this often (range-finder and guard modes); 0: on command only
+    outbox_max_messages: int = 100000  # on-disk queue bound: beyond it the oldest sweeps go first, never alerts
+    watchdog: bool = True  # feed systemd's watchdog while the loop progresses
+
+    def __post_init__(self) -> None:
+        require(self.sweep_interval_s >= 0, "sweep_interval_s", "must be >= 0")
+        require(self.outbox_max_messages >= 100, "outbox_max_messages", "must be >= 100")
+
+    def resolved_state_dir(self) -> Path:
+        return Path(self.state_dir or os.environ.get("STATE_DIRECTORY", "").split(":")[0] or "state")
+
+
+@dataclass(frozen=True)
 class SensorConfig:
     """The simulated sensor: photo-electrons to digital numbers."""
 
@@ -317,6 +383,9 @@ class Config:
     camera: CameraSettings = field(default_factory=CameraSettings)
     lasers: LasersConfig = field(default_factory=LasersConfig)
     ptu: PtuConfig = field(default_factory=PtuConfig)
+    mqtt: MqttConfig = field(default_factory=MqttConfig)
+    service: ServiceConfig = field(default_factory=ServiceConfig)
+    mode: Literal["rangefinder", "blindaid", "guard"] = "rangefinder"
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
 
