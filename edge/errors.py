@@ -45,3 +45,15 @@ class CalibrationError(EdgeError):
     """A calibration cannot be fitted from the data given, or a calibration file is wrong."""
 
     exit_code = 1
+
+
+class CommandError(EdgeError):
+    """An MQTT command is refused: bad JSON, unknown name, a value out of range (`ok: false`)."""
+
+    exit_code = 2
+
+
+class StorageError(EdgeError):
+    """The state directory (outgoing queue, calibration) cannot be read or written."""
+
+    exit_code = 1
