@@ -114,25 +114,78 @@ def cmd_sim_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    """Simulate a sweep of the office, range it, score it against the truth and draw it."""
-    from edge.contact import contact_sheet
-    from edge.fsutil import write_png
-    from edge.recording import read_recording
-    from edge.replay import Replayer, format_score, score
-    from edge.sim.record import record_sweep
+# Parts that make `edge demo` a simulation whatever the configuration file says.
+_SIMULATED_PARTS = ('ptu.port="sim://"', 'camera.backend="sim"', 'lasers.backend="sim"')
 
-    config = _config(args)
-    out = Path(args.out)
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """A full sweep of the simulated office through the emulated pan-tilt unit on a pty, mock GPIO
+    and the simulated camera on its frame clock; the table, the error against the room, the map."""
+    from edge.config import load_config
+
+    overrides = list(_SIMULATED_PARTS) + list(args.set)
+    return _live_sweep(load_config(args.config, overrides), Path(args.out), None)
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """One sweep on the configured rig: a table, the results as JSON and the map as a PNG."""
+    return _live_sweep(_config(args), Path(args.out), None)
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    """One sweep on the configured rig, its frames saved as an edge-sweep/1 recording."""
+    return _live_sweep(_config(args), Path(args.out), Path(args.recording))
+
+
+def _live_sweep(config, out: Path, recording: Path | None) -> int:
+    import contextlib
+
+    from edge.fsutil import atomic_write_bytes, write_png
+    from edge.mapping import draw_map, map_error, results_document
+    from edge.recording import RecordingWriter
+    from edge.replay import format_score, score_ranges
+    from edge.sweep import run_configured_sweep
+
     started = time.monotonic()
-    record_sweep(config, out, progress=_progress("sweep"))
-    recording = read_recording(out)
-    results = list(Replayer(recording.rig, "triangulate", config.ranging).zones(recording))
-    print(format_score(score(recording, results)))
-    sheet = out / "contact.png"
-    write_png(sheet, contact_sheet(recording))
-    print(f"recording: {out} ({len(recording.zones)} zones, {time.monotonic() - started:.1f} s)")
-    print(f"contact sheet: {sheet}")
+    device = "sim" if config.camera.backend == "sim" else config.device.resolved_id()
+    writer = RecordingWriter(recording, config.rig.build(), device=device) if recording else None
+    with writer or contextlib.nullcontext() as recorder:
+        sweep = run_configured_sweep(config, _progress("sweep"), recorder=recorder)
+    report = sweep.report
+    truths = sweep.truth_ranges()
+    if sweep.truths:
+        print(format_score(score_ranges(report.results, truths)))
+    else:
+        for r in report.results:
+            rng = f"{r.range_m:7.3f} m" if r.range_m is not None else "      -  "
+            print(f"{r.index:4d} {r.pan_deg:9.3f} {r.status:<12} {rng} {r.detail}")
+    ratio = report.duration_s / report.limit_s if report.limit_s else float("nan")
+    print(f"sweep: {report.duration_s:.1f} s; the rig's limit {report.limit_s:.1f} s "
+          f"(frames, moves and settling) — {ratio:.2f}× the limit; {report.faults} zones fault; "
+          f"{report.dropped_frames} frames exposed across a laser switch, none used")
+    error = map_error(report.results, truths) if sweep.truths else None
+    if error is not None:
+        print(f"map error against the true room: mean {100 * error.mean_rel:.2f} %, median "
+              f"{100 * error.median_rel:.2f} %, max {100 * error.max_rel:.2f} % over {error.zones} zones")
+    out.mkdir(parents=True, exist_ok=True)
+    extra = {"duration_s": round(report.duration_s, 3), "limit_s": round(report.limit_s, 3),
+             "dropped_frames": report.dropped_frames}
+    if error is not None:
+        extra["map_error"] = {"zones": error.zones, "mean_rel": round(error.mean_rel, 6),
+                              "median_rel": round(error.median_rel, 6), "max_rel": round(error.max_rel, 6)}
+    doc = results_document(report.results, **extra)
+    if sweep.truths:
+        for zone in doc["zones"]:
+            zone["truth_range_m"] = (sweep.truths.get(zone["index"]) or {}).get("range_m")
+    atomic_write_bytes(out / "sweep.json", json.dumps(doc, indent=1).encode())
+    title = f"{config.sim.scene} (simulated)" if sweep.truths else device
+    if error is not None:
+        title += f"; mean error {100 * error.mean_rel:.2f} %"
+    picture = draw_map(report.results, sweep.room, range_limit_m=config.rig.range_limits_m[1], title=title)
+    write_png(out / "map.png", picture)
+    print(f"results: {out / 'sweep.json'}; map: {out / 'map.png'}"
+          + (f"; recording: {recording}" if recording else "")
+          + f" ({time.monotonic() - started:.1f} s in all)")
     return 0
 
 
@@ -169,28 +222,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_sweep(args: argparse.Namespace) -> int:
-    """One sweep on the configured rig: a table, the results as JSON and the map as a PNG."""
-    from edge.fsutil import atomic_write_bytes, write_png
-    from edge.mapping import draw_map, results_document
-    from edge.sweep import run_configured_sweep
-
-    config = _config(args)
-    report = run_configured_sweep(config, _progress("sweep"))
-    for r in report.results:
-        rng = f"{r.range_m:7.3f} m" if r.range_m is not None else "      -  "
-        print(f"{r.index:4d} {r.pan_deg:9.3f} {r.status:<12} {rng} {r.detail}")
-    print(f"sweep took {report.duration_s:.1f} s (limit of the rig {report.limit_s:.1f} s); "
-          f"{report.dropped_frames} frames exposed across a switch were not used")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    doc = results_document(report.results, duration_s=round(report.duration_s, 3))
-    atomic_write_bytes(out / "sweep.json", json.dumps(doc, indent=1).encode())
-    write_png(out / "map.png", draw_map(report.results, range_limit_m=config.rig.range_limits_m[1]))
-    print(f"results: {out / 'sweep.json'}; map: {out / 'map.png'}")
-    return 0
-
-
 def cmd_bench(args: argparse.Namespace) -> int:
     from edge import bench
 
@@ -212,9 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"edge {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    p = sub.add_parser("demo", help="simulate a sweep of the office, range it and draw it")
+    p = sub.add_parser("demo", help="a full simulated sweep of the office: table, error against the room, map")
     _common(p)
-    p.add_argument("--out", default="out/demo", help="recording folder (default: out/demo)")
+    p.add_argument("--out", default="out/demo", help="folder for sweep.json and map.png (default: out/demo)")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("config", help="check a configuration file and summarise it")
@@ -225,6 +256,12 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("--out", default="out/sweep", help="folder for sweep.json and map.png")
     p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("record", help="run one sweep on the configured rig and save it as an edge-sweep/1 recording")
+    _common(p)
+    p.add_argument("recording", help="recording folder to write (must not exist, or be a recording)")
+    p.add_argument("--out", default="out/record", help="folder for sweep.json and map.png")
+    p.set_defaults(func=cmd_record)
 
     p = sub.add_parser("replay", help="range a recorded sweep again")
     p.add_argument("recording", help="recording folder (edge-sweep/1)")

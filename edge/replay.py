@@ -156,9 +156,13 @@ class Score:
 
 
 def score(recording: Recording, results: list[ZoneResult]) -> Score:
+    return score_ranges(results, [(zone.truth or {}).get("range_m") for zone in recording.zones])
+
+
+def score_ranges(results: list[ZoneResult], truths_m: list) -> Score:
+    """Zone results against the true range of each (None where unknown)."""
     out = []
-    for zone, result in zip(recording.zones, results):
-        truth = (zone.truth or {}).get("range_m")
+    for result, truth in zip(results, truths_m):
         truth_m = float(truth) if isinstance(truth, (int, float)) and math.isfinite(truth) else None
         error = None
         if result.status == OK and truth_m is not None and result.range_m is not None:

@@ -154,8 +154,8 @@ class Sweeper:
             return ZoneResult(index, pan, tilt, FAULT, detail=str(exc))
         groups = _groups(taken)
         result = self.ranger.range_zone(index, reached[0], reached[1], groups)
+        truth = self.truth(index, *reached) if self.truth else None
         if recorder is not None:
-            truth = self.truth(index, *reached) if self.truth else None
             recorder.add_zone(index, reached[0], reached[1], _recorded(taken, reached), truth)
         return result
 
@@ -190,25 +190,36 @@ def _recorded(taken, reached: tuple[float, float]) -> list:
     return frames
 
 
-def run_configured_sweep(config: Config, progress=None) -> SweepReport:
-    """One sweep on the configured parts (real or simulated), lasers off and parts closed after."""
-    from edge.hw.camera import open_camera
-    from edge.hw.lasers import open_lasers
-    from edge.hw.ptu import open_ptu
+@dataclass
+class ConfiguredSweep:
+    """A sweep on the configured parts, with the truth when the parts are simulated."""
 
-    unit, emulator = open_ptu(config.ptu)
-    lasers = None
-    camera = None
-    try:
-        lasers = open_lasers(config)
-        world = {"factory": lasers.factory, "pose_at": emulator.pose, "heading": emulator.heading} if emulator else None
-        camera = open_camera(config, world)
-        camera.start()
-        sweeper = Sweeper(config, unit, Capture(camera, lasers, config), Ranger(config.rig.build(), config.ranging))
-        return sweeper.run(progress=progress)
-    finally:
-        if lasers is not None:
-            lasers.close()
-        if camera is not None:
-            camera.stop()
-        unit.close()
+    report: SweepReport
+    truths: dict[int, dict] = field(default_factory=dict)  # zone index → truth object (simulator)
+    room: list = field(default_factory=list)  # the true room's floor plan in the base frame
+
+    def truth_ranges(self) -> list[float | None]:
+        return [(self.truths.get(r.index) or {}).get("range_m") for r in self.report.results]
+
+
+def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None) -> Sweeper:
+    """A sweeper on opened parts (``edge.parts``), ranging with the configured rig."""
+    config = parts.config
+    truth = parts.truth if parts.simulated else None
+    return Sweeper(config, parts.ptu, parts.capture, Ranger(config.rig.build(), config.ranging),
+                   on_zone=on_zone, truth=truth)
+
+
+def run_configured_sweep(
+    config: Config,
+    progress: Callable[[int, int], None] | None = None,
+    recorder: RecordingWriter | None = None,
+    on_zone: Callable[[ZoneResult], None] | None = None,
+) -> ConfiguredSweep:
+    """One sweep on the configured parts (real or simulated), lasers off and parts closed after.
+    With `recorder`, every zone's frames are saved as it goes (``edge record``)."""
+    from edge.parts import open_parts
+
+    with open_parts(config) as parts:
+        report = sweeper_for(parts, on_zone).run(recorder=recorder, progress=progress)
+        return ConfiguredSweep(report, dict(parts.truths), parts.room())

@@ -8,8 +8,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from edge.config import load_config
-from edge.sweep import run_configured_sweep, visiting_order
+from edge.errors import HardwareError
+from edge.parts import open_parts
+from edge.recording import read_recording
+from edge.sweep import sweeper_for, run_configured_sweep, visiting_order, zone_views
 
 
 def test_visiting_order_is_one_pass_from_the_nearer_end() -> None:
@@ -20,13 +25,16 @@ def test_visiting_order_is_one_pass_from_the_nearer_end() -> None:
 
 def test_sweep_on_the_simulated_rig_ranges_the_office() -> None:
     config = load_config(None, ["sweep.zones=6", "sweep.pan_start_deg=-90.0", "sweep.pan_step_deg=10.0"])
-    report = run_configured_sweep(config)
+    sweep = run_configured_sweep(config)
+    report = sweep.report
     assert [r.index for r in report.results] == list(range(6))
     ok = [r for r in report.results if r.status == "ok"]
     assert len(ok) >= 5
     # The office's west wall is 1.3 m from the rig at pan -90°.
     assert abs(report.results[0].range_m - 1.30) < 0.03
     assert report.duration_s > 0 and report.limit_s > 0
+    # The simulator's truth comes with it, zone by zone, and the room's walls.
+    assert abs(sweep.truth_ranges()[0] - 1.30) < 0.01 and len(sweep.room) >= 4
 
 
 def test_edge_sweep_writes_results_and_map(tmp_path: Path) -> None:
@@ -38,3 +46,71 @@ def test_edge_sweep_writes_results_and_map(tmp_path: Path) -> None:
     doc = json.loads((tmp_path / "sweep.json").read_text())
     assert len(doc["zones"]) == 3
     assert (tmp_path / "map.png").stat().st_size > 1000
+
+
+def test_a_nudge_at_a_pan_limit_goes_inward() -> None:
+    config = load_config(None, ["sweep.pairs_per_zone=3"])
+    assert zone_views(config, 180.0, 0.0, (-180.0, 180.0)) == [
+        (180.0, 0.0), (180.0 - 0.0514, 0.0), (180.0 - 0.0514, 0.0)]
+    assert zone_views(config, 10.0, 0.0, (-180.0, 180.0))[1] == (10.0 + 0.0514, 0.0)
+
+
+# A sweep of 8 zones across the office's east wall, faults injected into the emulated unit after
+# zone `at` has been measured.
+_EIGHT = ["sweep.zones=8", "sweep.pan_start_deg=-60.0", "sweep.pan_step_deg=5.625"]
+
+
+def _visits() -> list[int]:
+    return visiting_order(load_config(None, _EIGHT).sweep.poses(), (0.0, 0.0))
+
+
+def _sweep_with_fault(mode: str, at: int, **fault) -> tuple[list, float]:
+    config = load_config(None, _EIGHT)
+    with open_parts(config) as parts:
+        def inject(result) -> None:
+            if result.index == at:
+                parts.emulator.inject(mode, **fault)
+
+        report = sweeper_for(parts, on_zone=inject).run()
+        return report.results, report.duration_s
+
+
+@pytest.mark.parametrize("mode, fault", [
+    ("drop", {"count": 1}),
+    ("garble", {"count": 2}),
+    ("silence", {"seconds": 1.5}),
+    ("notice", {"count": 2}),
+    ("reset", {}),
+])
+def test_a_sweep_rides_out_a_unit_fault(mode: str, fault: dict) -> None:
+    visits = _visits()
+    results, _ = _sweep_with_fault(mode, at=visits[2], **fault)
+    assert [r.index for r in results] == list(range(8))
+    faults = [r.index for r in results if r.status == "fault"]
+    # At most the zone measured while the unit misbehaved is lost; the others range as usual.
+    assert len(faults) <= 1 and all(i == visits[3] for i in faults), faults
+    assert sum(r.status == "ok" for r in results) >= 7 - len(faults)
+
+
+def test_a_hung_unit_ends_the_sweep_with_a_clear_error() -> None:
+    with pytest.raises(HardwareError, match="failed zones in a row.*pan-tilt unit"):
+        _sweep_with_fault("hang", at=_visits()[0])
+
+
+def test_edge_record_saves_a_live_sweep_as_a_recording(tmp_path: Path) -> None:
+    rec = tmp_path / "rec"
+    proc = subprocess.run(
+        [sys.executable, "-m", "edge", "record", str(rec), "--out", str(tmp_path / "out"), *sum((["--set", s] for s in _EIGHT[:1] + ["sweep.zones=3"]), [])],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    recording = read_recording(rec)
+    assert [z.index for z in recording.zones] == [0, 1, 2]
+    zone = recording.zones[0]
+    assert len(zone.frames) == 4 and zone.truth["range_m"] > 0
+    # Frames carry their own timing, and none straddled a laser switch.
+    for frame in zone.frames:
+        assert frame.t_start_ns is not None and frame.laser_switch_ns is not None
+        assert frame.t_start_ns >= frame.laser_switch_ns
+    replay = subprocess.run([sys.executable, "-m", "edge", "replay", str(rec)], capture_output=True, text=True, timeout=60)
+    assert replay.returncode == 0 and "ok 3" in replay.stdout, replay.stdout + replay.stderr
