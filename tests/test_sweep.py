@@ -114,3 +114,28 @@ def test_edge_record_saves_a_live_sweep_as_a_recording(tmp_path: Path) -> None:
         assert frame.t_start_ns >= frame.laser_switch_ns
     replay = subprocess.run([sys.executable, "-m", "edge", "replay", str(rec)], capture_output=True, text=True, timeout=60)
     assert replay.returncode == 0 and "ok 3" in replay.stdout, replay.stdout + replay.stderr
+
+
+def test_no_frame_the_sweep_uses_saw_a_laser_switch() -> None:
+    """The simulated camera knows, per laser, the least and most of an exposure any row saw it lit:
+    every frame handed to ranging must be wholly lit or wholly dark for each laser."""
+    config = load_config(None, ["sweep.zones=4", "sweep.pan_start_deg=-60.0", "sweep.pan_step_deg=5.625"])
+    used = []
+    with open_parts(config) as parts:
+        take = parts.capture.take
+
+        def watched(*args, **kwargs):
+            shot = take(*args, **kwargs)
+            used.append(shot)
+            return shot
+
+        parts.capture.take = watched
+        report = sweeper_for(parts).run()
+    assert len(used) == 4 * 2 * config.sweep.pairs_per_zone
+    assert all(r.status == "ok" for r in report.results)
+    for shot in used:
+        for laser, (least, most) in shot.frame.metadata["laser_fraction_range"].items():
+            if laser in shot.lasers_on:
+                assert least == 1.0, (laser, least, most)
+            else:
+                assert most == 0.0, (laser, least, most)
