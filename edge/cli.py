@@ -189,6 +189,17 @@ def _live_sweep(config, out: Path, recording: Path | None) -> int:
     return 0
 
 
+def cmd_run(args: argparse.Namespace) -> int:
+    """The headless service: the configured mode, MQTT, systemd notifications, until stopped."""
+    from edge.service import Service
+
+    if args.run_for is not None and args.run_for <= 0:
+        raise _usage("--for must be a positive number of seconds")
+    config = _config(args)
+    logging.getLogger().setLevel(logging.DEBUG if args.verbose else config.log_level.upper())
+    return Service(config, run_for_s=args.run_for).run()
+
+
 def cmd_config(args: argparse.Namespace) -> int:
     config = _config(args)
     rig = config.rig.build()
@@ -247,6 +258,12 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("--out", default="out/demo", help="folder for sweep.json and map.png (default: out/demo)")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("run", help="the headless service: run the configured mode with MQTT until stopped")
+    _common(p)
+    p.add_argument("--for", dest="run_for", type=float, metavar="SECONDS",
+                   help="stop cleanly after this long (for tests and trials)")
+    p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("config", help="check a configuration file and summarise it")
     _common(p)

@@ -1,0 +1,312 @@
+"""The headless service (`edge run`): the rig, the mode, MQTT in and out, systemd, signals.
+
+One thread does all the work: it runs the current mode one step at a time (a sweep, a fan pass, a
+burst of ranges) and between zones it answers commands, feeds systemd's watchdog and notices a
+stop. paho's network thread only moves bytes; commands reach us through the link's queue, and what
+we publish goes out through the on-disk outbox (alerts, sweeps) or straight away (ranges, cues).
+
+Stopping: SIGTERM and SIGINT (and ``--for``) set a flag that the sweep checks between zones; the
+lasers go off as the parts close, a last ``state`` goes out, then ``offline``. A crash or a
+watchdog kill skips all that, which is why the unit's ExecStopPost runs ``edge lasers off`` and the
+broker publishes our Last Will.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+from edge import __version__
+from edge.config import Config
+from edge.errors import CommandError, EdgeError, HardwareError
+from edge.ranging import FAULT, ZoneResult
+
+log = logging.getLogger(__name__)
+
+MODES = ("rangefinder", "blindaid", "guard")
+# Between steps the loop waits at most this long for a command or a stop.
+_IDLE_S = 0.05
+
+
+def _part_of(detail: str) -> str | None:
+    """Which part a zone's fault detail blames (the drivers' messages start with it)."""
+    text = detail.lower()
+    for prefix, part in (("pan-tilt", "ptu"), ("camera", "camera"), ("capture", "lasers"), ("laser", "lasers")):
+        if text.startswith(prefix):
+            return part
+    return None
+
+
+class Health:
+    """Each part's latest condition, as `state` reports it: "ok" or what went wrong."""
+
+    PARTS = ("camera", "lasers", "ptu", "calibration")
+
+    def __init__(self, calibration: str) -> None:
+        self.parts = {"camera": "ok", "lasers": "ok", "ptu": "ok", "calibration": calibration}
+
+    def zone(self, result: ZoneResult) -> bool:
+        """Take a zone's outcome into account; True when something changed."""
+        before = dict(self.parts)
+        part = _part_of(result.detail) if result.status == FAULT else None
+        if part is not None:
+            self.parts[part] = f"fault: {result.detail}"
+        elif result.status != FAULT:
+            for name in ("camera", "lasers", "ptu"):  # a zone went through all three
+                self.parts[name] = "ok"
+        return before != self.parts
+
+
+class Service:
+    """`edge run`: see the module notes."""
+
+    def __init__(self, config: Config, *, run_for_s: float | None = None, link: Any = None,
+                 notifier: Any = None) -> None:
+        self.config = config
+        self.run_for_s = run_for_s
+        self.mode = config.mode
+        self.device_id = config.device.resolved_id()
+        self.started = time.monotonic()
+        self.sweeps = 0
+        self.stop_requested = threading.Event()
+        self._link = link
+        self._notifier = notifier
+        self._feeder = None
+        self._outbox = None
+        self._parts = None
+        self._next_sweep = 0.0  # monotonic time of the next scheduled sweep
+        self._sweep_now = False
+        self._interrupt = False  # a command wants the current sweep to end early
+        self.health = Health("nominal rig (no calibration file)")
+        self._handlers: dict[str, Callable[[Any], str | None]] = {
+            "mode": self._cmd_mode,
+            "sweep": self._cmd_sweep,
+            "point": self._cmd_point,
+            "relearn": self._cmd_relearn,
+            "calibrate": self._cmd_calibrate,
+            "lasers_off": self._cmd_lasers_off,
+        }
+
+    # ---- life cycle ----
+
+    def run(self) -> int:
+        from edge.notify import Notifier, WatchdogFeeder
+        from edge.parts import open_parts
+
+        self._install_signal_handlers()
+        notifier = self._notifier or Notifier()
+        self._feeder = WatchdogFeeder(notifier) if self.config.service.watchdog else None
+        self._notifier = notifier
+        deadline = None if self.run_for_s is None else self.started + self.run_for_s
+        try:
+            self._start_link()
+            notifier.status("starting the rig")
+            try:
+                with open_parts(self.config) as parts:
+                    self._parts = parts
+                    self._publish_state()
+                    notifier.ready()
+                    notifier.status(f"running: {self.mode}")
+                    log.info("edge %s running as %s in %s mode", __version__, self.device_id, self.mode)
+                    self._loop(deadline)
+                    self._parts = None
+            except HardwareError as exc:
+                # Say why on MQTT before systemd restarts us: a silent restart loop helps nobody.
+                for part in ("camera", "lasers", "ptu"):
+                    if _part_of(str(exc)) == part:
+                        self.health.parts[part] = f"fault: {exc}"
+                self._publish_state()
+                raise
+            notifier.stopping()
+            notifier.status("stopping")
+            self._publish_state()
+        finally:
+            self._parts = None
+            if self._link is not None:
+                self._link.stop()
+            if self._outbox is not None:
+                self._outbox.close()
+        log.info("edge stopped after %d sweeps", self.sweeps)
+        return 0
+
+    def _install_signal_handlers(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return  # tests run services in threads; they stop them with stop_requested
+
+        def stop(signum: int, _frame: Any) -> None:
+            log.info("%s: stopping", signal.Signals(signum).name)
+            self.stop_requested.set()
+
+        signal.signal(signal.SIGTERM, stop)
+        signal.signal(signal.SIGINT, stop)
+
+    def _start_link(self) -> None:
+        if self._link is not None or not self.config.mqtt.enabled:
+            return
+        from edge.mqtt import MqttLink
+        from edge.outbox import Outbox
+
+        state_dir = self.config.service.resolved_state_dir()
+        self._outbox = Outbox(state_dir / "outbox.sqlite3", self.config.service.outbox_max_messages)
+        self._link = MqttLink(self.config.mqtt, self.device_id, self._outbox, version=__version__)
+        self._link.start()
+
+    # ---- the loop ----
+
+    def _loop(self, deadline: float | None) -> None:
+        while not self._stopping(deadline):
+            self._progressed()
+            self._handle_commands()
+            now = time.monotonic()
+            if self._sweep_now or (self.config.service.sweep_interval_s > 0 and now >= self._next_sweep):
+                self._sweep_now = False
+                self._next_sweep = now + self.config.service.sweep_interval_s
+                self._sweep(deadline)
+            else:
+                self.stop_requested.wait(_IDLE_S)
+
+    def _stopping(self, deadline: float | None) -> bool:
+        if deadline is not None and time.monotonic() >= deadline:
+            self.stop_requested.set()
+        return self.stop_requested.is_set()
+
+    def _progressed(self) -> None:
+        if self._feeder is not None:
+            self._feeder.progressed()
+            self._feeder.feed_if_due()
+
+    def _sweep(self, deadline: float | None) -> None:
+        from edge.sweep import sweeper_for
+
+        assert self._parts is not None
+        self._interrupt = False
+
+        def should_stop() -> bool:
+            self._progressed()
+            self._handle_commands()
+            return self._stopping(deadline) or self._interrupt
+
+        report = sweeper_for(self._parts, on_zone=self._zone).run(should_stop=should_stop)
+        if len(report.results) < len(self.config.sweep.poses()):
+            log.info("sweep %d ended early after %d zones", self.sweeps + 1, len(report.results))
+            return
+        self.sweeps += 1
+        self._publish_event("sweep", {
+            "sweep": self.sweeps,
+            "duration_s": round(report.duration_s, 3),
+            "zones": [r.to_json() for r in report.results],
+        })
+        ok = sum(r.status == "ok" for r in report.results)
+        log.info("sweep %d: %d of %d zones ok in %.1f s (limit %.1f s), %d faults",
+                 self.sweeps, ok, len(report.results), report.duration_s, report.limit_s, report.faults)
+        self._publish_state()
+
+    def _zone(self, result: ZoneResult) -> None:
+        self._publish_live("range", result.to_json())
+        if self.health.zone(result):
+            self._publish_state()
+
+    # ---- commands ----
+
+    def _handle_commands(self) -> None:
+        if self._link is None:
+            return
+        for name, payload in self._link.commands():
+            self.handle_command(name, payload)
+
+    def handle_command(self, name: str, payload: bytes) -> None:
+        """Validate and carry out one command; every command gets a result, ok or not."""
+        from edge.commands import parse_command, request_id_of
+
+        limits = self._limits()
+        try:
+            command = parse_command(name, payload, max_bytes=self.config.mqtt.max_payload_bytes,
+                                    pan_limits=limits[0], tilt_limits=limits[1])
+        except CommandError as exc:
+            log.warning("command %s refused: %s", name, exc)
+            self._result(name, False, str(exc), request_id_of(payload))
+            return
+        try:
+            error = self._handlers[command.name](command)
+        except EdgeError as exc:
+            error = str(exc)
+        if error:
+            log.warning("command %s failed: %s", name, error)
+        else:
+            log.info("command %s done", name)
+        self._result(name, error is None, error, command.request_id)
+
+    def _limits(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        limits = getattr(self._parts.ptu, "limits_deg", None) if self._parts else None
+        return limits or ((-180.0, 180.0), (-90.0, 90.0))
+
+    def _cmd_mode(self, command: Any) -> str | None:
+        mode = command.args["mode"]
+        if mode != self.mode:
+            log.info("mode %s → %s", self.mode, mode)
+            self.mode = mode
+            self._interrupt = True
+            self.config = replace(self.config, mode=mode)
+            if self._notifier is not None:
+                self._notifier.status(f"running: {self.mode}")
+        self._publish_state()
+        return None
+
+    def _cmd_sweep(self, command: Any) -> str | None:
+        self._sweep_now = True
+        return None
+
+    def _cmd_point(self, command: Any) -> str | None:
+        if self._parts is None:
+            return "the rig is not running"
+        from edge.sweep import sweeper_for
+
+        pan, tilt = command.args["pan_deg"], command.args["tilt_deg"]
+        result = sweeper_for(self._parts).zone(-1, pan, tilt)
+        self._zone(result)
+        return None if result.status != FAULT else f"zone at pan {pan:g}°, tilt {tilt:g}°: {result.detail}"
+
+    def _cmd_relearn(self, command: Any) -> str | None:
+        return None  # the guard's background (next: edge.modes.guard) restarts here
+
+    def _cmd_calibrate(self, command: Any) -> str | None:
+        return ("calibration over MQTT is not available in this version: record a flat target with "
+                "`edge record` and run `edge calibrate` (README, Calibration)")
+
+    def _cmd_lasers_off(self, command: Any) -> str | None:
+        if self._parts is not None:
+            self._parts.lasers.off()
+        return None
+
+    # ---- publishing ----
+
+    def state(self) -> dict:
+        return {
+            "device": self.device_id,
+            "mode": self.mode,
+            "health": dict(self.health.parts),
+            "version": __version__,
+            "uptime_s": round(time.monotonic() - self.started, 1),
+            "sweeps": self.sweeps,
+        }
+
+    def _publish_state(self) -> None:
+        if self._link is not None:
+            self._link.publish_state(self.state())
+
+    def _publish_event(self, kind: str, payload: dict) -> None:
+        if self._link is not None:
+            self._link.publish_event(kind, payload)
+
+    def _publish_live(self, kind: str, payload: dict) -> None:
+        if self._link is not None:
+            self._link.publish_live(kind, payload)
+
+    def _result(self, name: str, ok: bool, error: str | None, request_id: str | None) -> None:
+        if self._link is not None:
+            self._link.publish_result(name, ok, error=error, request_id=request_id)
