@@ -1,0 +1,1 @@
+"""The modes of the device: range finder, blind aid, area guard."""
