@@ -254,11 +254,25 @@ class MqttConfig:
 
 
 @dataclass(frozen=True)
+class RangefinderConfig:
+    """The range-finder mode (``[rangefinder]``): where it points until ``cmd/point`` says otherwise."""
+
+    pan_deg: float = 0.0
+    tilt_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        require(-180.0 <= self.pan_deg <= 180.0, "pan_deg", "must be -180..180")
+        require(-90.0 <= self.tilt_deg <= 90.0, "tilt_deg", "must be -90..90")
+
+
+@dataclass(frozen=True)
 class ServiceConfig:
     """The headless loop (``[service]``)."""
 
     state_dir: str = ""  # empty: $STATE_DIRECTORY (systemd), else ./state
-    sweep_interval_s: float = 60.0  # a sweep this often (range-finder and guard modes); 0: on command only
+    # Range-finder mode: a map sweep this often, interrupting the ranging (0: on cmd/sweep only).
+    # The guard sweeps back to back and the blind aid scans its fan; neither uses this.
+    sweep_interval_s: float = 300.0
     outbox_max_messages: int = 100000  # on-disk queue bound: beyond it the oldest sweeps go first, never alerts
     watchdog: bool = True  # feed systemd's watchdog while the loop progresses
 
@@ -385,6 +399,7 @@ class Config:
     ptu: PtuConfig = field(default_factory=PtuConfig)
     mqtt: MqttConfig = field(default_factory=MqttConfig)
     service: ServiceConfig = field(default_factory=ServiceConfig)
+    rangefinder: RangefinderConfig = field(default_factory=RangefinderConfig)
     mode: Literal["rangefinder", "blindaid", "guard"] = "rangefinder"
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

@@ -81,7 +81,8 @@ class Service:
         self._parts = None
         self._next_sweep = 0.0  # monotonic time of the next scheduled sweep
         self._sweep_now = False
-        self._interrupt = False  # a command wants the current sweep to end early
+        self._interrupt = False  # a command wants the current step to end early
+        self._aim = (config.rangefinder.pan_deg, config.rangefinder.tilt_deg)
         self.health = Health("nominal rig (no calibration file)")
         self._handlers: dict[str, Callable[[Any], str | None]] = {
             "mode": self._cmd_mode,
@@ -159,16 +160,67 @@ class Service:
     # ---- the loop ----
 
     def _loop(self, deadline: float | None) -> None:
+        interval = self.config.service.sweep_interval_s
+        self._next_sweep = time.monotonic() + interval if interval > 0 else float("inf")
         while not self._stopping(deadline):
             self._progressed()
             self._handle_commands()
-            now = time.monotonic()
-            if self._sweep_now or (self.config.service.sweep_interval_s > 0 and now >= self._next_sweep):
+            if self._stopping(deadline):
+                break
+            self._interrupt = False
+            if self._sweep_now or (self.mode == "rangefinder" and time.monotonic() >= self._next_sweep):
                 self._sweep_now = False
-                self._next_sweep = now + self.config.service.sweep_interval_s
+                if interval > 0:
+                    self._next_sweep = time.monotonic() + interval
                 self._sweep(deadline)
+            elif self.mode == "rangefinder":
+                self._range(deadline)
+            elif self.mode == "guard":
+                self._sweep(deadline)
+            elif self.mode == "blindaid":
+                self._fan(deadline)
             else:
                 self.stop_requested.wait(_IDLE_S)
+
+    def _should_stop(self, deadline: float | None, also: Callable[[], bool] | None = None,
+                     sweeping: bool = False) -> Callable[[], bool]:
+        """What a mode checks between zones or frames: feed the watchdog, take commands, and end
+        the step on a stop, a command that changes course (cmd/sweep, unless this is a sweep), or
+        `also`."""
+
+        def should_stop() -> bool:
+            self._progressed()
+            self._handle_commands()
+            return (self._stopping(deadline) or self._interrupt or (self._sweep_now and not sweeping)
+                    or bool(also and also()))
+
+        return should_stop
+
+    def _range(self, deadline: float | None) -> None:
+        from edge.modes.rangefinder import Rangefinder, range_payload
+        from edge.ranging import Ranger
+
+        parts = self._parts
+        assert parts is not None
+        pan, tilt = self._aim
+        try:
+            parts.ptu.move(pan, tilt)
+        except HardwareError as exc:
+            self._zone(ZoneResult(-1, pan, tilt, FAULT, detail=str(exc)))
+            self.stop_requested.wait(1.0)  # a unit that failed gets a moment before the next try
+            return
+        finder = Rangefinder(parts.capture, Ranger(self.config.rig.build(), self.config.ranging), parts.lasers.names)
+
+        def on_range(result: ZoneResult, filtered: Any, extra: dict) -> None:
+            self._publish_live("range", range_payload(result, filtered, extra))
+            if self.health.zone(result):
+                self._publish_state()
+
+        due = lambda: time.monotonic() >= self._next_sweep  # noqa: E731
+        finder.run(pan, tilt, on_range, self._should_stop(deadline, due))
+
+    def _fan(self, deadline: float | None) -> None:
+        self._sweep(deadline)  # until the blind aid's own fan scan is wired in
 
     def _stopping(self, deadline: float | None) -> bool:
         if deadline is not None and time.monotonic() >= deadline:
@@ -184,16 +236,9 @@ class Service:
         from edge.sweep import sweeper_for
 
         assert self._parts is not None
-        self._interrupt = False
-
-        def should_stop() -> bool:
-            self._progressed()
-            self._handle_commands()
-            return self._stopping(deadline) or self._interrupt
-
-        report = sweeper_for(self._parts, on_zone=self._zone).run(should_stop=should_stop)
+        report = sweeper_for(self._parts, on_zone=self._zone).run(should_stop=self._should_stop(deadline, sweeping=True))
         if len(report.results) < len(self.config.sweep.poses()):
-            log.info("sweep %d ended early after %d zones", self.sweeps + 1, len(report.results))
+            log.info("sweep ended early after %d zones", len(report.results))
             return
         self.sweeps += 1
         self._publish_event("sweep", {
@@ -262,14 +307,17 @@ class Service:
         return None
 
     def _cmd_point(self, command: Any) -> str | None:
+        """Aim and range once; the range finder then keeps ranging there."""
         if self._parts is None:
             return "the rig is not running"
         from edge.sweep import sweeper_for
 
         pan, tilt = command.args["pan_deg"], command.args["tilt_deg"]
+        self._aim = (pan, tilt)
+        self._interrupt = True
         result = sweeper_for(self._parts).zone(-1, pan, tilt)
         self._zone(result)
-        return None if result.status != FAULT else f"zone at pan {pan:g}°, tilt {tilt:g}°: {result.detail}"
+        return None if result.status != FAULT else f"pan {pan:g}°, tilt {tilt:g}°: {result.detail}"
 
     def _cmd_relearn(self, command: Any) -> str | None:
         return None  # the guard's background (next: edge.modes.guard) restarts here
