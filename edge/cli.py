@@ -200,6 +200,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     return Service(config, run_for_s=args.run_for).run()
 
 
+def cmd_range(args: argparse.Namespace) -> int:
+    """Show the range finder's ranges live, from the broker."""
+    from edge.monitor import watch
+
+    seen = watch(_config(args), args.device, args.count, args.timeout)
+    return 0 if seen else 1
+
+
 def cmd_config(args: argparse.Namespace) -> int:
     config = _config(args)
     rig = config.rig.build()
@@ -264,6 +272,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--for", dest="run_for", type=float, metavar="SECONDS",
                    help="stop cleanly after this long (for tests and trials)")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("range", help="show the range finder's ranges live (from the broker)")
+    _common(p)
+    p.add_argument("--device", help="device id (default: device.id, else this host's name)")
+    p.add_argument("--count", type=int, help="stop after this many ranges")
+    p.add_argument("--timeout", type=float, default=10.0, help="stop when nothing came for this long (s)")
+    p.set_defaults(func=cmd_range)
 
     p = sub.add_parser("config", help="check a configuration file and summarise it")
     _common(p)
