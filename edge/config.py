@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from edge.errors import ConfigError
+from edge.modes.guard import GuardConfig
 from edge.ranging import RangingConfig
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Mount, Rig, default_rig
 from edge.schema import FieldError, build, require
@@ -275,10 +276,14 @@ class ServiceConfig:
     sweep_interval_s: float = 300.0
     outbox_max_messages: int = 100000  # on-disk queue bound: beyond it the oldest sweeps go first, never alerts
     watchdog: bool = True  # feed systemd's watchdog while the loop progresses
+    # The guard sweeps back to back with this many laser-off/on pairs a zone: it compares ranges
+    # with a learnt background and its noise, so one pair (no speckle nudge) is enough and faster.
+    guard_pairs_per_zone: int = 1
 
     def __post_init__(self) -> None:
         require(self.sweep_interval_s >= 0, "sweep_interval_s", "must be >= 0")
         require(self.outbox_max_messages >= 100, "outbox_max_messages", "must be >= 100")
+        require(1 <= self.guard_pairs_per_zone <= 8, "guard_pairs_per_zone", "must be 1-8")
 
     def resolved_state_dir(self) -> Path:
         return Path(self.state_dir or os.environ.get("STATE_DIRECTORY", "").split(":")[0] or "state")
@@ -400,6 +405,7 @@ class Config:
     mqtt: MqttConfig = field(default_factory=MqttConfig)
     service: ServiceConfig = field(default_factory=ServiceConfig)
     rangefinder: RangefinderConfig = field(default_factory=RangefinderConfig)
+    guard: GuardConfig = field(default_factory=GuardConfig)
     mode: Literal["rangefinder", "blindaid", "guard"] = "rangefinder"
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

@@ -70,7 +70,9 @@ def open_parts(config: Config) -> Iterator[Parts]:
         stack.callback(lasers.close)  # runs before the unit's: lasers off first
         world = None
         if emulator is not None:
-            world = {"factory": lasers.factory, "pose_at": emulator.pose, "heading": emulator.heading}
+            # The simulated scene's clock (its movers) starts with the rig, not with the machine.
+            world = {"factory": lasers.factory, "pose_at": emulator.pose, "heading": emulator.heading,
+                     "scene_epoch_ns": time.monotonic_ns()}
         camera = open_camera(config, world)
         camera.start()
         stack.callback(camera.stop)

@@ -83,6 +83,7 @@ class Service:
         self._sweep_now = False
         self._interrupt = False  # a command wants the current step to end early
         self._aim = (config.rangefinder.pan_deg, config.rangefinder.tilt_deg)
+        self._guard: Any = None
         self.health = Health("nominal rig (no calibration file)")
         self._handlers: dict[str, Callable[[Any], str | None]] = {
             "mode": self._cmd_mode,
@@ -236,8 +237,19 @@ class Service:
         from edge.sweep import sweeper_for
 
         assert self._parts is not None
-        report = sweeper_for(self._parts, on_zone=self._zone).run(should_stop=self._should_stop(deadline, sweeping=True))
-        if len(report.results) < len(self.config.sweep.poses()):
+        guarding = self.mode == "guard"
+        config = self.config
+        if guarding:
+            config = replace(config, sweep=replace(config.sweep, pairs_per_zone=config.service.guard_pairs_per_zone))
+        zone_t: dict[int, float] = {}
+
+        def on_zone(result: ZoneResult) -> None:
+            zone_t[result.index] = time.monotonic() - self.started
+            self._zone(result)
+
+        sweeper = sweeper_for(self._parts, on_zone=on_zone, config=config)
+        report = sweeper.run(should_stop=self._should_stop(deadline, sweeping=True))
+        if len(report.results) < len(config.sweep.poses()):
             log.info("sweep ended early after %d zones", len(report.results))
             return
         self.sweeps += 1
@@ -249,7 +261,24 @@ class Service:
         ok = sum(r.status == "ok" for r in report.results)
         log.info("sweep %d: %d of %d zones ok in %.1f s (limit %.1f s), %d faults",
                  self.sweeps, ok, len(report.results), report.duration_s, report.limit_s, report.faults)
+        if guarding:
+            guard = self._guard_for(len(report.results))
+            was_learning = guard.learning
+            events = guard.update(report.results, self.sweeps, time.monotonic() - self.started, zone_t)
+            if was_learning and not guard.learning:
+                log.info("guard: background learnt over %d sweeps; watching", self.config.guard.learn_sweeps)
+            for event in events:
+                log.warning("guard: %s %s in zones %s at %.2f m, bearing %.1f°", event.event, event.id,
+                            list(event.zones), event.range_m, event.bearing_deg)
+                self._publish_event("alert", event.to_json())
         self._publish_state()
+
+    def _guard_for(self, zones: int):
+        from edge.modes.guard import Guard
+
+        if self._guard is None or self._guard.zone_count != zones:
+            self._guard = Guard(self.config.guard, zones)
+        return self._guard
 
     def _zone(self, result: ZoneResult) -> None:
         self._publish_live("range", result.to_json())
@@ -320,7 +349,12 @@ class Service:
         return None if result.status != FAULT else f"pan {pan:g}°, tilt {tilt:g}°: {result.detail}"
 
     def _cmd_relearn(self, command: Any) -> str | None:
-        return None  # the guard's background (next: edge.modes.guard) restarts here
+        """The guard learns its background again (from the next complete sweep)."""
+        if self._guard is not None:
+            for event in self._guard.relearn():
+                self._publish_event("alert", event.to_json())
+        self._interrupt = self.mode == "guard"  # a sweep half done would mix old and new
+        return None
 
     def _cmd_calibrate(self, command: Any) -> str | None:
         return ("calibration over MQTT is not available in this version: record a flat target with "
@@ -341,6 +375,7 @@ class Service:
             "version": __version__,
             "uptime_s": round(time.monotonic() - self.started, 1),
             "sweeps": self.sweeps,
+            **({"guard": self._guard.state()} if self._guard is not None else {}),
         }
 
     def _publish_state(self) -> None:

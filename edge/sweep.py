@@ -202,9 +202,10 @@ class ConfiguredSweep:
         return [(self.truths.get(r.index) or {}).get("range_m") for r in self.report.results]
 
 
-def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None) -> Sweeper:
-    """A sweeper on opened parts (``edge.parts``), ranging with the configured rig."""
-    config = parts.config
+def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None, config: Config | None = None) -> Sweeper:
+    """A sweeper on opened parts (``edge.parts``), ranging with the configured rig (`config`, when
+    given, changes how it sweeps: a mode's own pattern)."""
+    config = config or parts.config
     truth = parts.truth if parts.simulated else None
     return Sweeper(config, parts.ptu, parts.capture, Ranger(config.rig.build(), config.ranging),
                    on_zone=on_zone, truth=truth)
