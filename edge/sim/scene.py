@@ -50,6 +50,7 @@ Scene files live in ``config/scenes/<name>.toml`` (``EDGE_SCENES`` overrides the
     start_s = 30.0                  # absent before; absent after the path's end unless loop
     path_m = [[3.0, -1.0], [2.0, 1.0], [0.5, 1.2]]   # >= 2 points, world x, y
     loop = false                    # true: walk back to the first point and around again
+    pause_s = [0, 0, 0]             # optional: seconds standing at each point of path_m
 
     [materials.my-material]         # scene-local materials, added to the built-ins
     albedo = [0.5, 0.4, 0.3]        # (see edge.sim.materials.Material for the other keys)
@@ -149,6 +150,8 @@ class Mover:
     speed_mps: float = 1.0
     start_s: float = 0.0
     loop: bool = False
+    # Seconds to stand at each waypoint (a person stops at a desk): one per point of path_m, or none.
+    pause_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         require(bool(self.name.strip()), "name", "must not be empty")
@@ -159,6 +162,10 @@ class Mover:
         require(self.speed_mps > 0, "speed_mps", f"must be positive, got {self.speed_mps}")
         for i, s in enumerate(self.size_m):
             require(s > 0, f"size_m[{i}]", f"must be positive, got {s}")
+        require(not self.pause_s or len(self.pause_s) == len(self.path_m), "pause_s",
+                f"needs one value per point of path_m ({len(self.path_m)}), got {len(self.pause_s)}")
+        for i, p in enumerate(self.pause_s):
+            require(p >= 0 and math.isfinite(p), f"pause_s[{i}]", f"must be >= 0, got {p}")
 
     def _waypoints(self) -> np.ndarray:
         pts = np.array(self.path_m, dtype=np.float64)
@@ -166,13 +173,20 @@ class Mover:
             pts = np.vstack([pts, pts[:1]])
         return pts
 
+    def _pauses(self, n: int) -> list[float]:
+        """Standing time at each of the `n` waypoints (a loop's closing point stands nowhere extra)."""
+        pauses = list(self.pause_s) or [0.0] * len(self.path_m)
+        return (pauses + [0.0] * n)[:n]
+
+    def _duration_s(self) -> float:
+        pts = self._waypoints()
+        length = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+        return length / self.speed_mps + sum(self._pauses(len(pts)))
+
     @property
     def end_s(self) -> float:
         """When the mover leaves at the end of its path (inf when it loops)."""
-        if self.loop:
-            return math.inf
-        length = float(np.linalg.norm(np.diff(self._waypoints(), axis=0), axis=1).sum())
-        return self.start_s + length / self.speed_mps
+        return math.inf if self.loop else self.start_s + self._duration_s()
 
     def pose_at(self, t_s: float) -> Pose | None:
         """Mover frame (x along the walking direction, origin on the floor) -> world; None while
@@ -182,14 +196,23 @@ class Mover:
         pts = self._waypoints()
         seg = np.diff(pts, axis=0)
         lengths = np.linalg.norm(seg, axis=1)
-        cum = np.concatenate([[0.0], np.cumsum(lengths)])
-        s = (t_s - self.start_s) * self.speed_mps
+        pauses = self._pauses(len(pts))
+        tau = t_s - self.start_s
         if self.loop:
-            s %= cum[-1]
-        i = min(int(np.searchsorted(cum, s, side="right")) - 1, len(seg) - 1)
-        xy = pts[i] + seg[i] * ((s - cum[i]) / lengths[i])
-        heading = math.atan2(seg[i, 1], seg[i, 0])
-        return Pose(rot_z(heading), np.array([xy[0], xy[1], 0.0]))
+            tau %= self._duration_s()
+        # Walk the timeline: stand at point i, then walk segment i.
+        for i in range(len(seg)):
+            heading = math.atan2(seg[i, 1], seg[i, 0])
+            if tau <= pauses[i]:
+                return Pose(rot_z(heading), np.array([pts[i, 0], pts[i, 1], 0.0]))
+            tau -= pauses[i]
+            walk = lengths[i] / self.speed_mps
+            if tau <= walk:
+                xy = pts[i] + seg[i] * (tau / walk)
+                return Pose(rot_z(heading), np.array([xy[0], xy[1], 0.0]))
+            tau -= walk
+        heading = math.atan2(seg[-1, 1], seg[-1, 0])
+        return Pose(rot_z(heading), np.array([pts[-1, 0], pts[-1, 1], 0.0]))
 
 
 @dataclass(frozen=True)
