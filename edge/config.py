@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from edge.errors import ConfigError
+from edge.modes.blindaid import BlindAidConfig
 from edge.modes.guard import GuardConfig
 from edge.ranging import RangingConfig
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Mount, Rig, default_rig
@@ -267,6 +268,21 @@ class RangefinderConfig:
 
 
 @dataclass(frozen=True)
+class AudioConfig:
+    """Where the blind aid's sound goes (``[audio]``)."""
+
+    # "": nowhere (cues still go out on MQTT); "alsa" or "alsa:DEVICE": the sound card through
+    # aplay; anything else: a WAV file written as the run goes (for tests and listening).
+    out: str = ""
+    chunk_ms: float = 20.0  # sound is written in chunks this long: at most this much added latency
+    lead_ms: float = 20.0  # a live sink is fed this far ahead of the clock, so it never runs dry
+
+    def __post_init__(self) -> None:
+        require(5.0 <= self.chunk_ms <= 100.0, "chunk_ms", "must be 5-100 ms")
+        require(0.0 <= self.lead_ms <= 500.0, "lead_ms", "must be 0-500 ms")
+
+
+@dataclass(frozen=True)
 class ServiceConfig:
     """The headless loop (``[service]``)."""
 
@@ -406,6 +422,8 @@ class Config:
     service: ServiceConfig = field(default_factory=ServiceConfig)
     rangefinder: RangefinderConfig = field(default_factory=RangefinderConfig)
     guard: GuardConfig = field(default_factory=GuardConfig)
+    blindaid: BlindAidConfig = field(default_factory=BlindAidConfig)
+    audio: AudioConfig = field(default_factory=AudioConfig)
     mode: Literal["rangefinder", "blindaid", "guard"] = "rangefinder"
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

@@ -84,6 +84,7 @@ class Service:
         self._interrupt = False  # a command wants the current step to end early
         self._aim = (config.rangefinder.pan_deg, config.rangefinder.tilt_deg)
         self._guard: Any = None
+        self._blindaid: Any = None
         self.health = Health("nominal rig (no calibration file)")
         self._handlers: dict[str, Callable[[Any], str | None]] = {
             "mode": self._cmd_mode,
@@ -115,7 +116,10 @@ class Service:
                     notifier.ready()
                     notifier.status(f"running: {self.mode}")
                     log.info("edge %s running as %s in %s mode", __version__, self.device_id, self.mode)
-                    self._loop(deadline)
+                    try:
+                        self._loop(deadline)
+                    finally:
+                        self._close_blindaid()
                     self._parts = None
             except HardwareError as exc:
                 # Say why on MQTT before systemd restarts us: a silent restart loop helps nobody.
@@ -221,7 +225,20 @@ class Service:
         finder.run(pan, tilt, on_range, self._should_stop(deadline, due))
 
     def _fan(self, deadline: float | None) -> None:
-        self._sweep(deadline)  # until the blind aid's own fan scan is wired in
+        if self._blindaid is None:
+            from edge.modes.fan import BlindAidRunner
+
+            self._blindaid = BlindAidRunner(self.config, self._parts,
+                                            on_cue=lambda cue: self._publish_live("cue", cue.to_json()),
+                                            on_zone=self._zone)
+        self._blindaid.scan(self._should_stop(deadline, lambda: self.mode != "blindaid"))
+        if self.mode != "blindaid":
+            self._close_blindaid()
+
+    def _close_blindaid(self) -> None:
+        if self._blindaid is not None:
+            self._blindaid.close()
+            self._blindaid = None
 
     def _stopping(self, deadline: float | None) -> bool:
         if deadline is not None and time.monotonic() >= deadline:
@@ -323,6 +340,8 @@ class Service:
         mode = command.args["mode"]
         if mode != self.mode:
             log.info("mode %s → %s", self.mode, mode)
+            if self.mode == "blindaid":
+                self._close_blindaid()
             self.mode = mode
             self._interrupt = True
             self.config = replace(self.config, mode=mode)

@@ -94,6 +94,7 @@ class Sweeper:
         self.ranger = ranger
         self.on_zone = on_zone
         self.truth = truth  # the simulator's truth for a zone, for recordings and scoring
+        self.last_frame_end_ns = 0  # when the newest frame's exposure ended (latency measurements)
 
     def run(
         self,
@@ -149,6 +150,7 @@ class Sweeper:
                     reached = at
                 for frame, lasers_on, switch_ns in self.capture.zone(pairs=1):
                     taken.append((frame, tuple(lasers_on), switch_ns, at))
+                    self.last_frame_end_ns = frame.t_end_ns
         except HardwareError as exc:
             log.warning("zone %d (pan %.2f°, tilt %.2f°): %s", index, pan, tilt, exc)
             return ZoneResult(index, pan, tilt, FAULT, detail=str(exc))

@@ -1,0 +1,122 @@
+"""The blind aid on the rig: scan the fan, turn each zone's range into a cue, play it.
+
+The pure part (which obstacle, which sound) is :mod:`edge.modes.blindaid`, the sound is
+:mod:`edge.modes.audio`; this module moves the unit through the fan one zone at a time, feeds each
+result to the :class:`~edge.modes.blindaid.BlindAid`, and keeps the sound going: a thread advances
+the :class:`~edge.modes.audio.CuePlayer` on the clock every few milliseconds, whatever the unit is
+doing, so beeps keep their rhythm while the head moves. Speech is synthesised in a thread of its
+own (espeak-ng takes 50-200 ms on a Pi) and mixed in when ready.
+
+Times are seconds since the runner started: the stream time of the sound, so that a WAV of a run
+is its timeline.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import replace
+
+from edge.config import Config
+from edge.modes.audio import AplaySink, CuePlayer, NullSink, Synth, WavSink, speak_to_frames
+from edge.modes.blindaid import BlindAid, Cue, fan_poses, scan_order
+from edge.ranging import ZoneResult
+
+log = logging.getLogger(__name__)
+
+
+def open_audio(config: Config):
+    """The configured sink and whether it plays live (``[audio] out``)."""
+    out, rate = config.audio.out, config.blindaid.sample_rate
+    if not out:
+        return NullSink(rate), False
+    if out == "alsa" or out.startswith("alsa:"):
+        device = out[5:] or None
+        return AplaySink(rate, device=device, buffer_ms=int(config.audio.lead_ms * 2) or 40), True
+    return WavSink(out, rate), False
+
+
+class BlindAidRunner:
+    """The blind aid's loop step and its sound, on opened parts."""
+
+    def __init__(self, config: Config, parts, on_cue: Callable[[Cue], None],
+                 on_zone: Callable[[ZoneResult], None] | None = None) -> None:
+        from edge.sweep import sweeper_for
+
+        self.config = config
+        self.aid = BlindAid(config.blindaid)
+        self.poses = fan_poses(config.blindaid)
+        self.order = scan_order(config.blindaid)
+        # One laser-off/on pair a zone: the blind aid wants fresh ranges, not the last millimetre.
+        fan = replace(config, sweep=replace(config.sweep, pairs_per_zone=1))
+        self.sweeper = sweeper_for(parts, on_zone=on_zone, config=fan)
+        self.on_cue = on_cue
+        self.latencies_s: list[float] = []  # frame end → cue taken (s), for the benchmark
+        self._cue_frames: list[tuple[float, float]] = []  # (cue time, frame end time)
+        sink, live = open_audio(config)
+        self._t0_ns = time.monotonic_ns()
+        self.player = CuePlayer(Synth.from_config(config.blindaid), sink, chunk_s=config.audio.chunk_ms / 1000,
+                                lead_s=config.audio.lead_ms / 1000 if live else 0.0)
+        self._stop = threading.Event()
+        self._clock = threading.Thread(target=self._play, name="blind-aid sound", daemon=True)
+        self._clock.start()
+
+    def now(self) -> float:
+        return (time.monotonic_ns() - self._t0_ns) / 1e9
+
+    def _play(self) -> None:
+        period = self.player.chunk_n / self.player.sample_rate / 2
+        while not self._stop.wait(period):
+            try:
+                self.player.advance(self.now())
+            except Exception as exc:  # a sound card gone must not take the ranging with it
+                log.error("blind aid: sound stopped: %s", exc)
+                return
+
+    def scan(self, should_stop: Callable[[], bool]) -> None:
+        """One pass over the fan (there and back), a cue whenever the picture changes."""
+        for k in self.order:
+            if should_stop():
+                return
+            pan, tilt = self.poses[k]
+            result = self.sweeper.zone(k, pan, tilt)
+            t = self.now()
+            frame_t = (self.sweeper.last_frame_end_ns - self._t0_ns) / 1e9
+            cue = self.aid.update(result, t) or self.aid.tick(t)
+            if cue is not None:
+                self._play_cue(cue, t, frame_t)
+
+    def speak(self) -> str:
+        """Say where the nearest obstacle is now (``cmd``-driven or a button on the device)."""
+        t = self.now()
+        text = self.aid.speak(t)
+        self._say(text, t)
+        return text
+
+    def _play_cue(self, cue: Cue, t: float, frame_t: float) -> None:
+        self.player.set_cue(cue, t)
+        log.debug("cue at %.3f s: %s", t, cue.to_json())
+        self._cue_frames.append((t, frame_t))
+        self.on_cue(cue)
+        if cue.speech:
+            self._say(cue.speech, t)
+
+    def _say(self, text: str, t: float) -> None:
+        def work() -> None:
+            frames = speak_to_frames(text, self.player.sample_rate)
+            self.player.say(frames, self.now())
+
+        threading.Thread(target=work, name="blind-aid speech", daemon=True).start()
+
+    def sound_latencies_s(self) -> list[float]:
+        """For each cue: from the end of the frame that produced it to its sound's first sample
+        in the stream (add the sink's buffer for a live sound card)."""
+        frame_of = dict(self._cue_frames)
+        return [start - frame_of[t] for t, start in self.player.starts if t in frame_of]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._clock.join(timeout=2.0)
+        self.player.close(self.now())
