@@ -84,3 +84,45 @@ def bench_ranging(config: Config, repeats: int = 200) -> list[str]:
             f"{theirs[0] / ours[0]:.1f}x faster",
         ]
     return lines
+
+
+def bench_blindaid(config: Config, repeats: int = 3) -> list[str]:
+    """Latency of the blind aid on the simulated rig: from the end of the exposure of the frame
+    that shows an obstacle to the first sample of its cue's sound. Every zone counts as if it
+    changed the cue (the chunk boundary its cue would start at), and the cues that really changed
+    are reported apart. A live sound card adds the lead and its buffer, reported as such."""
+    from dataclasses import replace
+
+    from edge.modes.fan import BlindAidRunner
+    from edge.parts import open_parts
+
+    config = replace(config, audio=replace(config.audio, out=""))
+    chunk = config.audio.chunk_ms / 1000
+    per_zone: list[float] = []
+    with open_parts(config) as parts:
+        runner = BlindAidRunner(config, parts, on_cue=lambda cue: None)
+        update = runner.aid.update
+
+        def timed(result, t_s):
+            cue = update(result, t_s)
+            frame_t = (runner.sweeper.last_frame_end_ns - runner._t0_ns) / 1e9
+            start = -(-runner.now() // chunk) * chunk  # the chunk boundary its sound would start at
+            per_zone.append(start - frame_t)
+            return cue
+
+        runner.aid.update = timed
+        for _ in range(repeats):
+            runner.scan(lambda: False)
+        real = runner.sound_latencies_s()
+        runner.close()
+    ms = np.array(per_zone) * 1e3
+    live = config.audio.lead_ms + 2 * config.audio.lead_ms  # lead + the aplay buffer (2 × lead)
+    lines = [
+        f"blind aid, {len(per_zone)} zones over {repeats} fan passes (chunk {config.audio.chunk_ms:g} ms):",
+        f"  frame end → cue sound in the stream: median {np.median(ms):.1f} ms, p95 "
+        f"{np.percentile(ms, 95):.1f} ms, max {ms.max():.1f} ms",
+        f"  on a sound card add the lead and buffer ({live:g} ms): max {ms.max() + live:.1f} ms",
+    ]
+    if real:
+        lines.append(f"  cues that changed ({len(real)}): " + ", ".join(f"{1e3 * x:.1f}" for x in real) + " ms")
+    return lines

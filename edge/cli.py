@@ -245,7 +245,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from edge import bench
 
     config = _config(args)
-    run = {"render": bench.bench_render, "ranging": bench.bench_ranging}[args.what]
+    run = {"render": bench.bench_render, "ranging": bench.bench_ranging, "blindaid": bench.bench_blindaid}[args.what]
     lines = run(config, **({"repeats": args.repeats} if args.repeats else {}))
     print("\n".join(lines))
     return 0
@@ -314,7 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
     _common(p)
-    p.add_argument("what", choices=["render", "ranging"], help="what to time")
+    p.add_argument("what", choices=["render", "ranging", "blindaid"], help="what to time")
     p.add_argument("--repeats", type=int, help="runs to take the median of")
     p.set_defaults(func=cmd_bench)
 
