@@ -1,0 +1,565 @@
+"""The broker link (../shared/spec/mqtt.md) on paho-mqtt 2.x, MQTT 5.
+
+Who runs what:
+
+- paho's network thread (``loop_start``) moves bytes and calls our ``_on_*`` callbacks. Those only
+  publish small things (status, state, discovery, command results) and hand incoming commands to a
+  queue; they never touch the disk.
+- our sender thread owns the outbox's sending side: it hands queued events (sweeps, alerts) to paho
+  oldest first, at most :data:`WINDOW` unacknowledged at a time, and acknowledges them in the outbox
+  (``Outbox.ack``) as PUBACKs come back. It exists so that the caller never waits for the broker and
+  paho's thread never waits for SQLite.
+- the caller (the service) publishes from its own thread and takes commands with :meth:`commands`.
+
+Delivery of events is at least once and in order. The outbox is the one record of what is still
+owed: at every (re)connect paho's own copies of unacknowledged messages are dropped and sending
+starts over from the oldest unacknowledged message in the outbox. (Letting paho re-send its copies
+after our reconnect handler had published newer messages would deliver an old retained sweep or
+state last, on top of the new one.) Consumers de-duplicate, as the spec says.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import queue
+import re
+import threading
+import time
+from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as paho
+from paho.mqtt import __version__ as paho_version
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+from paho.mqtt.subscribeoptions import SubscribeOptions
+
+from edge.commands import request_id_of
+from edge.config import MqttConfig
+from edge.errors import ConfigError
+from edge.outbox import Outbox
+
+log = logging.getLogger(__name__)
+_paho_log = logging.getLogger(f"{__name__}.paho")
+# paho 2.2's network loop runs once more after a deliberate disconnect() and logs it as an error.
+_paho_log.addFilter(lambda r: not (r.getMessage().startswith("Client is not connected")
+                                   and r.getMessage().endswith("MQTT_CS_DISCONNECTED")))
+
+WINDOW = 32  # outbox messages handed to paho and not yet acknowledged, at most
+# QoS 1 messages paho keeps in flight (beyond it paho queues, in order). paho cannot change it once
+# connected, so it cannot follow the broker's Receive Maximum: 20 is Mosquitto's default and paho's.
+PAHO_INFLIGHT = 20
+EVENT_KINDS = ("sweep", "alert")  # QoS 1 through the outbox; sweep retained
+LIVE_KINDS = ("range", "cue")  # QoS 0, dropped while disconnected
+COMMAND_QUEUE_SIZE = 256  # commands waiting for the service; more are refused
+MODES = ("rangefinder", "blindaid", "guard")
+_STOP_RESERVE_S = 1.0  # of stop()'s timeout, kept for `offline` after draining the outbox
+
+
+# ---- pure helpers ----
+
+
+def check_device_id(device_id: str) -> str:
+    """The device id as a topic level: not empty, no wildcard, no level separator."""
+    if not device_id or any(c in device_id for c in "+#/\0"):
+        raise ConfigError(f"device.id: {device_id!r} cannot be an MQTT topic level (no '+', '#', '/' or NUL; "
+                          "not empty): set [device] id")
+    return device_id
+
+
+class Topics:
+    """The device's topics, ``<prefix>/<id>/…``."""
+
+    def __init__(self, prefix: str, device_id: str) -> None:
+        self.base = f"{prefix}/{check_device_id(device_id)}"
+        self.status = f"{self.base}/status"
+        self.state = f"{self.base}/state"
+        self.range = f"{self.base}/range"
+        self.sweep = f"{self.base}/sweep"
+        self.alert = f"{self.base}/alert"
+        self.cue = f"{self.base}/cue"
+        self.cmd_prefix = f"{self.base}/cmd/"
+        self.cmd_filter = f"{self.base}/cmd/+"
+
+    def of(self, kind: str) -> str:
+        return f"{self.base}/{kind}"
+
+    def cmd(self, name: str) -> str:
+        return f"{self.cmd_prefix}{name}"
+
+    def result(self, name: str) -> str:
+        return f"{self.cmd_prefix}{name}/result"
+
+
+def utc_timestamp(t: float | None = None) -> str:
+    """ISO 8601 UTC with milliseconds, e.g. ``2026-11-23T12:00:00.123Z``."""
+    moment = datetime.fromtimestamp(time.time() if t is None else t, tz=timezone.utc)
+    return moment.strftime("%Y-%m-%dT%H:%M:%S.") + f"{moment.microsecond // 1000:03d}Z"
+
+
+def encode(payload: dict[str, Any]) -> bytes:
+    """Compact UTF-8 JSON with a ``ts`` added if absent. Non-finite numbers become null (JSON has
+    none; a NaN somewhere in a zone result must not stop the device), with a warning."""
+    if not isinstance(payload, dict):
+        raise TypeError(f"MQTT payloads are JSON objects, got {type(payload).__name__}")
+    body = payload if "ts" in payload else {"ts": utc_timestamp(), **payload}
+    try:
+        text = json.dumps(body, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+    except ValueError:
+        log.warning("payload with a non-finite number: sent as null")
+        text = json.dumps(_finite(body), separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+    return text.encode("utf-8")
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
+def discovery_payloads(config: MqttConfig, device_id: str, version: str) -> dict[str, dict[str, Any]]:
+    """Home Assistant MQTT discovery: {config topic: config}, to be published retained.
+
+    A distance sensor on ``range``, a motion binary sensor on ``alert``, a select for the mode; all
+    available while ``status`` is ``online``, all on one device."""
+    topics = Topics(config.prefix, device_id)
+    # Discovery's node and object ids allow [a-zA-Z0-9_-] only.
+    node = re.sub(r"[^A-Za-z0-9_-]", "_", f"{config.prefix}_{device_id}")
+    common = {
+        "availability_topic": topics.status,
+        "payload_available": "online",
+        "payload_not_available": "offline",
+        "device": {
+            "identifiers": [node],
+            "name": f"edge {device_id}",
+            "model": "structured-light range finder",
+            "manufacturer": "edge",
+            "sw_version": version,
+        },
+    }
+    entities: dict[tuple[str, str], dict[str, Any]] = {
+        ("sensor", "range"): {
+            "name": "Range",
+            "state_topic": topics.range,
+            "value_template": "{{ value_json.range_m }}",
+            "device_class": "distance",
+            "unit_of_measurement": "m",
+            "state_class": "measurement",
+        },
+        ("binary_sensor", "guard"): {
+            "name": "Guard",
+            "state_topic": topics.alert,
+            # intrusion/moved → ON, cleared → OFF; anything else renders empty and is ignored.
+            "value_template": ("{% if value_json.event in ['intrusion', 'moved'] %}ON"
+                               "{% elif value_json.event == 'cleared' %}OFF{% endif %}"),
+            "payload_on": "ON",
+            "payload_off": "OFF",
+            "device_class": "motion",
+        },
+        ("select", "mode"): {
+            "name": "Mode",
+            "command_topic": topics.cmd("mode"),
+            "command_template": '{"mode": "{{ value }}"}',
+            "state_topic": topics.state,
+            "value_template": "{{ value_json.mode }}",
+            "options": list(MODES),
+        },
+    }
+    return {
+        f"{config.discovery_prefix}/{component}/{node}/{obj}/config": {
+            **entity, "unique_id": f"{node}_{obj}", **common,
+        }
+        for (component, obj), entity in entities.items()
+    }
+
+
+def read_password(config: MqttConfig) -> str | None:
+    """The broker password: ``password``, or the first line of ``password_file`` (read now, so
+    that the secret never sits in the config file)."""
+    if not config.password_file:
+        return config.password or None
+    path = Path(config.password_file).expanduser()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        why = getattr(exc, "strerror", None) or str(exc)
+        raise ConfigError(f"mqtt.password_file: cannot read {path}: {why}") from None
+    password = text.splitlines()[0] if text else ""
+    if not password:
+        raise ConfigError(f"mqtt.password_file: {path} is empty")
+    return password
+
+
+def _guarded(callback: Callable[..., None]) -> Callable[..., None]:
+    """A paho callback that logs its exceptions instead of raising them into paho's thread,
+    which would end the network loop and with it every reconnect."""
+
+    def run(*args: Any) -> None:
+        try:
+            callback(*args)
+        except Exception:  # noqa: BLE001
+            log.exception("MQTT: %s failed", callback.__name__)
+
+    run.__name__ = callback.__name__
+    return run
+
+
+# ---- the link ----
+
+
+class MqttLink:
+    """The device's connection to its broker; see the module notes for threads and delivery."""
+
+    def __init__(self, config: MqttConfig, device_id: str, outbox: Outbox, *, version: str,
+                 on_command: Callable[[str, bytes], None] | None = None) -> None:
+        self.config = config
+        self.device_id = check_device_id(device_id)
+        self.topics = Topics(config.prefix, device_id)
+        self.version = version
+        self.client_id = config.client_id or f"{config.prefix}-{device_id}"
+        self._outbox = outbox
+        self._on_command = on_command
+        self._commands: queue.Queue[tuple[str, bytes]] = queue.Queue(COMMAND_QUEUE_SIZE)
+        self._client: paho.Client | None = None
+        self._sender: threading.Thread | None = None
+        # _send_lock: held around every hand-over to paho that must not interleave with a
+        # reconnect (events, state) and by _on_connect. Lock order: _send_lock, then paho's locks.
+        self._send_lock = threading.Lock()
+        # _cond guards what the sender thread waits on; never held while calling paho.
+        self._cond = threading.Condition()
+        self._connected = False
+        self._generation = 0  # +1 per successful connect; outbox bookkeeping is per connection
+        self._acks: list[tuple[int, int]] = []  # (generation, mid) of PUBACKs not yet processed
+        self._wake = False
+        self._closing = False  # stop() has begun: nothing new goes out
+        self._finished = False  # stop() is done with paho: the sender thread may end
+        self._state: bytes | None = None
+        self._inflight: dict[int, int] = {}  # mid → outbox seq; sender thread only
+        self._stats = {"sent": 0, "acked": 0, "refused": 0, "dropped_live": 0, "live_sent": 0,
+                       "connects": 0, "commands_refused": 0}
+
+    # ---- life cycle ----
+
+    def start(self) -> None:
+        """Connect in the background; a broker that is down is retried with back-off."""
+        if self._client is not None:
+            raise RuntimeError("MqttLink.start() called twice")
+        cfg = self.config
+        password = read_password(cfg)
+        client = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=self.client_id, protocol=paho.MQTTv5)
+        client.enable_logger(_paho_log)
+        if not hasattr(client, "drop_out_messages"):
+            log.warning("MQTT: paho-mqtt %s has no drop_out_messages() (2.2 and later have): after a "
+                        "reconnect an old retained sweep or state may be delivered last", paho_version)
+        client.will_set(self.topics.status, "offline", qos=1, retain=True)
+        if cfg.username or password:
+            client.username_pw_set(cfg.username or None, password)
+        if cfg.tls.enabled:
+            self._set_tls(client)
+        client.reconnect_delay_set(cfg.reconnect_min_s, cfg.reconnect_max_s)  # type: ignore[arg-type]
+        client.max_inflight_messages_set(PAHO_INFLIGHT)
+        client.on_connect = _guarded(self._on_connect)
+        client.on_disconnect = _guarded(self._on_disconnect)
+        client.on_publish = _guarded(self._on_publish)
+        client.on_message = _guarded(self._on_message)
+        props = Properties(PacketTypes.CONNECT)
+        props.SessionExpiryInterval = cfg.session_expiry_s
+        # The broker must not send us more than a few times the largest command we take: bigger
+        # ones are dropped by the broker (unseen), smaller oversized ones get an error result.
+        props.MaximumPacketSize = cfg.max_payload_bytes * 4 + 4096
+        client.connect_async(cfg.host, cfg.port, keepalive=cfg.keepalive_s, clean_start=False, properties=props)
+        self._client = client
+        self._sender = threading.Thread(target=self._send_loop, name="mqtt-outbox", daemon=True)
+        self._sender.start()
+        client.loop_start()
+        log.info("MQTT: connecting to %s:%d as %s", cfg.host, cfg.port, self.client_id)
+
+    def _set_tls(self, client: paho.Client) -> None:
+        tls = self.config.tls
+        for key in ("ca_file", "cert_file", "key_file"):
+            name = getattr(tls, key)
+            if name and not Path(name).expanduser().is_file():
+                raise ConfigError(f"mqtt.tls.{key}: no such file: {name}")
+        try:
+            client.tls_set(ca_certs=tls.ca_file or None, certfile=tls.cert_file or None, keyfile=tls.key_file or None)
+        except (OSError, ValueError) as exc:  # ssl.SSLError is an OSError
+            raise ConfigError(f"mqtt.tls: cannot use the certificates: {exc}") from None
+        client.tls_insecure_set(tls.insecure)
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Send what can be sent of the outbox within `timeout_s` (the rest stays on disk for the
+        next start), publish ``offline`` and wait for it, then disconnect."""
+        client = self._client
+        if client is None or self._closing:
+            return
+        deadline = time.monotonic() + timeout_s
+        drain_until = deadline - min(_STOP_RESERVE_S, timeout_s / 2)
+        while self._connected and len(self._outbox) > 0 and time.monotonic() < drain_until:
+            time.sleep(0.01)
+        left = len(self._outbox)
+        if left:
+            log.info("MQTT: %d queued message(s) stay in the outbox for the next start", left)
+        with self._send_lock:
+            self._closing = True  # no more events from the sender, nothing from callbacks
+            info = client.publish(self.topics.status, "offline", qos=1, retain=True) if self._connected else None
+        if info is not None and info.rc == paho.MQTT_ERR_SUCCESS:
+            try:
+                info.wait_for_publish(max(deadline - time.monotonic(), 0.1))
+            except (RuntimeError, ValueError) as exc:  # the connection went away meanwhile
+                log.info("MQTT: offline not confirmed: %s", exc)
+        client.disconnect()
+        client.loop_stop()
+        with self._cond:
+            self._connected = False
+            self._finished = True
+            self._cond.notify_all()
+        if self._sender is not None:
+            self._sender.join(timeout=2)
+        log.info("MQTT: disconnected (%s)", self._stats_text())
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    def stats(self) -> dict[str, int]:
+        """Counters: sent (event hand-overs, re-sends included), acked, refused (PUBACK with an
+        error), dropped_live, live_sent, connects, commands_refused, and pending (in the outbox)."""
+        with self._cond:
+            out = dict(self._stats)
+        try:
+            out["pending"] = len(self._outbox)
+        except Exception:  # noqa: BLE001 - a closed outbox: stats must still answer
+            out["pending"] = -1
+        return out
+
+    def _stats_text(self) -> str:
+        return ", ".join(f"{k} {v}" for k, v in self.stats().items())
+
+    # ---- publishing ----
+
+    def publish_event(self, kind: str, payload: dict[str, Any]) -> int:
+        """A sweep (retained) or an alert: on disk first, then sent when the broker can take it.
+        Returns the outbox seq; never waits for the broker."""
+        if kind not in EVENT_KINDS:
+            raise ValueError(f"publish_event: kind must be one of {', '.join(EVENT_KINDS)}, got {kind!r}")
+        seq = self._outbox.put(self.topics.of(kind), encode(payload), qos=1, retain=kind == "sweep")
+        self._poke()
+        return seq
+
+    def publish_live(self, kind: str, payload: dict[str, Any]) -> bool:
+        """A range or a cue, QoS 0: sent now if connected, else dropped (and counted)."""
+        if kind not in LIVE_KINDS:
+            raise ValueError(f"publish_live: kind must be one of {', '.join(LIVE_KINDS)}, got {kind!r}")
+        client = self._client
+        ok = False
+        if client is not None and self._connected and not self._closing:
+            ok = client.publish(self.topics.of(kind), encode(payload), qos=0).rc == paho.MQTT_ERR_SUCCESS
+        with self._cond:
+            self._stats["live_sent" if ok else "dropped_live"] += 1
+        return ok
+
+    def publish_state(self, payload: dict[str, Any]) -> None:
+        """The state snapshot: retained, QoS 1, remembered and sent again at every connect."""
+        data = encode(payload)
+        with self._send_lock:  # so that a reconnect sends this one, not the one before
+            self._state = data
+            if self._client is not None and self._connected and not self._closing:
+                self._client.publish(self.topics.state, data, qos=1, retain=True)
+
+    def publish_result(self, name: str, ok: bool, error: str | None = None, request_id: str | None = None) -> None:
+        """A command's result on ``cmd/<name>/result``, QoS 1. Not queued on disk: one given while
+        disconnected is kept by paho and sent after the reconnect."""
+        if not name or any(c in name for c in "+#/\0"):
+            raise ValueError(f"publish_result: {name!r} is not a command name")
+        body: dict[str, Any] = {"ok": bool(ok)}
+        if error is not None:
+            body["error"] = error
+        if request_id is not None:
+            body["request_id"] = request_id
+        client = self._client
+        if client is not None and not self._closing:
+            client.publish(self.topics.result(name), encode(body), qos=1)
+
+    def commands(self) -> list[tuple[str, bytes]]:
+        """The commands received since the last call, oldest first: (name, raw payload)."""
+        out = []
+        while True:
+            try:
+                out.append(self._commands.get_nowait())
+            except queue.Empty:
+                return out
+
+    def publish_discovery(self) -> None:
+        if not self.config.discovery or self._client is None:
+            return
+        for topic, body in discovery_payloads(self.config, self.device_id, self.version).items():
+            data = json.dumps(body, separators=(",", ":"), ensure_ascii=False).encode("utf-8")
+            self._client.publish(topic, data, qos=1, retain=True)
+
+    # ---- paho callbacks (network thread) ----
+
+    def _on_connect(self, client: paho.Client, userdata: Any, flags: Any, reason: Any, properties: Any) -> None:
+        if reason.is_failure:
+            log.warning("MQTT: %s:%d refused the connection: %s", self.config.host, self.config.port, reason)
+            return
+        with self._send_lock:
+            if self._closing:
+                return
+            # What paho kept from the last connection: events are re-sent from the outbox and
+            # snapshots (status, state, discovery) afresh below; command results are re-published.
+            leftovers = client.drop_out_messages() if hasattr(client, "drop_out_messages") else []
+            receive_max = getattr(properties, "ReceiveMaximum", None)
+            if receive_max is not None and receive_max < PAHO_INFLIGHT:
+                log.warning("MQTT: the broker takes %d unacknowledged messages, we may send %d: it may "
+                            "disconnect us under load", receive_max, PAHO_INFLIGHT)
+            client.publish(self.topics.status, "online", qos=1, retain=True)
+            if self._state is not None:
+                client.publish(self.topics.state, self._state, qos=1, retain=True)
+            for m in leftovers:
+                if m.topic.endswith("/result"):
+                    client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
+            # Retained commands only when the subscription is new: they are refused anyway, once
+            # is enough (the session keeps the subscription across reconnects).
+            subscriptions = [(self.topics.cmd_filter,
+                              SubscribeOptions(qos=1, retainHandling=SubscribeOptions.RETAIN_SEND_IF_NEW_SUB))]
+            if self.config.discovery:
+                subscriptions.append((f"{self.config.discovery_prefix}/status", SubscribeOptions(qos=1)))
+            client.subscribe(subscriptions)
+            self.publish_discovery()
+            with self._cond:
+                self._connected = True
+                self._generation += 1
+                self._stats["connects"] += 1
+                self._cond.notify_all()
+        log.info("MQTT: connected to %s:%d (session %s)", self.config.host, self.config.port,
+                 "resumed" if flags.session_present else "new")
+
+    def _on_disconnect(self, client: paho.Client, userdata: Any, flags: Any, reason: Any, properties: Any) -> None:
+        with self._cond:
+            was = self._connected
+            self._connected = False
+        if was and not self._closing:
+            log.warning("MQTT: connection to %s:%d lost (%s); retrying", self.config.host, self.config.port, reason)
+
+    def _on_publish(self, client: paho.Client, userdata: Any, mid: int, reason: Any, properties: Any) -> None:
+        # Called with paho's message lock held: only note it, the sender thread does the rest.
+        with self._cond:
+            self._acks.append((self._generation, mid))
+            if reason is not None and getattr(reason, "is_failure", False):
+                self._stats["refused"] += 1
+                log.error("MQTT: the broker refused message %d: %s", mid, reason)
+            self._cond.notify_all()
+
+    def _on_message(self, client: paho.Client, userdata: Any, msg: paho.MQTTMessage) -> None:
+        try:
+            topic = msg.topic
+        except UnicodeDecodeError:
+            return
+        if topic == f"{self.config.discovery_prefix}/status":
+            # Home Assistant (re)started: it forgets entities unless discovery is sent again. A
+            # retained `online` only comes with our own subscription, after we sent discovery.
+            if msg.payload == b"online" and not msg.retain:
+                log.info("MQTT: Home Assistant is online: discovery sent again")
+                self.publish_discovery()
+            return
+        if not topic.startswith(self.topics.cmd_prefix):
+            return
+        name = topic[len(self.topics.cmd_prefix):]
+        if not name or "/" in name:
+            return
+        self._command(name, msg)
+
+    def _command(self, name: str, msg: paho.MQTTMessage) -> None:
+        size, limit = len(msg.payload), self.config.max_payload_bytes
+        if size > limit:
+            self._refuse(name, f"payload of {size} bytes exceeds mqtt.max_payload_bytes = {limit}")
+            return
+        payload = bytes(msg.payload)
+        if msg.retain:
+            self._refuse(name, "retained command ignored: commands must not be retained (a stale one would "
+                         "fire at every start); clear it by publishing an empty retained message",
+                         request_id_of(payload))
+            return
+        if self._on_command is not None:
+            try:
+                self._on_command(name, payload)
+            except Exception:  # noqa: BLE001 - a failing handler must not take the link down
+                log.exception("MQTT: command handler failed for %s", name)
+            return
+        try:
+            self._commands.put_nowait((name, payload))
+        except queue.Full:
+            self._refuse(name, f"{COMMAND_QUEUE_SIZE} commands are waiting: the device is busy, try again later",
+                         request_id_of(payload))
+
+    def _refuse(self, name: str, error: str, request_id: str | None = None) -> None:
+        log.warning("MQTT: cmd/%s refused: %s", name, error)
+        with self._cond:
+            self._stats["commands_refused"] += 1
+        self.publish_result(name, False, error, request_id)
+
+    # ---- the sender thread ----
+
+    def _poke(self) -> None:
+        with self._cond:
+            self._wake = True
+            self._cond.notify_all()
+
+    def _send_loop(self) -> None:
+        generation = 0  # the connection our _inflight and cursor belong to
+        cursor = 0  # the last seq handed to paho on this connection
+        while True:
+            with self._cond:
+                while not (self._finished or self._acks or self._wake or self._generation != generation):
+                    self._cond.wait()
+                acks, self._acks, self._wake = self._acks, [], False
+                current, finished = self._generation, self._finished
+            try:
+                for ack_generation, mid in acks:
+                    seq = self._inflight.pop(mid, None) if ack_generation == generation else None
+                    if seq is not None:
+                        self._outbox.ack(seq)
+                        with self._cond:
+                            self._stats["acked"] += 1
+                if finished:  # acks that came in while stopping are in the outbox now
+                    return
+                if current != generation:  # a new connection: start over from the oldest unacked
+                    generation, cursor = current, 0
+                    self._inflight.clear()
+                cursor = self._drain(generation, cursor)
+            except Exception:  # noqa: BLE001 - e.g. a StorageError: keep trying, loudly
+                log.exception("MQTT: sending queued messages failed; retrying in 1 s")
+                time.sleep(1.0)
+                self._poke()
+
+    def _drain(self, generation: int, cursor: int) -> int:
+        """Hand the next queued messages to paho, oldest first, up to the window. Returns the new
+        cursor."""
+        client = self._client
+        assert client is not None
+        while len(self._inflight) < WINDOW:
+            batch = self._outbox.pending(limit=WINDOW - len(self._inflight), after=cursor)
+            if not batch:
+                break
+            for m in batch:
+                with self._send_lock:
+                    # Sent on the connection whose bookkeeping this is, or not at all.
+                    if self._closing or not self._connected or self._generation != generation:
+                        return cursor
+                    info = client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
+                if info.rc not in (paho.MQTT_ERR_SUCCESS, paho.MQTT_ERR_NO_CONN):
+                    log.error("MQTT: paho refused queued message %d: %s", m.seq, paho.error_string(info.rc))
+                    return cursor
+                self._inflight[info.mid] = m.seq
+                cursor = m.seq
+                with self._cond:
+                    self._stats["sent"] += 1
+        return cursor

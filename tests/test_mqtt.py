@@ -1,0 +1,467 @@
+"""edge.mqtt against a real Mosquitto (tests/broker.py): status and Last Will, state, the outbox's
+at-least-once, in-order delivery across broker outages and restarts, live messages, commands and
+Home Assistant discovery."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from datetime import datetime, timezone
+from pathlib import Path
+
+import pytest
+from broker import Mosquitto, Subscriber, broker, publish, subscriber  # noqa: F401 (fixtures)
+
+from edge.commands import parse_command, request_id_of
+from edge.config import MqttConfig, TlsConfig
+from edge.errors import CommandError, ConfigError
+from edge.mqtt import MqttLink, Topics, discovery_payloads, encode, utc_timestamp
+from edge.outbox import Outbox
+
+log = logging.getLogger(__name__)
+
+DEV = "dev1"
+VERSION = "9.9.9"
+TS = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$")
+T = Topics("edge", DEV)
+
+
+def config_for(b: Mosquitto | None, **changes) -> MqttConfig:
+    # Fast reconnects so that outages in tests last fractions of a second.
+    host, port = (b.host, b.port) if b is not None else ("127.0.0.1", 1)
+    return MqttConfig(host=host, port=port, keepalive_s=5, reconnect_min_s=0.05, reconnect_max_s=0.3, **changes)
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = 5.0, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.01)
+
+
+@pytest.fixture
+def make_link(broker: Mosquitto, tmp_path: Path) -> Iterator[Callable[..., MqttLink]]:
+    """Links on the test's broker, each with its own outbox unless one is given; stopped after."""
+    made: list[tuple[MqttLink, Outbox | None]] = []
+
+    def make(device_id: str = DEV, outbox: Outbox | None = None, on_command=None, **changes) -> MqttLink:
+        own = None
+        if outbox is None:
+            outbox = own = Outbox(tmp_path / f"outbox-{len(made)}.sqlite3")
+        link = MqttLink(config_for(broker, **changes), device_id, outbox, version=VERSION, on_command=on_command)
+        made.append((link, own))
+        return link
+
+    yield make
+    for link, own in made:
+        link.stop(timeout_s=0.5)
+        if own is not None:
+            own.close()
+
+
+def started(link: MqttLink) -> MqttLink:
+    link.start()
+    wait_until(lambda: link.connected, what="the link to connect")
+    return link
+
+
+def sweeps_of(messages) -> list[int]:
+    return [json.loads(m.payload)["sweep"] for m in messages]
+
+
+# ---- pure parts ----
+
+
+def test_topics_client_id_and_device_id_checks(tmp_path):
+    assert (T.status, T.state, T.range, T.sweep, T.alert, T.cue) == tuple(
+        f"edge/dev1/{k}" for k in ("status", "state", "range", "sweep", "alert", "cue"))
+    assert (T.cmd("mode"), T.result("mode")) == ("edge/dev1/cmd/mode", "edge/dev1/cmd/mode/result")
+    with Outbox(tmp_path / "o.sqlite3") as outbox:
+        assert MqttLink(config_for(None), DEV, outbox, version=VERSION).client_id == "edge-dev1"
+        assert MqttLink(config_for(None, client_id="x"), DEV, outbox, version=VERSION).client_id == "x"
+        for bad in ("a/b", "a+", "#", ""):
+            with pytest.raises(ConfigError, match=r"^device\.id: "):
+                MqttLink(config_for(None), bad, outbox, version=VERSION)
+
+
+def test_an_unreadable_password_file_is_a_config_error(tmp_path):
+    with Outbox(tmp_path / "o.sqlite3") as outbox:
+        link = MqttLink(config_for(None, username="u", password_file=str(tmp_path / "nope")), DEV, outbox,
+                        version=VERSION)
+        with pytest.raises(ConfigError, match=r"^mqtt\.password_file: cannot read .*nope: No such file"):
+            link.start()
+        assert not link.connected
+
+
+def test_payloads_are_compact_utf8_json_with_a_millisecond_utc_ts():
+    data = encode({"event": "intrusion", "where": "Küche"})
+    assert data.startswith(b'{"ts":"') and b" " not in data and "Küche".encode() in data
+    body = json.loads(data)
+    assert TS.match(body["ts"]) and body["event"] == "intrusion"
+    assert json.loads(encode({"ts": "given", "a": 1})) == {"ts": "given", "a": 1}
+    assert json.loads(encode({"range_m": float("nan")}))["range_m"] is None
+    moment = datetime(2026, 11, 23, 12, 0, 0, 123456, tzinfo=timezone.utc).timestamp()
+    assert utc_timestamp(moment) == "2026-11-23T12:00:00.123Z"
+
+
+def test_discovery_payloads():
+    cfg = MqttConfig()
+    payloads = discovery_payloads(cfg, "pi.lab", VERSION)
+    node = "edge_pi_lab"
+    assert set(payloads) == {f"homeassistant/{c}/{node}/{o}/config"
+                             for c, o in (("sensor", "range"), ("binary_sensor", "guard"), ("select", "mode"))}
+    sensor = payloads[f"homeassistant/sensor/{node}/range/config"]
+    assert sensor["device_class"] == "distance" and sensor["unit_of_measurement"] == "m"
+    assert sensor["state_topic"] == "edge/pi.lab/range" and sensor["value_template"] == "{{ value_json.range_m }}"
+    motion = payloads[f"homeassistant/binary_sensor/{node}/guard/config"]
+    assert motion["device_class"] == "motion" and motion["state_topic"] == "edge/pi.lab/alert"
+    select = payloads[f"homeassistant/select/{node}/mode/config"]
+    assert select["options"] == ["rangefinder", "blindaid", "guard"]
+    assert select["command_topic"] == "edge/pi.lab/cmd/mode"
+    assert select["command_template"] == '{"mode": "{{ value }}"}'
+    assert select["state_topic"] == "edge/pi.lab/state" and select["value_template"] == "{{ value_json.mode }}"
+    assert len({p["unique_id"] for p in payloads.values()}) == 3
+    for p in payloads.values():
+        assert p["availability_topic"] == "edge/pi.lab/status"
+        assert (p["payload_available"], p["payload_not_available"]) == ("online", "offline")
+        assert p["device"] == payloads[f"homeassistant/sensor/{node}/range/config"]["device"]
+    assert sensor["device"]["identifiers"] == [node] and sensor["device"]["sw_version"] == VERSION
+    # The command HA's select sends is one our parser takes.
+    command = select["command_template"].replace("{{ value }}", "guard").encode()
+    parsed = parse_command("mode", command, max_bytes=256, pan_limits=(-1, 1), tilt_limits=(-1, 1))
+    assert parsed.args["mode"] == "guard"
+
+
+# ---- status, Last Will, state ----
+
+
+def test_online_and_offline_are_retained(broker, subscriber, make_link):
+    link = started(make_link())
+    assert subscriber.wait_for(T.status).text == "online"
+    late = Subscriber(broker)  # a newcomer gets the retained status
+    try:
+        got = late.wait_for(T.status)
+        assert (got.text, got.retain, got.qos) == ("online", True, 1)
+    finally:
+        late.close()
+    link.stop(timeout_s=2)
+    assert not link.connected
+    subscriber.wait_for(T.status, lambda m: m.text == "offline")
+    late = Subscriber(broker)
+    try:
+        got = late.wait_for(T.status)
+        assert (got.text, got.retain) == ("offline", True)
+    finally:
+        late.close()
+
+
+CHILD = """
+import sys, time
+from edge.config import MqttConfig, TlsConfig
+from edge.mqtt import MqttLink
+from edge.outbox import Outbox
+cfg = MqttConfig(host="127.0.0.1", port=int(sys.argv[1]), keepalive_s=5, discovery=False)
+MqttLink(cfg, "child", Outbox(sys.argv[2]), version="test").start()
+time.sleep(60)
+"""
+
+
+def test_last_will_says_offline_when_the_process_is_killed(broker, subscriber, tmp_path):
+    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(broker.port), str(tmp_path / "child.sqlite3")],
+                            cwd=Path(__file__).resolve().parents[1])
+    try:
+        subscriber.wait_for("edge/child/status", lambda m: m.text == "online", timeout=15)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=5)
+        subscriber.wait_for("edge/child/status", lambda m: m.text == "offline", timeout=5)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    late = Subscriber(broker)
+    try:
+        got = late.wait_for("edge/child/status")
+        assert (got.text, got.retain) == ("offline", True)
+    finally:
+        late.close()
+
+
+def test_state_is_retained_and_sent_again_after_a_reconnect(broker, subscriber, make_link):
+    n_is = lambda n: lambda m: m.payload and json.loads(m.payload)["n"] == n  # noqa: E731
+    link = make_link()
+    link.publish_state({"mode": "guard", "n": 1})  # before the first connect: remembered
+    started(link)
+    got = subscriber.wait_for(T.state, n_is(1))
+    assert TS.match(json.loads(got.payload)["ts"]) and got.qos == 1
+
+    broker.stop()
+    wait_until(lambda: not link.connected, what="the link to notice the outage")
+    link.publish_state({"mode": "blindaid", "n": 2})  # changed while the broker was away
+    broker.start()
+    subscriber.wait_for(T.state, n_is(2))
+
+    # Sent again at every connect even when unchanged: clear the retained copy, restart the
+    # broker, and the state is back.
+    publish(broker, T.state, b"", retain=True)
+    broker.restart()
+    wait_until(lambda: link.stats()["connects"] == 3 and link.connected, what="the third connect")
+    late = Subscriber(broker)
+    try:
+        got = late.wait_for(T.state)
+        body = json.loads(got.payload)
+        assert got.retain and body == {"ts": body["ts"], "mode": "blindaid", "n": 2}
+    finally:
+        late.close()
+
+
+# ---- events: the outbox ----
+
+
+def alert(i: int) -> dict:
+    return {"event": "intrusion", "id": f"t{i % 7}", "zones": [i % 64], "range_m": 1.5, "sweep": i}
+
+
+def test_events_arrive_in_order_exactly_as_put(broker, subscriber, make_link):
+    link = started(make_link())
+    n = 200
+    for i in range(n):
+        link.publish_event("alert", alert(i))
+    link.publish_event("sweep", {"sweep": 1, "duration_s": 36.9, "zones": []})
+    got = subscriber.wait_count(T.alert, n)
+    assert [json.loads(m.payload) | {"ts": None} for m in got] == [alert(i) | {"ts": None} for i in range(n)]
+    assert all(m.qos == 1 and not m.retain for m in got)
+    wait_until(lambda: link.stats()["pending"] == 0, what="every event to be acknowledged")
+    stats = link.stats()
+    assert stats["acked"] == n + 1 and stats["sent"] == n + 1
+    late = Subscriber(broker)  # the last sweep is retained; alerts are not
+    try:
+        assert late.wait_for(T.sweep).retain
+        time.sleep(0.2)
+        assert late.messages(T.alert) == []
+    finally:
+        late.close()
+
+
+def test_a_broker_outage_loses_no_event_and_keeps_their_order(broker, subscriber, make_link, record_property):
+    link = started(make_link())
+    n = 90
+    for i in range(30):  # some of these are in flight when the broker goes
+        link.publish_event("alert", alert(i))
+    broker.stop()
+    for i in range(30, 60):  # put while the broker is away
+        link.publish_event("alert", alert(i))
+    assert not link.connected and link.stats()["pending"] >= 30
+    broker.start()
+    for i in range(60, n):
+        link.publish_event("alert", alert(i))
+
+    wait_until(lambda: set(sweeps_of(subscriber.messages(T.alert))) >= set(range(n)), timeout=15,
+               what="every event after the outage")
+    received = sweeps_of(subscriber.messages(T.alert))
+    first_seen = list(dict.fromkeys(received))
+    assert first_seen == list(range(n)), "events out of order"
+    # After a reconnect sending starts over from the oldest unacknowledged event: each step is the
+    # next event, or a step back to where a re-send (by the link or by the broker) started over.
+    assert all(b == a + 1 or b <= a for a, b in zip(received, received[1:])), received
+    assert link.stats()["connects"] == 2
+    duplicates = len(received) - n
+    record_property("duplicates", duplicates)
+    log.info("broker outage: %d events, %d duplicate deliveries", n, duplicates)
+    wait_until(lambda: link.stats()["pending"] == 0, what="the outbox to empty")
+
+
+def test_the_outbox_survives_a_restart_of_the_link(broker, tmp_path, make_link):
+    path = tmp_path / "kept.sqlite3"
+    broker.stop()
+    outbox = Outbox(path)
+    first = make_link(outbox=outbox)
+    first.start()
+    for i in range(10):
+        first.publish_event("alert", alert(i))
+    first.stop(timeout_s=0.3)  # the broker is away: nothing can be delivered
+    outbox.close()
+
+    broker.start()
+    sub = Subscriber(broker)
+    try:
+        with Outbox(path) as again:
+            assert len(again) == 10
+            second = started(make_link(outbox=again))
+            got = sub.wait_count(T.alert, 10)
+            assert sweeps_of(got) == list(range(10))
+            wait_until(lambda: len(again) == 0, what="the outbox to empty")
+            second.stop(timeout_s=1)
+    finally:
+        sub.close()
+
+
+def test_live_messages_are_dropped_while_disconnected(broker, make_link):
+    broker.stop()
+    link = make_link()
+    link.start()
+    assert link.publish_live("range", {"range_m": 1.0}) is False
+    assert link.publish_live("cue", {"bearing_deg": 3}) is False
+    assert link.stats()["dropped_live"] == 2
+    broker.start()
+    sub = Subscriber(broker)
+    try:
+        wait_until(lambda: link.connected, what="the link to connect")
+        assert link.publish_live("range", {"range_m": 2.5}) is True
+        got = sub.wait_for(T.range)
+        assert json.loads(got.payload)["range_m"] == 2.5 and got.qos == 0 and not got.retain
+        time.sleep(0.1)
+        assert [json.loads(m.payload)["range_m"] for m in sub.messages(T.range)] == [2.5]
+        assert link.stats()["live_sent"] == 1
+    finally:
+        sub.close()
+
+
+# ---- commands ----
+
+
+def result_of(sub: Subscriber, name: str, since: int = 0) -> dict:
+    body = json.loads(sub.wait_for(T.result(name), since=since).payload)
+    assert TS.match(body["ts"])
+    return body
+
+
+def test_a_command_reaches_commands(broker, subscriber, make_link):
+    link = started(make_link())
+    publish(broker, T.cmd("point"), b'{"pan_deg": 10, "tilt_deg": 0}')
+    got: list = []
+    wait_until(lambda: got.extend(link.commands()) or got, what="the command")
+    assert got == [("point", b'{"pan_deg": 10, "tilt_deg": 0}')]
+    assert link.commands() == []
+
+
+def test_a_command_handler_is_called_instead_when_given(broker, make_link):
+    seen: list = []
+    link = started(make_link(on_command=lambda name, payload: seen.append((name, payload))))
+    publish(broker, T.cmd("sweep"), b"")
+    wait_until(lambda: seen, what="the handler")
+    assert seen == [("sweep", b"")] and link.commands() == []
+
+
+def test_an_oversized_command_is_refused_unread(broker, subscriber, make_link):
+    link = started(make_link(max_payload_bytes=256))
+    publish(broker, T.cmd("mode"), b"\xff" * 300)  # not even UTF-8: it is never looked at
+    body = result_of(subscriber, "mode")
+    assert body["ok"] is False and body["error"] == "payload of 300 bytes exceeds mqtt.max_payload_bytes = 256"
+    # Far larger ones the broker does not even send us (MQTT 5 Maximum Packet Size): no result,
+    # but no harm either.
+    publish(broker, T.cmd("mode"), b"x" * 100_000)
+    publish(broker, T.cmd("sweep"), b"{}")
+    got: list = []
+    wait_until(lambda: got.extend(link.commands()) or got, what="the next command")
+    assert got == [("sweep", b"{}")]
+    assert link.stats()["commands_refused"] == 1 and link.stats()["connects"] == 1 and link.connected
+    assert len(subscriber.messages(T.result("mode"))) == 1
+
+
+def test_a_retained_command_is_ignored(broker, subscriber, make_link):
+    publish(broker, T.cmd("lasers_off"), b'{"request_id": "stale"}', retain=True)
+    link = started(make_link())
+    body = result_of(subscriber, "lasers_off")
+    assert body["ok"] is False and body["error"].startswith("retained command ignored")
+    assert body["request_id"] == "stale"
+    publish(broker, T.cmd("sweep"), b"")
+    got: list = []
+    wait_until(lambda: got.extend(link.commands()) or got, what="a live command")
+    assert got == [("sweep", b"")]
+
+
+def test_the_request_id_is_echoed(broker, subscriber, make_link):
+    link = started(make_link())
+    publish(broker, T.cmd("point"), b'{"pan_deg": 500, "tilt_deg": 0, "request_id": "r-17"}')
+    publish(broker, T.cmd("sweep"), b'{"request_id": "r-18"}')
+    got: list = []
+    wait_until(lambda: got.extend(link.commands()) or len(got) == 2, what="two commands")
+    for name, payload in got:  # what the service does with them
+        try:
+            command = parse_command(name, payload, max_bytes=4096, pan_limits=(-159, 159), tilt_limits=(-47, 31))
+        except CommandError as exc:
+            link.publish_result(name, False, str(exc), request_id_of(payload))
+        else:
+            link.publish_result(name, True, request_id=command.request_id)
+    bad, good = result_of(subscriber, "point"), result_of(subscriber, "sweep")
+    assert bad == {"ts": bad["ts"], "ok": False, "request_id": "r-17",
+                   "error": "cmd/point: pan_deg = 500 is outside the pan limits -159..159°"}
+    assert good == {"ts": good["ts"], "ok": True, "request_id": "r-18"}
+    assert not subscriber.wait_for(T.result("point")).retain
+
+
+# ---- Home Assistant ----
+
+
+def test_discovery_is_retained_and_sent_again_when_home_assistant_comes_online(broker, subscriber, make_link):
+    link = started(make_link())
+    expected = discovery_payloads(link.config, DEV, VERSION)
+    for topic, body in expected.items():
+        assert json.loads(subscriber.wait_for(topic).payload) == body
+    late = Subscriber(broker)
+    try:
+        for topic in expected:
+            assert late.wait_for(topic).retain
+    finally:
+        late.close()
+    mark = subscriber.mark()
+    publish(broker, "homeassistant/status", b"online")
+    for topic in expected:
+        subscriber.wait_for(topic, since=mark)
+
+
+def test_no_discovery_when_disabled(broker, subscriber, make_link):
+    started(make_link(discovery=False))
+    subscriber.wait_for(T.status)
+    time.sleep(0.2)
+    assert not [m for m in subscriber.messages() if m.topic.startswith("homeassistant/")]
+
+
+# ---- authentication and TLS ----
+
+
+def test_username_and_password_file(tmp_path):
+    with Mosquitto(passwords={"edge": "s3cret"}) as b:
+        secret = tmp_path / "secret"
+        secret.write_text("s3cret\n")
+        wrong = tmp_path / "wrong"
+        wrong.write_text("nope\n")
+        with Outbox(tmp_path / "a.sqlite3") as ob_a, Outbox(tmp_path / "b.sqlite3") as ob_b:
+            good = MqttLink(config_for(b, username="edge", password_file=str(secret)), "a", ob_a, version=VERSION)
+            bad = MqttLink(config_for(b, username="edge", password_file=str(wrong)), "b", ob_b, version=VERSION)
+            try:
+                started(good)
+                bad.start()
+                time.sleep(0.5)
+                assert not bad.connected
+            finally:
+                good.stop(timeout_s=1)
+                bad.stop(timeout_s=0.2)
+
+
+def test_tls(tmp_path):
+    openssl = shutil.which("openssl")
+    if openssl is None:
+        pytest.skip("openssl is needed to make a test certificate (apt-get install openssl)")
+    cert, key = str(tmp_path / "cert.pem"), str(tmp_path / "key.pem")
+    subprocess.run([openssl, "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", key, "-out", cert,
+                    "-days", "1", "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1"],
+                   check=True, capture_output=True)
+    with Mosquitto(tls=(cert, cert, key)) as b, Outbox(tmp_path / "o.sqlite3") as outbox:
+        with pytest.raises(ConfigError, match=r"^mqtt\.tls\.ca_file: no such file: "):
+            MqttLink(config_for(b, tls=TlsConfig(enabled=True, ca_file=str(tmp_path / "nope.pem"))), DEV,
+                     outbox, version=VERSION).start()
+        link = MqttLink(config_for(b, tls=TlsConfig(enabled=True, ca_file=cert)), DEV, outbox, version=VERSION)
+        try:
+            started(link)
+        finally:
+            link.stop(timeout_s=1)
