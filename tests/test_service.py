@@ -1,0 +1,195 @@
+"""`edge run` end to end: the real process on the simulated rig, a real Mosquitto, a test
+NOTIFY_SOCKET. Topics and payloads are checked against ../shared/spec/mqtt.md."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from broker import Mosquitto, Subscriber, broker, publish, subscriber  # noqa: F401  (fixtures)
+
+DEVICE = "dev1"
+P = f"edge/{DEVICE}"
+TS = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$")
+
+
+def start(broker: Mosquitto, tmp_path: Path, *sets: str, run_for: float | None = None,
+          env: dict | None = None) -> subprocess.Popen:
+    args = [sys.executable, "-m", "edge", "run", "--set", f"device.id={json.dumps(DEVICE)}",
+            "--set", f"mqtt.port={broker.port}", "--set", 'mqtt.host="127.0.0.1"',
+            "--set", f"service.state_dir={json.dumps(str(tmp_path / 'state'))}",
+            "--set", "mqtt.reconnect_min_s=0.2", "--set", "mqtt.reconnect_max_s=1.0"]
+    for s in sets:
+        args += ["--set", s]
+    if run_for is not None:
+        args += ["--for", str(run_for)]
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, **(env or {})})
+
+
+def payload(m) -> dict:
+    data = json.loads(m.payload)
+    assert isinstance(data, dict) and TS.match(data["ts"]), m.payload
+    return data
+
+
+def finish(proc: subprocess.Popen, timeout: float = 30) -> str:
+    _, err = proc.communicate(timeout=timeout)
+    assert proc.returncode == 0, err[-3000:]
+    assert "Traceback" not in err, err[-3000:]
+    return err
+
+
+def test_a_range_finder_run_publishes_every_topic_of_the_contract(broker, subscriber, tmp_path):
+    proc = start(broker, tmp_path, "mode=\"rangefinder\"", "rangefinder.pan_deg=-90.0", run_for=8)
+    online = subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
+    assert online.retain or True  # live delivery of a retained message carries retain=0 in MQTT 5
+    state = payload(subscriber.wait_for(f"{P}/state", timeout=10))
+    assert state["mode"] == "rangefinder" and set(state["health"]) == {"camera", "lasers", "ptu", "calibration"}
+    assert state["device"] == DEVICE and "version" in state and "uptime_s" in state and "sweeps" in state
+    # One range per camera frame: about 30 a second, each a zone result of geometry.md.
+    ranges = subscriber.wait_count(f"{P}/range", 60, timeout=20)
+    r = payload(ranges[-1])
+    assert r["status"] == "ok" and abs(r["range_m"] - 1.30) < 0.02 and r["sigma_m"] > 0
+    assert abs(r["filtered_m"] - 1.30) < 0.02 and r["pan_deg"] == pytest.approx(-90.0, abs=0.06)
+    # Home Assistant discovery: a distance sensor, a motion binary sensor and a mode select.
+    configs = [m for m in subscriber.messages() if m.topic.startswith("homeassistant/")]
+    kinds = {m.topic.split("/")[1] for m in configs}
+    assert {"sensor", "binary_sensor", "select"} <= kinds
+    for m in configs:
+        cfg = json.loads(m.payload)
+        assert cfg["availability_topic"] == f"{P}/status" and cfg["device"]["identifiers"]
+    finish(proc)
+    last = subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"offline", timeout=10)
+    assert last.at > ranges[-1].at
+    # Retained for late comers: offline and the last state.
+    late = Subscriber(broker, (f"{P}/status", f"{P}/state"), persistent=False)
+    try:
+        assert late.wait_for(f"{P}/status", timeout=5).payload == b"offline"
+        assert payload(late.wait_for(f"{P}/state", timeout=5))["mode"] == "rangefinder"
+    finally:
+        late.close()
+
+
+def test_commands_are_validated_and_answered_and_the_service_runs_on(broker, subscriber, tmp_path):
+    proc = start(broker, tmp_path, "mode=\"rangefinder\"", run_for=25)
+    subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
+    subscriber.wait_count(f"{P}/range", 5, timeout=20)
+    hostile = [
+        ("mode", b"{not json", "JSON"),
+        ("mode", b'{"mode": "disco"}', "mode"),
+        ("mode", b'{"mode": 3}', "mode"),
+        ("point", b'{"pan_deg": "left", "tilt_deg": 0}', "pan_deg"),
+        ("point", b'{"pan_deg": 1e9, "tilt_deg": 0}', "pan_deg"),
+        ("point", b'{"pan_deg": 0, "tilt_deg": 0, "rm -rf": 1}', "rm -rf"),
+        ("selfdestruct", b"{}", "selfdestruct"),
+        ("sweep", b"\xff\xfe", "UTF-8"),
+        ("mode", b'{"mode": "guard", "pad": "' + b"x" * 70000 + b'"}', "max_payload_bytes"),
+    ]
+    for i, (name, body, word) in enumerate(hostile):
+        mark = subscriber.mark()
+        request = body
+        if body.startswith(b"{") and len(body) < 1000 and b"not json" not in body:
+            request = json.dumps({**json.loads(body), "request_id": f"r{i}"}).encode()
+        publish(broker, f"{P}/cmd/{name}", request)
+        result = payload(subscriber.wait_for(f"{P}/cmd/{name}/result", since=mark, timeout=10))
+        assert result["ok"] is False and word.lower() in result["error"].lower(), (name, result)
+        assert "\n" not in result["error"]
+        if b"request_id" in request:
+            assert result.get("request_id") == f"r{i}", (name, request[:80], result)
+    # The service runs on, unchanged: still ranging, still in its mode.
+    mark = subscriber.mark()
+    subscriber.wait_count(f"{P}/range", 5, timeout=10, since=mark)
+    # A good command changes the mode, says so in the retained state, and the result echoes the id.
+    mark = subscriber.mark()
+    publish(broker, f"{P}/cmd/mode", b'{"mode": "guard", "request_id": "go"}')
+    result = payload(subscriber.wait_for(f"{P}/cmd/mode/result", since=mark, timeout=10))
+    assert result == {**result, "ok": True, "request_id": "go"}
+    state = subscriber.wait_for(f"{P}/state", lambda m: json.loads(m.payload)["mode"] == "guard", since=mark, timeout=10)
+    assert payload(state)["mode"] == "guard"
+    mark = subscriber.mark()
+    publish(broker, f"{P}/cmd/lasers_off", b"")
+    assert payload(subscriber.wait_for(f"{P}/cmd/lasers_off/result", since=mark, timeout=10))["ok"] is True
+    proc.send_signal(signal.SIGTERM)
+    finish(proc)
+    subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"offline", since=mark, timeout=10)
+
+
+def test_a_killed_service_leaves_its_last_will(broker, subscriber, tmp_path):
+    proc = start(broker, tmp_path, "mode=\"rangefinder\"")
+    try:
+        subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
+        mark = subscriber.mark()
+        proc.kill()  # SIGKILL: no handler runs, no clean disconnect
+        proc.wait(10)
+        # The broker publishes the Last Will when it notices (at once, as the socket closes).
+        subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"offline", since=mark, timeout=15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.communicate()
+
+
+def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, subscriber, tmp_path):
+    # Small sweeps back to back (a map sweep every 0.5 s in range-finder mode), the broker stopped
+    # for a few seconds in the middle: every sweep arrives, once or more, in order.
+    proc = start(broker, tmp_path, "sweep.zones=3", "sweep.pan_step_deg=10.0", "service.sweep_interval_s=0.5")
+    try:
+        first = subscriber.wait_count(f"{P}/sweep", 2, timeout=30)
+        broker.stop()
+        time.sleep(4.0)
+        broker.restart()
+        mark = subscriber.mark()
+        subscriber.wait_count(f"{P}/sweep", 3, timeout=30, since=mark)
+        proc.send_signal(signal.SIGTERM)
+        finish(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    numbers = [payload(m)["sweep"] for m in subscriber.messages(f"{P}/sweep")]
+    assert numbers[:len(first)] == list(range(1, len(first) + 1))
+    seen = list(dict.fromkeys(numbers))  # first sightings
+    assert seen == list(range(1, max(numbers) + 1)), numbers  # none lost, in order
+    for a, b in zip(numbers, numbers[1:]):
+        assert b == a + 1 or b <= a, numbers  # a repeat steps back, then goes on in order
+    for m in subscriber.messages(f"{P}/sweep"):
+        doc = payload(m)
+        assert len(doc["zones"]) == 3 and doc["duration_s"] > 0
+    # What the process knew it had delivered left the queue; nothing is stuck in it.
+    import sqlite3
+
+    rows = sqlite3.connect(tmp_path / "state" / "outbox.sqlite3").execute("select count(*) from outbox").fetchone()
+    assert rows[0] == 0
+
+
+def test_systemd_notifications_and_watchdog(broker, tmp_path):
+    path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(path))
+    sock.settimeout(0.5)
+    env = {"NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"}  # 1 s: fed every 0.5 s
+    proc = start(broker, tmp_path, "mode=\"rangefinder\"", run_for=6, env=env)
+    messages: list[str] = []
+    deadline = time.monotonic() + 30
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            messages.append(sock.recv(4096).decode())
+        except TimeoutError:
+            pass
+    finish(proc)
+    sock.close()
+    assert "READY=1" in messages
+    assert messages.index("READY=1") < messages.index("STOPPING=1")
+    feeds = [m for m in messages if m == "WATCHDOG=1"]
+    assert len(feeds) >= 4, messages  # about every 0.5 s over 6 s of running
+    assert any(m.startswith("STATUS=running") for m in messages)
