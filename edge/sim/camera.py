@@ -111,8 +111,7 @@ class SimCamera:
             self._t0 = time.monotonic_ns()
             self._last_k = -1
             log.debug("simulated camera started: %d ns frames, readout %d ns", self.frame_ns, self.readout_ns)
-        # A moving scene changes every view with time: nothing to render ahead.
-        if self.heading is not None and self._prefetcher is None and not self.renderer.scene.movers:
+        if self.heading is not None and self._prefetcher is None:
             self._stopping.clear()
             self._prefetcher = threading.Thread(target=self._prefetch, name="sim-camera prefetch", daemon=True)
             self._prefetcher.start()

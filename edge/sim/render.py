@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from dataclasses import dataclass, field, replace
 
@@ -120,8 +120,24 @@ class Renderer:
         return self._base_to_world.compose(self.rig.camera_to_base(pan_deg, tilt_deg))
 
     def _view(self, pan_deg: float, tilt_deg: float, t_s: float) -> _View:
-        moving = bool(self.scene.movers)
-        key = (round(pan_deg, 9), round(tilt_deg, 9), t_s if moving else None)
+        """The view at (pan, tilt) at time `t_s`. Rendering a view is the costly part (one ray per
+        pixel), so the scene without its movers is rendered once per pose and cached; while a
+        mover is present, only the pixels its box can cover are cast again, at each instant."""
+        static_key = (round(pan_deg, 9), round(tilt_deg, 9), None)
+
+        def static_view() -> _View:
+            return self._cached(static_key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
+
+        if not self.scene.movers:
+            return static_view()
+        geometry = self.scene.at(t_s)
+        if geometry is self.scene.static:
+            return static_view()
+        static = static_view()
+        key = (static_key[0], static_key[1], t_s)
+        return self._cached(key, lambda: self._patched_view(static, t_s, geometry))
+
+    def _cached(self, key: tuple, render: Callable[[], _View]) -> _View:
         with self._views_lock:
             pending = self._views.get(key)
             mine = pending is None
@@ -131,7 +147,7 @@ class Renderer:
                 pending = self._views[key] = Future()
         if mine:
             try:
-                view = self._render_view(pan_deg, tilt_deg, t_s)
+                view = render()
                 for laser in self.rig.lasers:  # the spots too, so a frame costs only its noise
                     self._lit_spot(view, laser.name)
             except BaseException as exc:
@@ -143,26 +159,61 @@ class Renderer:
         return pending.result()
 
     def prefetch(self, pan_deg: float, tilt_deg: float, t_s: float = 0.0) -> None:
-        """Render the view at (pan, tilt) now, so that frames there later cost only their noise
-        (the simulated camera calls this from a thread while the unit is on its way)."""
-        self._view(pan_deg, tilt_deg, t_s)
+        """Render the view at (pan, tilt) now (without movers: they are patched in per frame), so
+        that frames there later cost little more than their noise (the simulated camera calls
+        this from a thread while the unit is on its way)."""
+        key = (round(pan_deg, 9), round(tilt_deg, 9), None)
+        self._cached(key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
 
-    def _render_view(self, pan_deg: float, tilt_deg: float, t_s: float) -> _View:
-        cam = self.rig.camera
+    def _render_view(self, pan_deg: float, tilt_deg: float, geometry: SceneGeometry) -> _View:
         pose = self.camera_to_world(pan_deg, tilt_deg)
-        geometry = self.scene.at(t_s)
-        hits = geometry.cast(pose.t, pose.rotate(self._pixel_rays))
+        img = self._shade(pose, geometry, self._pixel_rays)
+        cam = self.rig.camera
+        return _View(pose, geometry, img.reshape(cam.height, cam.width, self.channels))
+
+    def _patched_view(self, static: _View, t_s: float, geometry: SceneGeometry) -> _View:
+        """`static` with the pixels that the movers present at `t_s` may cover cast again."""
+        cam = self.rig.camera
+        pose = static.camera_to_world
+        to_camera = pose.inverse()
+        electrons = static.electrons
+        box = None
+        for corners in self.scene.mover_corners(t_s):
+            p = to_camera.apply(corners)
+            if (p[:, 2] <= 1e-3).all():
+                continue  # behind the camera
+            if (p[:, 2] <= 1e-3).any():
+                box = (0, 0, cam.width, cam.height)  # straddles the camera plane: cast it all
+                break
+            uv = cam.project(p)
+            # Lens distortion can bend a box's edges outward between its corners: a margin.
+            u0, v0 = (np.floor(uv.min(axis=0)).astype(int) - 3).tolist()
+            u1, v1 = (np.ceil(uv.max(axis=0)).astype(int) + 4).tolist()
+            u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, cam.width), min(v1, cam.height)
+            if u0 >= u1 or v0 >= v1:
+                continue
+            box = (u0, v0, u1, v1) if box is None else (
+                min(box[0], u0), min(box[1], v0), max(box[2], u1), max(box[3], v1))
+        if box is not None:
+            u0, v0, u1, v1 = box
+            index = np.arange(v0, v1)[:, None] * cam.width + np.arange(u0, u1)[None, :]
+            patch = self._shade(pose, geometry, self._pixel_rays[index.ravel()])
+            electrons = electrons.copy()
+            electrons[v0:v1, u0:u1] = patch.reshape(v1 - v0, u1 - u0, self.channels)
+        return _View(pose, geometry, electrons)
+
+    def _shade(self, pose: Pose, geometry: SceneGeometry, rays: np.ndarray) -> np.ndarray:
+        """Room light at the configured exposure seen along camera `rays` (N, 3, unit): (N, C)
+        float32 photo-electrons, vignetting included."""
+        hits = geometry.cast(pose.t, pose.rotate(rays))
         albedo, _, _ = geometry.material(hits.face)
         texture = geometry.texture(hits.face, hits.surface_uv)
         light = _AMBIENT_BY_NORMAL_Z[0] + _AMBIENT_BY_NORMAL_Z[1] * hits.normal[:, 2]
         radiance = albedo * (texture * np.where(hits.hit, light, 0.0))[:, None]  # (N, 3) RGB
-        if self.channels == 3:
-            img = radiance[:, ::-1]  # BGR, as OpenCV reads colour
-        else:
-            img = (radiance @ _GREY_WEIGHTS_RGB)[:, None]
-        img = img.reshape(cam.height, cam.width, self.channels) * self._ambient_e
-        img *= self._vignette[..., None]
-        return _View(pose, geometry, img.astype(np.float32))
+        img = radiance[:, ::-1] if self.channels == 3 else (radiance @ _GREY_WEIGHTS_RGB)[:, None]
+        # cos⁴ fall-off of a simple lens: a unit ray's camera-frame z is its cosine.
+        fall_off = rays[:, 2] ** 4 if self.sim.optics.vignetting else np.ones(len(rays))
+        return (img * (self._ambient_e * fall_off)[:, None]).astype(np.float32)
 
     def spots(self, pan_deg: float, tilt_deg: float, t_s: float = 0.0) -> dict[str, SpotTruth]:
         """Where each laser meets the scene in this view, and whether the camera sees it."""

@@ -392,6 +392,23 @@ class Scene:
         yaw = math.radians(self.device.yaw_deg)
         return Pose(rot_z(yaw), np.array(self.device.position_m, dtype=np.float64))
 
+    @property
+    def static(self) -> SceneGeometry:
+        """The scene without its movers (what :meth:`at` gives while none is present)."""
+        return self._static
+
+    def mover_corners(self, t_s: float) -> list[np.ndarray]:
+        """World corners (8, 3) of the box of each mover present at `t_s`."""
+        out = []
+        for m in self.movers:
+            pose = m.pose_at(t_s)
+            if pose is None:
+                continue
+            w, d, h = m.size_m
+            local = np.array([[x, y, z] for x in (-d / 2, d / 2) for y in (-w / 2, w / 2) for z in (0.0, h)])
+            out.append(pose.apply(local))
+        return out
+
     def at(self, t_s: float = 0.0) -> SceneGeometry:
         """The scene at time `t_s`: the cached static geometry plus the movers present."""
         placed = [
