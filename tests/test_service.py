@@ -248,3 +248,58 @@ def test_guard_alerts_survive_a_broker_outage_exactly_as_raised_and_in_order(bro
     for a in got:
         assert set(a) >= {"ts", "event", "id", "zones", "bearing_deg", "range_m", "baseline_m", "velocity_mps", "sweep"}
         assert a["range_m"] < a["baseline_m"] or a["event"] == "cleared"
+
+
+def _beeps(path: Path) -> tuple[int, list[tuple[float, float, float]]]:
+    """(sample rate, [(onset s, pitch Hz, left/right energy ratio)]) of the sounds in a WAV."""
+    import wave
+
+    import numpy as np
+
+    with wave.open(str(path)) as w:
+        rate, n = w.getframerate(), w.getnframes()
+        assert w.getnchannels() == 2 and w.getsampwidth() == 2
+        x = np.frombuffer(w.readframes(n), np.int16).reshape(-1, 2).astype(float)
+    k = int(0.004 * rate)
+    env = np.sqrt(np.convolve((x ** 2).sum(axis=1), np.ones(k) / k, mode="same"))
+    on = env > 0.1 * env.max()
+    onsets = np.flatnonzero(np.diff(on.astype(int)) == 1)
+    out = []
+    for i in onsets:
+        seg = x[i + int(0.008 * rate): i + int(0.038 * rate)]
+        if len(seg) < int(0.02 * rate):
+            continue
+        spectrum = np.abs(np.fft.rfft(seg.sum(axis=1) * np.hanning(len(seg)), 8 * len(seg)))
+        pitch = np.argmax(spectrum) * rate / (8 * len(seg))
+        left, right = (seg ** 2).sum(axis=0)
+        out.append((i / rate, pitch, left / max(right, 1e-9)))
+    return rate, out
+
+
+def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, tmp_path):
+    wav = tmp_path / "cues.wav"
+    proc = start(broker, tmp_path, 'mode="blindaid"', "sim.scene=office-approach", "blindaid.speak_new=false",
+                 f"audio.out={json.dumps(str(wav))}", run_for=18)
+    finish(proc, timeout=60)
+    cues = [payload(m) for m in subscriber.messages(f"{P}/cue")]
+    assert len(cues) >= 3
+    for c in cues:
+        assert set(c) >= {"ts", "bearing_deg", "range_m", "zone", "sound", "interval_s", "pitch_hz", "pan"}
+    # The person walks up to about 0.4 m in front and back: the cues get near, then far again.
+    near = min(c["range_m"] for c in cues if c["range_m"] is not None)
+    assert near < 0.6
+    assert any(c["sound"] == "tone" or c["interval_s"] < 0.12 for c in cues)
+    assert cues[-1]["range_m"] > 1.5
+    _, sounds = _beeps(wav)
+    assert len(sounds) >= 10
+    pitches = [c["pitch_hz"] for c in cues if c["sound"] in ("beep", "tone")]
+    # Every sound in the file is at the pitch of a cue that was published (within 3 %).
+    for t, pitch, _ in sounds:
+        assert min(abs(pitch - p) / p for p in pitches) < 0.03, (t, pitch, pitches)
+    # And the beeps' rhythm is a cue's: the commonest gap between onsets is one of their intervals.
+    import numpy as np
+
+    gaps = np.diff([t for t, _, _ in sounds])
+    intervals = [c["interval_s"] for c in cues if c["sound"] == "beep"]
+    typical = float(np.median(gaps))
+    assert min(abs(typical - i) / i for i in intervals) < 0.1, (typical, intervals)

@@ -59,6 +59,7 @@ class _View:
     camera_to_world: Pose
     geometry: SceneGeometry
     electrons: np.ndarray  # (H, W, C) float32: room light at the configured exposure, no flicker
+    depth: np.ndarray | None = None  # (H, W) distance along each pixel's ray (inf: nothing hit)
     # Per laser: where its spot is and its image; both fixed for a view (speckle stays put), so a
     # frame of a cached view costs only the noise.
     spots: dict[str, tuple[SpotTruth, optics.SpotImage | None]] = field(default_factory=dict)
@@ -105,6 +106,7 @@ class Renderer:
         self._base_to_world = scene.base_to_world()
         # Views by key; a view being rendered (by a prefetch) is a Future the others wait on.
         self._views: dict[tuple, Future[_View]] = {}
+        self._patched: dict[tuple, Future[_View]] = {}  # views with movers, by instant
         self._views_lock = threading.Lock()
         self._normal_bank: np.ndarray | None = None
         exposure_ms = camera.exposure_us / 1000.0
@@ -134,17 +136,21 @@ class Renderer:
         if geometry is self.scene.static:
             return static_view()
         static = static_view()
+        box = self._mover_box(static.camera_to_world, t_s)
+        if box is None:
+            return static  # no mover in the picture (and the beams only go where the camera looks)
         key = (static_key[0], static_key[1], t_s)
-        return self._cached(key, lambda: self._patched_view(static, t_s, geometry))
+        return self._cached(key, lambda: self._patched_view(static, t_s, geometry, box), self._patched)
 
-    def _cached(self, key: tuple, render: Callable[[], _View]) -> _View:
+    def _cached(self, key: tuple, render: Callable[[], _View], cache: dict | None = None) -> _View:
+        cache = self._views if cache is None else cache
         with self._views_lock:
-            pending = self._views.get(key)
+            pending = cache.get(key)
             mine = pending is None
             if mine:
-                if len(self._views) >= _CACHE_VIEWS:
-                    self._views.pop(next(iter(self._views)))
-                pending = self._views[key] = Future()
+                if len(cache) >= _CACHE_VIEWS:
+                    cache.pop(next(iter(cache)))
+                pending = cache[key] = Future()
         if mine:
             try:
                 view = render()
@@ -152,7 +158,7 @@ class Renderer:
                     self._lit_spot(view, laser.name)
             except BaseException as exc:
                 with self._views_lock:
-                    self._views.pop(key, None)
+                    cache.pop(key, None)
                 pending.set_exception(exc)
                 raise
             pending.set_result(view)
@@ -167,24 +173,24 @@ class Renderer:
 
     def _render_view(self, pan_deg: float, tilt_deg: float, geometry: SceneGeometry) -> _View:
         pose = self.camera_to_world(pan_deg, tilt_deg)
-        img = self._shade(pose, geometry, self._pixel_rays)
+        hits = geometry.cast(pose.t, pose.rotate(self._pixel_rays))
+        img = self._shade(geometry, hits, self._pixel_rays)
         cam = self.rig.camera
-        return _View(pose, geometry, img.reshape(cam.height, cam.width, self.channels))
+        depth = np.where(hits.hit, hits.distance, np.inf).reshape(cam.height, cam.width)
+        return _View(pose, geometry, img.reshape(cam.height, cam.width, self.channels), depth)
 
-    def _patched_view(self, static: _View, t_s: float, geometry: SceneGeometry) -> _View:
-        """`static` with the pixels that the movers present at `t_s` may cover cast again."""
+    def _mover_box(self, pose: Pose, t_s: float) -> tuple[int, int, int, int] | None:
+        """The pixel rectangle (u0, v0, u1, v1) that the movers present at `t_s` may cover in the
+        view from `pose`, or None when none is in the picture."""
         cam = self.rig.camera
-        pose = static.camera_to_world
         to_camera = pose.inverse()
-        electrons = static.electrons
         box = None
         for corners in self.scene.mover_corners(t_s):
             p = to_camera.apply(corners)
             if (p[:, 2] <= 1e-3).all():
                 continue  # behind the camera
             if (p[:, 2] <= 1e-3).any():
-                box = (0, 0, cam.width, cam.height)  # straddles the camera plane: cast it all
-                break
+                return (0, 0, cam.width, cam.height)  # straddles the camera plane: cast it all
             uv = cam.project(p)
             # Lens distortion can bend a box's edges outward between its corners: a margin.
             u0, v0 = (np.floor(uv.min(axis=0)).astype(int) - 3).tolist()
@@ -194,18 +200,33 @@ class Renderer:
                 continue
             box = (u0, v0, u1, v1) if box is None else (
                 min(box[0], u0), min(box[1], v0), max(box[2], u1), max(box[3], v1))
+        return box
+
+    def _patched_view(self, static: _View, t_s: float, geometry: SceneGeometry,
+                      box: tuple[int, int, int, int]) -> _View:
+        """`static` with the pixels in `box` that a mover present at `t_s` covers cast again."""
+        cam = self.rig.camera
+        pose = static.camera_to_world
+        electrons = static.electrons
         if box is not None:
+            # Cast the box's pixels at the movers alone; where one is nearer than the room, it
+            # is what the pixel sees.
             u0, v0, u1, v1 = box
-            index = np.arange(v0, v1)[:, None] * cam.width + np.arange(u0, u1)[None, :]
-            patch = self._shade(pose, geometry, self._pixel_rays[index.ravel()])
-            electrons = electrons.copy()
-            electrons[v0:v1, u0:u1] = patch.reshape(v1 - v0, u1 - u0, self.channels)
+            index = (np.arange(v0, v1)[:, None] * cam.width + np.arange(u0, u1)[None, :]).ravel()
+            movers = self.scene.movers_at(t_s)
+            rays = self._pixel_rays[index]
+            hits = movers.cast(pose.t, pose.rotate(rays))
+            nearer = hits.hit & (hits.distance < static.depth.reshape(-1)[index])
+            if nearer.any():
+                shaded = self._shade(movers, hits, rays)
+                electrons = electrons.copy()
+                flat = electrons.reshape(-1, self.channels)
+                flat[index[nearer]] = shaded[nearer]
         return _View(pose, geometry, electrons)
 
-    def _shade(self, pose: Pose, geometry: SceneGeometry, rays: np.ndarray) -> np.ndarray:
-        """Room light at the configured exposure seen along camera `rays` (N, 3, unit): (N, C)
-        float32 photo-electrons, vignetting included."""
-        hits = geometry.cast(pose.t, pose.rotate(rays))
+    def _shade(self, geometry: SceneGeometry, hits, rays: np.ndarray) -> np.ndarray:
+        """Room light at the configured exposure for the `hits` of camera `rays` (N, 3, unit):
+        (N, C) float32 photo-electrons, vignetting included."""
         albedo, _, _ = geometry.material(hits.face)
         texture = geometry.texture(hits.face, hits.surface_uv)
         light = _AMBIENT_BY_NORMAL_Z[0] + _AMBIENT_BY_NORMAL_Z[1] * hits.normal[:, 2]

@@ -409,6 +409,12 @@ class Scene:
             out.append(pose.apply(local))
         return out
 
+    def movers_at(self, t_s: float) -> SceneGeometry | None:
+        """Only the movers present at `t_s` (None when none is): what a cached view of the static
+        scene needs casting again."""
+        placed = [fs.moved(pose) for fs, m in zip(self._mover_sets, self.movers) if (pose := m.pose_at(t_s)) is not None]
+        return SceneGeometry(FaceSet.concat(placed)) if placed else None
+
     def at(self, t_s: float = 0.0) -> SceneGeometry:
         """The scene at time `t_s`: the cached static geometry plus the movers present."""
         placed = [
