@@ -18,6 +18,8 @@ import time
 from collections.abc import Callable, Iterable
 from typing import NamedTuple
 
+import numpy as np
+
 from edge.config import Config
 from edge.errors import HardwareError
 from edge.hw.base import Camera, Frame, LaserBank
@@ -52,6 +54,11 @@ class Capture:
         # How long to wait for one frame: `timeout_s`, else [camera] timeout_s.
         self.timeout_s = timeout_s if timeout_s is not None else (config or Config()).camera.timeout_s
         self.dropped = 0  # frames not used because their exposure overlapped a laser switch
+        # (width, height) every frame must have; from the configured rig's camera.
+        self.frame_size: tuple[int, int] | None = None
+        if config is not None:
+            cam = config.rig.build().camera
+            self.frame_size = (cam.width, cam.height)
 
     def _order(self, names: Iterable[str]) -> tuple[str, ...]:
         wanted = set(names)
@@ -68,6 +75,7 @@ class Capture:
             effective = self.lasers.set(on)
             switch_ns = self.lasers.last_switch_ns
             frame = self.camera.frame_after(max(effective, not_before), self.timeout_s)
+            self._check(frame)
             if switch_ns != before:
                 self.dropped += self._straddlers(frame, switch_ns, effective)
             later = self.lasers.last_switch_ns
@@ -77,6 +85,16 @@ class Capture:
             self.dropped += 1
             log.warning("frame %d overlapped a laser switch at %d: taking another", frame.sequence, later)
         raise HardwareError(f"capture: the lasers kept switching during the exposure ({_MAX_RETAKES + 1} tries)")
+
+    def _check(self, frame: Frame) -> None:
+        """A frame of the wrong size or type is a torn or foreign buffer: a camera fault."""
+        want = getattr(self, "frame_size", None)
+        image = frame.image
+        if want is not None and (image.shape[1], image.shape[0]) != want:
+            raise HardwareError(f"camera: frame {frame.sequence} is {image.shape[1]}x{image.shape[0]}, "
+                                f"expected {want[0]}x{want[1]} (a torn or corrupt frame)")
+        if image.dtype not in (np.uint8, np.uint16):
+            raise HardwareError(f"camera: frame {frame.sequence} has pixels of type {image.dtype}, expected uint8 or uint16")
 
     def _straddlers(self, frame: Frame, switch_ns: int, effective_ns: int) -> int:
         """How many frames just before `frame` were being exposed while the switch at `switch_ns`

@@ -397,6 +397,23 @@ class RigErrorConfig:
 
 
 @dataclass(frozen=True)
+class CameraFault:
+    """A fault the simulated camera plays at a time after it starts (``[[sim.camera_faults]]``):
+    ``stall`` delivers no frames for `seconds`; ``corrupt`` delivers `count` frames of the wrong
+    size; ``hang`` blocks the caller for `seconds` (a driver stuck without a timeout)."""
+
+    kind: Literal["stall", "corrupt", "hang"] = "stall"
+    at_s: float = 0.0
+    seconds: float = 3.0
+    count: int = 2
+
+    def __post_init__(self) -> None:
+        require(self.at_s >= 0, "at_s", "must be >= 0")
+        require(self.seconds > 0, "seconds", "must be positive")
+        require(self.count >= 1, "count", "must be >= 1")
+
+
+@dataclass(frozen=True)
 class SimConfig:
     scene: str = "office"
     seed: int = 1
@@ -405,6 +422,7 @@ class SimConfig:
     beam: BeamConfig = field(default_factory=BeamConfig)
     ambient: AmbientConfig = field(default_factory=AmbientConfig)
     rig_error: RigErrorConfig = field(default_factory=RigErrorConfig)
+    camera_faults: tuple[CameraFault, ...] = ()  # for trying the service's fault handling
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 MODES = ("rangefinder", "blindaid", "guard")
 # Between steps the loop waits at most this long for a command or a stop.
 _IDLE_S = 0.05
+# The camera is restarted after this many zones in a row failed for want of frames.
+CAMERA_RESTART_AFTER = 2
 
 
 def _part_of(detail: str) -> str | None:
@@ -84,6 +86,8 @@ class Service:
         self._interrupt = False  # a command wants the current step to end early
         self._aim = (config.rangefinder.pan_deg, config.rangefinder.tilt_deg)
         self._guard: Any = None
+        self._camera_faults = 0
+        self.camera_restarts = 0
         self._blindaid: Any = None
         self.health = Health("nominal rig (no calibration file)")
         self._handlers: dict[str, Callable[[Any], str | None]] = {
@@ -218,8 +222,7 @@ class Service:
 
         def on_range(result: ZoneResult, filtered: Any, extra: dict) -> None:
             self._publish_live("range", range_payload(result, filtered, extra))
-            if self.health.zone(result):
-                self._publish_state()
+            self._note(result)
 
         due = lambda: time.monotonic() >= self._next_sweep  # noqa: E731
         finder.run(pan, tilt, on_range, self._should_stop(deadline, due))
@@ -299,8 +302,30 @@ class Service:
 
     def _zone(self, result: ZoneResult) -> None:
         self._publish_live("range", result.to_json())
+        self._note(result)
+
+    def _note(self, result: ZoneResult) -> None:
+        """Health and recovery after each zone or frame."""
         if self.health.zone(result):
             self._publish_state()
+        self._camera_faults = self._camera_faults + 1 if _part_of(result.detail) == "camera" and result.status == FAULT else 0
+        if self._camera_faults >= CAMERA_RESTART_AFTER:
+            self._restart_camera()
+
+    def _restart_camera(self) -> None:
+        """Frames stopped or came torn in several zones in a row: start the camera again (a
+        picamera2 pipeline or a webcam stream often recovers so). Zones meanwhile are `fault`."""
+        self._camera_faults = 0
+        camera = self._parts.camera if self._parts else None
+        if camera is None:
+            return
+        log.warning("camera: %d zones without usable frames; restarting it", CAMERA_RESTART_AFTER)
+        self.camera_restarts += 1
+        try:
+            camera.stop()
+            camera.start()
+        except Exception as exc:  # the next zones will say what is wrong
+            log.error("camera: restart failed: %s", exc)
 
     # ---- commands ----
 
@@ -394,6 +419,7 @@ class Service:
             "version": __version__,
             "uptime_s": round(time.monotonic() - self.started, 1),
             "sweeps": self.sweeps,
+            "camera_restarts": self.camera_restarts,
             **({"guard": self._guard.state()} if self._guard is not None else {}),
         }
 

@@ -313,3 +313,46 @@ def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, t
     intervals = [c["interval_s"] for c in cues if c["sound"] == "beep"]
     typical = float(np.median(gaps))
     assert min(abs(typical - i) / i for i in intervals) < 0.1, (typical, intervals)
+
+
+def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog(broker, subscriber, tmp_path):
+    """Frames stop for 3 s, then three frames come torn: zones meanwhile are `fault`, the camera is
+    restarted, ranging resumes. Later the camera hangs (a driver call that never returns): the loop
+    stops, and so do the watchdog notifications, so systemd would kill and restart the service."""
+    path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(path))
+    sock.settimeout(0.2)
+    faults = ('sim.camera_faults=[{kind="stall", at_s=4.0, seconds=3.0}, {kind="corrupt", at_s=9.0, count=3},'
+              ' {kind="hang", at_s=14.0, seconds=60.0}]')
+    proc = start(broker, tmp_path, 'mode="rangefinder"', "rangefinder.pan_deg=-90.0", "camera.timeout_s=0.5", faults,
+                 env={"NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"})
+    feeds: list[float] = []
+    try:
+        deadline = time.monotonic() + 40
+        while time.monotonic() < deadline:
+            try:
+                if sock.recv(4096) == b"WATCHDOG=1":
+                    feeds.append(time.monotonic())
+            except TimeoutError:
+                pass
+            if feeds and time.monotonic() - feeds[-1] > 8:
+                break  # the feeding has stopped for good
+    finally:
+        proc.kill()
+        _, err = proc.communicate()
+        sock.close()
+    ranges = [json.loads(m.payload) for m in subscriber.messages(f"{P}/range")]
+    statuses = [r["status"] for r in ranges]
+    first_fault = statuses.index("fault")
+    assert "ok" in statuses[:first_fault] and "ok" in statuses[first_fault:], "ranging resumed after the faults"
+    faults_seen = [r for r in ranges if r["status"] == "fault"]
+    assert any("no frame" in r["detail"] for r in faults_seen) and any("torn" in r["detail"] for r in faults_seen)
+    assert err.count("restarting it") >= 2, err[-2000:]
+    states = [json.loads(m.payload) for m in subscriber.messages(f"{P}/state")]
+    assert any(s["health"]["camera"].startswith("fault") for s in states)
+    assert states[-1]["camera_restarts"] >= 2
+    # Fed about every 0.5 s until the hang at ~14 s, then never again.
+    assert len(feeds) >= 10
+    assert max(b - a for a, b in zip(feeds, feeds[1:])) < 4.0
+    assert time.monotonic() - feeds[-1] > 8

@@ -78,6 +78,9 @@ class SimCamera:
         height = renderer.rig.camera.height
         self._row_offsets = (np.arange(height, dtype=np.int64) * self.readout_ns) // max(height - 1, 1)
         self.heading = heading
+        self.faults: tuple = ()  # edge.config.CameraFault, played from the first start
+        self._epoch: int | None = None
+        self._corrupted = 0
         self._prefetcher: threading.Thread | None = None
         self._stopping = threading.Event()
         self._t0: int | None = None
@@ -102,13 +105,17 @@ class SimCamera:
             config.rig.build().lasers, lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6))
         )
         kwargs.setdefault("seed", config.sim.seed)
-        return cls(renderer, wiring, config.camera, **kwargs)
+        camera = cls(renderer, wiring, config.camera, **kwargs)
+        camera.faults = config.sim.camera_faults
+        return camera
 
     # --- the Camera interface --------------------------------------------------------------------
 
     def start(self) -> None:
         if self._t0 is None:
             self._t0 = time.monotonic_ns()
+            if self._epoch is None:
+                self._epoch = self._t0  # fault times count from the first start, not a restart
             self._last_k = -1
             log.debug("simulated camera started: %d ns frames, readout %d ns", self.frame_ns, self.readout_ns)
         if self.heading is not None and self._prefetcher is None:
@@ -147,6 +154,13 @@ class SimCamera:
         if self._t0 is None:
             raise HardwareError("camera: not started")
         timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
+        fault = self._fault_now()
+        if fault is not None and fault.kind == "hang":
+            _sleep_until(self._fault_end_ns(fault))  # no timeout: that is what a hang is
+        elif fault is not None and fault.kind == "stall":
+            _sleep_until(min(self._fault_end_ns(fault), time.monotonic_ns() + int(timeout_s * 1e9)))
+            if time.monotonic_ns() < self._fault_end_ns(fault):
+                raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
         now = time.monotonic_ns()
         deadline = now + int(timeout_s * 1e9)
         span = self.readout_ns + self.exposure_ns  # first row's start to last row's end
@@ -160,7 +174,29 @@ class SimCamera:
             raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
         _sleep_until(ready)
         self._last_k = k
-        return self._render(k)
+        frame = self._render(k)
+        if fault is not None and fault.kind == "corrupt" and self._corrupted < fault.count:
+            self._corrupted += 1
+            # A torn buffer: the frame's rows cut short.
+            frame = Frame(frame.image[: frame.image.shape[0] // 3], frame.t_start_ns, frame.exposure_us,
+                          frame.readout_ns, frame.sequence, frame.metadata)
+        return frame
+
+    def _fault_now(self):
+        """The configured fault under way now, if any (times from when the camera started)."""
+        if not self.faults or self._t0 is None:
+            return None
+        since = (time.monotonic_ns() - self._epoch) / 1e9
+        for fault in self.faults:
+            if fault.kind == "corrupt":
+                if fault.at_s <= since and self._corrupted < fault.count:
+                    return fault
+            elif fault.at_s <= since < fault.at_s + fault.seconds:
+                return fault
+        return None
+
+    def _fault_end_ns(self, fault) -> int:
+        return self._epoch + int((fault.at_s + fault.seconds) * 1e9)
 
     # --- internals -----------------------------------------------------------------------------
 
