@@ -19,7 +19,7 @@ from edge.errors import ConfigError
 from edge.modes.blindaid import BlindAidConfig
 from edge.modes.guard import GuardConfig
 from edge.ranging import RangingConfig
-from edge.rig import CAMERA_MODELS, CameraModel, Laser, Mount, Rig, default_rig
+from edge.rig import CAMERA_MODELS, CameraModel, Laser, Mount, Rig, default_rig, wrap_deg
 from edge.schema import FieldError, build, require
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -129,13 +129,7 @@ class SweepConfig:
 
 
 def _wrap_deg(a: float) -> float:
-    """Into (-180, 180] so that pan angles read the way the unit's limits are written."""
-    a = math.fmod(a, 360.0)
-    if a > 180.0:
-        a -= 360.0
-    elif a <= -180.0:
-        a += 360.0
-    return round(a, 9)
+    return round(wrap_deg(a), 9)  # rounded: 64 steps of 5.625° must land on whole poses
 
 
 @dataclass(frozen=True)

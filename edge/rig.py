@@ -47,6 +47,16 @@ def rpy_matrix(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
     return rot_z(y) @ rot_y(p) @ rot_x(r)
 
 
+
+def wrap_deg(a: float) -> float:
+    """An angle into (-180, 180] degrees: pans read the way the unit's limits are written."""
+    a = math.fmod(a, 360.0)
+    if a > 180.0:
+        a -= 360.0
+    elif a <= -180.0:
+        a += 360.0
+    return a
+
 @dataclass(frozen=True)
 class Pose:
     """A rigid transform ``p_to = R·p_from + t``."""

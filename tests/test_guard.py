@@ -558,8 +558,8 @@ def test_sim_walker_cleared_after_leaving(office, walker_run):
     cleared = [(e, t0) for e, t0, _ in walker_run if e.event == CLEARED]
     assert len(cleared) == 1
     e, t0 = cleared[0]
-    leave = office.walker.end_s  # path length / speed plus two 12-s stands, after the start
-    assert leave == pytest.approx(75.76, abs=0.01)
+    leave = office.walker.end_s  # path length / speed plus two 15-s stands, after the start
+    assert leave == pytest.approx(78.76, abs=0.01)
     assert leave < t0 <= leave + (GuardConfig().clear_sweeps + 1) * SWEEP_PERIOD_S
     assert walker_run[-1][0].event == CLEARED  # nothing after
 

@@ -237,26 +237,26 @@ def test_property_hits_lie_on_their_faces(office, seed, spread):
 def test_mover_position_along_path(walker):
     mover = walker.movers[0]
     assert mover.name == "walker"
-    assert mover.pose_at(44.9) is None  # before start
+    assert mover.pose_at(41.9) is None  # before start
     static = load_scene("office").at().faces_count
-    assert walker.at(44.9).faces_count == walker.at().faces_count == static
-    pose = mover.pose_at(45.75)  # 0.6 m along the first segment, heading west
+    assert walker.at(41.9).faces_count == walker.at().faces_count == static
+    pose = mover.pose_at(42.75)  # 0.6 m along the first segment, heading west
     assert np.allclose(pose.t, [3.8, 2.25, 0.0])
     assert np.allclose(pose.rotate([1.0, 0.0, 0.0]), [-1.0, 0.0, 0.0])
     # On the second segment, from (3.2, 2.25) towards (2.3, 2.0).
     first = 1.2
     second = math.hypot(0.9, 0.25)
-    pose = mover.pose_at(45.0 + (first + second / 2) / 0.8)
+    pose = mover.pose_at(42.0 + (first + second / 2) / 0.8)
     assert np.allclose(pose.t[:2], [2.75, 2.125])
-    # Then it stands 12 s at (2.3, 2.0), facing the way it came.
-    arrive = 45.0 + (first + second) / 0.8
-    for t in (arrive + 0.01, arrive + 6.0, arrive + 11.99):
+    # Then it stands 15 s at (2.3, 2.0), facing the way it came.
+    arrive = 42.0 + (first + second) / 0.8
+    for t in (arrive + 0.01, arrive + 6.0, arrive + 14.99):
         assert np.allclose(mover.pose_at(t).t[:2], [2.3, 2.0])
-    assert not np.allclose(mover.pose_at(arrive + 12.5).t[:2], [2.3, 2.0])
+    assert not np.allclose(mover.pose_at(arrive + 15.5).t[:2], [2.3, 2.0])
     assert mover.pose_at(mover.end_s - 1e-6) is not None
     assert mover.pose_at(mover.end_s + 0.01) is None  # after the end: gone
     assert walker.at(mover.end_s + 0.01).faces_count == walker.at().faces_count
-    present = walker.at(47.0)
+    present = walker.at(44.0)
     assert present.faces_count == walker.at().faces_count + 5
     assert sorted(present.face_key(np.arange(present.faces_count))[-5:].tolist()) == list(
         range(MOVER_KEY_BASE, MOVER_KEY_BASE + 5)
@@ -276,7 +276,7 @@ def test_mover_loop(tmp_path):
 def test_surface_uv_is_stable_on_a_moving_face(walker):
     origin = np.array(walker.device.position_m)
     seen = []
-    for t in (46.0, 46.8, 47.4):  # three positions on two segments: translated and turned
+    for t in (43.0, 43.8, 44.4):  # three positions on two segments: translated and turned
         g = walker.at(t)
         movers = [f for f in g.faces if f.key >= MOVER_KEY_BASE]
         centre = np.mean([f.vertices.mean(axis=0) for f in movers], axis=0)
@@ -344,8 +344,8 @@ def test_floor_plan_has_doorway_gap_and_obstacles(walker):
     assert not _covers(plan, (4.0, 2.25))  # the doorway
     assert _covers(plan, (3.45, 0.3))  # filing cabinet (1.3 m) reaches the scan height
     assert not _covers(plan, (1.0, 2.25))  # the desk (0.75 m) does not
-    assert len(walker.floor_plan(47.0)) == len(plan) + 4  # the walker while present
-    assert len(walker.floor_plan(80.0)) == len(plan)
+    assert len(walker.floor_plan(44.0)) == len(plan) + 4  # the walker while present
+    assert len(walker.floor_plan(85.0)) == len(plan)
 
 
 # --- extends --------------------------------------------------------------------------------------

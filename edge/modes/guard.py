@@ -74,6 +74,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge.ranging import NO_SPOT, OK, OUT_OF_RANGE, ZoneResult
+from edge.rig import wrap_deg
 from edge.schema import require
 
 INTRUSION, MOVED, CLEARED = "intrusion", "moved", "cleared"
@@ -285,7 +286,7 @@ class _Blob:
 
     @property
     def bearing_deg(self) -> float:
-        return _wrap_deg(math.degrees(math.atan2(self.xy[1], self.xy[0])))
+        return wrap_deg(math.degrees(math.atan2(self.xy[1], self.xy[0])))
 
 
 def _blob(readings: Sequence[_Reading], zone_count: int) -> _Blob:
@@ -310,13 +311,6 @@ def _sweep_order(zones: Sequence[int], n: int) -> tuple[int, ...]:
     return tuple(z[start:] + z[:start])
 
 
-def _wrap_deg(a: float) -> float:
-    a = math.fmod(a, 360.0)
-    if a > 180.0:
-        a -= 360.0
-    elif a <= -180.0:
-        a += 360.0
-    return a
 
 
 class _TrackState:
