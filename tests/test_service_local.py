@@ -1,0 +1,89 @@
+"""The service in this process, without MQTT: the lasers are off after every way it can end."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from edge.config import load_config
+from edge.errors import HardwareError
+from edge.service import Service
+
+PINS = (17, 27, 22)  # the configured lasers, active high: off is low
+
+
+def _run_and_stop(service: Service, stop) -> dict[int, list[bool]]:
+    """Run `service` here; once the lasers have switched a few times call `stop(service)`.
+    Returns, per laser pin, the levels it took (the last one is where it was left)."""
+    seen: dict[int, list[bool]] = {}
+
+    def watch() -> None:
+        deadline = time.monotonic() + 30
+        while service._parts is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        factory = service._parts.lasers.factory
+        pins = {n: factory.pin(n) for n in PINS}
+        while time.monotonic() < deadline and not any(sum(v) >= 3 for v in seen.values()):
+            for n, pin in pins.items():
+                level = bool(pin.state)
+                if not seen.get(n) or seen[n][-1] != level:
+                    seen.setdefault(n, []).append(level)
+            time.sleep(0.002)
+        stop(service)
+        service.final_pins = pins
+
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    return thread
+
+
+@pytest.fixture
+def restore_signals():
+    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    yield
+    for s, h in saved.items():
+        signal.signal(s, h)
+
+
+def _service(*sets: str) -> Service:
+    return Service(load_config(None, ["mqtt.enabled=false", 'mode="rangefinder"', "rangefinder.pan_deg=-90.0", *sets]))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_stops_the_service_cleanly_with_the_lasers_off(restore_signals, sig):
+    service = _service()
+    watcher = _run_and_stop(service, lambda s: os.kill(os.getpid(), sig))
+    assert service.run() == 0
+    watcher.join(5)
+    assert service.final_pins and all(not pin.state for pin in service.final_pins.values())
+
+
+def test_an_exception_in_the_loop_leaves_the_lasers_off(restore_signals):
+    service = _service()
+
+    def end_the_step(s: Service) -> None:
+        s._interrupt = True  # the range finder's step ends; the next one raises
+
+    service._range = _raises_after_first(service._range)
+    watcher = _run_and_stop(service, end_the_step)
+    with pytest.raises(HardwareError):
+        service.run()
+    watcher.join(5)
+    assert service.final_pins and all(not pin.state for pin in service.final_pins.values())
+
+
+def _raises_after_first(step):
+    """The range-finder step, then a failure of the kind a driver raises."""
+    calls = []
+
+    def wrapped(deadline):
+        calls.append(1)
+        if len(calls) > 1:
+            raise HardwareError("pan-tilt unit on /dev/pts/x does not answer (test)")
+        return step(deadline)
+
+    return wrapped
