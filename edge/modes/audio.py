@@ -32,6 +32,7 @@ from typing import Protocol
 import numpy as np
 
 from edge.errors import HardwareError
+from edge.fsutil import current_umask
 from edge.modes.blindaid import BEEP, SILENCE, TONE, BlindAidConfig, Cue, pan_gains
 
 log = logging.getLogger(__name__)
@@ -257,6 +258,7 @@ class WavSink:
         folder = self.path.parent if str(self.path.parent) else Path(".")
         try:
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=folder)
+            os.fchmod(fd, 0o666 & ~current_umask())  # a WAV to listen to, not a secret
         except OSError as exc:
             raise HardwareError(f"audio: cannot write {self.path}: {exc.strerror}") from None
         self.tmp_path = Path(tmp)
