@@ -408,6 +408,15 @@ class CameraFault:
 
 
 @dataclass(frozen=True)
+class LaserFault:
+    """A broken simulated laser (``[[sim.laser_faults]]``): ``dead`` never lights, ``stuck``
+    never goes off (a shorted driver)."""
+
+    laser: str = ""
+    kind: Literal["dead", "stuck"] = "dead"
+
+
+@dataclass(frozen=True)
 class SimConfig:
     scene: str = "office"
     seed: int = 1
@@ -417,6 +426,7 @@ class SimConfig:
     ambient: AmbientConfig = field(default_factory=AmbientConfig)
     rig_error: RigErrorConfig = field(default_factory=RigErrorConfig)
     camera_faults: tuple[CameraFault, ...] = ()  # for trying the service's fault handling
+    laser_faults: tuple[LaserFault, ...] = ()  # broken lasers, for trying fault reporting
 
 
 @dataclass(frozen=True)

@@ -86,6 +86,10 @@ class Service:
         self._interrupt = False  # a command wants the current step to end early
         self._aim = (config.rangefinder.pan_deg, config.rangefinder.tilt_deg)
         self._guard: Any = None
+        from edge.laserhealth import LaserHealth
+
+        self.laser_health = LaserHealth(config.rig.build().laser_names)
+        self._laser_faults: dict[str, str] = {}
         self._camera_faults = 0
         self.camera_restarts = 0
         self._blindaid: Any = None
@@ -265,7 +269,7 @@ class Service:
 
         def on_zone(result: ZoneResult) -> None:
             zone_t[result.index] = time.monotonic() - self.started
-            self._zone(result)
+            self._zone(result, sweeper)
 
         sweeper = sweeper_for(self._parts, on_zone=on_zone, config=config)
         report = sweeper.run(should_stop=self._should_stop(deadline, sweeping=True))
@@ -300,13 +304,25 @@ class Service:
             self._guard = Guard(self.config.guard, zones)
         return self._guard
 
-    def _zone(self, result: ZoneResult) -> None:
+    def _zone(self, result: ZoneResult, sweeper: Any = None) -> None:
         self._publish_live("range", result.to_json())
-        self._note(result)
+        self._note(result, getattr(sweeper, "lit_when_off", frozenset()))
 
-    def _note(self, result: ZoneResult) -> None:
+    def _note(self, result: ZoneResult, lit_when_off: set[str] | frozenset = frozenset()) -> None:
         """Health and recovery after each zone or frame."""
-        if self.health.zone(result):
+        changed = self.health.zone(result)
+        if self.laser_health.update(result, lit_when_off) or changed:
+            faults = self.laser_health.faults()
+            if faults:
+                self.health.parts["lasers"] = "fault: " + "; ".join(faults.values())
+            if faults != self._laser_faults:
+                for text in faults.values():
+                    log.error("%s", text)
+                if not faults:
+                    log.info("lasers: all working again")
+                self._laser_faults = faults
+            changed = True
+        if changed:
             self._publish_state()
         self._camera_faults = self._camera_faults + 1 if _part_of(result.detail) == "camera" and result.status == FAULT else 0
         if self._camera_faults >= CAMERA_RESTART_AFTER:

@@ -95,6 +95,7 @@ class Sweeper:
         self.on_zone = on_zone
         self.truth = truth  # the simulator's truth for a zone, for recordings and scoring
         self.last_frame_end_ns = 0  # when the newest frame's exposure ended (latency measurements)
+        self.lit_when_off: set[str] = set()  # of the last zone: lasers whose spots showed unlit
 
     def run(
         self,
@@ -156,10 +157,21 @@ class Sweeper:
             return ZoneResult(index, pan, tilt, FAULT, detail=str(exc))
         groups = _groups(taken)
         result = self.ranger.range_zone(index, reached[0], reached[1], groups)
+        self.lit_when_off = lit_when_off(self.ranger, result, groups)
         truth = self.truth(index, *reached) if self.truth else None
         if recorder is not None:
             recorder.add_zone(index, reached[0], reached[1], _recorded(taken, reached), truth)
         return result
+
+
+def lit_when_off(ranger: Ranger, result: ZoneResult, groups: Sequence[FrameGroup]) -> set[str]:
+    """The lasers whose spots show in the zone's laser-off frames (stuck on). A stuck spot can
+    even leak into the difference (room-light flicker scales the off frame), so every laser is
+    looked at, not only the missing ones."""
+    if not groups or not groups[0].off:
+        return set()
+    off = groups[0].off[0]
+    return {n for n in ranger.rig.laser_names if ranger.finder.lit_in_off(off, n)}
 
 
 def _groups(taken) -> list[FrameGroup]:

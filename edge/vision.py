@@ -166,6 +166,21 @@ class SpotFinder:
         """The channel that carries a red laser: red of BGR, or grey. A view, not a copy."""
         return image[..., 2] if image.ndim == 3 else image
 
+    def lit_in_off(self, off: np.ndarray, laser: str) -> bool:
+        """Whether `laser`'s spot shows in a laser-off frame (a laser that does not go off): a
+        compact peak of red excess (red over the mean of green and blue; grey frames: brightness)
+        along its path, well above the path's own level."""
+        band = self.bands[laser]
+        if off.ndim == 3:
+            img = off.astype(np.float32)
+            excess = img[..., 2] - 0.5 * (img[..., 0] + img[..., 1])
+        else:
+            excess = off.astype(np.float32)
+        profile = excess[band.v, band.u].max(axis=1)  # (L,) along the path
+        level = float(np.median(profile))
+        spread = 1.4826 * float(np.median(np.abs(profile - level)))
+        return float(profile.max()) - level > max(8.0 * spread, 0.15 * self.full_scale(off))
+
     @staticmethod
     def full_scale(image: np.ndarray) -> float:
         return 65535.0 if image.dtype == np.uint16 else 255.0 if image.dtype == np.uint8 else 1.0

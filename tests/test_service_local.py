@@ -87,3 +87,39 @@ def _raises_after_first(step):
         return step(deadline)
 
     return wrapped
+
+
+@pytest.mark.parametrize("kind, words", [("dead", "does not light"), ("stuck", "does not go off")])
+def test_a_broken_laser_is_reported_and_the_guard_does_not_alarm(restore_signals, caplog, kind, words):
+    """The reference laser broken: its zones give no range, `state` says which laser and how, and
+    the guard, watching a room that does not change, raises nothing."""
+    service = _service('mode="guard"', "sweep.zones=16", "sweep.pan_step_deg=22.5", "guard.learn_sweeps=2",
+                       f'sim.laser_faults=[{{laser="center", kind="{kind}"}}]')
+
+    def stop_after_sweeps() -> None:
+        deadline = time.monotonic() + 90
+        while service.sweeps < 4 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        service.stop_requested.set()
+
+    threading.Thread(target=stop_after_sweeps, daemon=True).start()
+    with caplog.at_level("INFO"):
+        assert service.run() == 0
+    assert service.sweeps >= 4
+    assert words in service.health.parts["lasers"] and "center" in service.health.parts["lasers"]
+    assert service._guard is not None and not service._guard.tracks
+    assert not [r for r in caplog.records if "guard: intrusion" in r.getMessage()]
+
+
+def test_working_lasers_raise_no_laser_fault(restore_signals):
+    service = _service("sweep.zones=16", "sweep.pan_step_deg=22.5", "service.sweep_interval_s=0.1")
+
+    def stop_after_a_sweep() -> None:
+        deadline = time.monotonic() + 60
+        while service.sweeps < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        service.stop_requested.set()
+
+    threading.Thread(target=stop_after_a_sweep, daemon=True).start()
+    assert service.run() == 0 and service.sweeps >= 1
+    assert service.health.parts["lasers"] == "ok" and service.laser_health.faults() == {}

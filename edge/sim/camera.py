@@ -101,9 +101,13 @@ class SimCamera:
                 f"{config.camera.frame_ns / 1e6:.3g} ms (camera.frame_rate_hz); make it shorter"
             )
         kwargs.setdefault("readout_fraction", readout_ns / config.camera.frame_ns)
-        wiring = LaserWiring(
-            config.rig.build().lasers, lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6))
-        )
+        lasers = config.rig.build().lasers
+        for i, fault in enumerate(config.sim.laser_faults):
+            if fault.laser not in {laser.name for laser in lasers}:
+                raise ConfigError(f"{config.source}: sim.laser_faults[{i}].laser: no laser {fault.laser!r} "
+                                  f"(the rig has {', '.join(laser.name for laser in lasers)})")
+        wiring = LaserWiring(lasers, lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6)),
+                             broken={f.laser: f.kind for f in config.sim.laser_faults})
         kwargs.setdefault("seed", config.sim.seed)
         camera = cls(renderer, wiring, config.camera, **kwargs)
         camera.faults = config.sim.camera_faults

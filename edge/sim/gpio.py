@@ -79,8 +79,10 @@ class LaserWiring:
     mode, e.g. after ``close()``) is dark — the driver's pull resistor holds it off.
     """
 
-    def __init__(self, lasers: Iterable[Laser], factory: MockFactory, settle_ns: int = 0) -> None:
+    def __init__(self, lasers: Iterable[Laser], factory: MockFactory, settle_ns: int = 0,
+                 broken: dict[str, str] | None = None) -> None:
         self.settle_ns = int(settle_ns)
+        self.broken = dict(broken or {})  # laser name → "dead" or "stuck" (simulated faults)
         self._pins: dict[str, tuple[LaserPin, bool]] = {}
         for laser in lasers:
             if laser.pin is None:
@@ -128,6 +130,10 @@ class LaserWiring:
 
             frac = (lit_time_until(t0 + exposure_ns) - lit_time_until(t0)) / float(exposure_ns)
             out[name] = np.clip(frac, 0.0, 1.0)
+        # A broken laser ignores its wire: a dead diode never lights, a shorted driver never stops.
+        for name, kind in self.broken.items():
+            if name in out:
+                out[name] = np.full(t0.shape, 1.0 if kind == "stuck" else 0.0)
         return out
 
     def fractions(self, t0_ns: int, t1_ns: int) -> dict[str, float]:
