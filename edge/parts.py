@@ -72,7 +72,7 @@ def open_parts(config: Config) -> Iterator[Parts]:
         if emulator is not None:
             # The simulated scene's clock (its movers) starts with the rig, not with the machine.
             world = {"factory": lasers.factory, "pose_at": emulator.pose, "heading": emulator.heading,
-                     "scene_epoch_ns": time.monotonic_ns()}
+                     "pose_step_deg": emulator.resolution_arcsec / 3600.0, "scene_epoch_ns": time.monotonic_ns()}
         camera = open_camera(config, world)
         camera.start()
         stack.callback(camera.stop)

@@ -53,6 +53,7 @@ class SimCamera:
         pose_at: Callable[..., tuple[float, float]] | None = None,
         pose_deg: tuple[float, float] = (0.0, 0.0),
         heading: Callable[[], tuple[float, float]] | None = None,
+        pose_step_deg: float | None = None,
         readout_fraction: float = 0.7,
         queue_frames: int = 2,
         seed: int = 0,
@@ -78,7 +79,9 @@ class SimCamera:
         height = renderer.rig.camera.height
         self._row_offsets = (np.arange(height, dtype=np.int64) * self.readout_ns) // max(height - 1, 1)
         self.heading = heading
+        self.pose_step_deg = pose_step_deg  # the unit's resolution, to render nudged views ahead
         self.faults: tuple = ()  # edge.config.CameraFault, played from the first start
+        self.nudges_deg: tuple[float, ...] = ()  # pan offsets worth rendering ahead with a heading
         self._epoch: int | None = None
         self._corrupted = 0
         self._prefetcher: threading.Thread | None = None
@@ -111,6 +114,7 @@ class SimCamera:
         kwargs.setdefault("seed", config.sim.seed)
         camera = cls(renderer, wiring, config.camera, **kwargs)
         camera.faults = config.sim.camera_faults
+        camera.nudges_deg = tuple(n for n in config.sweep.nudges_deg() if n)
         return camera
 
     # --- the Camera interface --------------------------------------------------------------------
@@ -141,7 +145,19 @@ class SimCamera:
                 pose = self.heading()
                 if pose != last:
                     self.renderer.prefetch(*pose)
+                    # A nudge is not a new zone: its own nudges would be views nobody takes.
+                    nudge = last is not None and abs(pose[0] - last[0]) <= max(map(abs, self.nudges_deg), default=0) * 1.5
                     last = pose
+                    if nudge:
+                        continue
+                    # The sweep's speckle nudges come right after, too quickly to render then.
+                    step = self.pose_step_deg
+                    for offset in self.nudges_deg if step else ():
+                        if self.heading() != pose:
+                            break
+                        # As the unit will report it: whole positions times its resolution.
+                        pan = float(round(pose[0] / step) + round(offset / step)) * step
+                        self.renderer.prefetch(pan, pose[1])
             except Exception as exc:  # the frame's own render will meet (and report) it again
                 log.debug("prefetch failed: %s", exc)
                 last = None
