@@ -73,6 +73,7 @@ class BlindAidConfig:
     max_age_s: float = 1.5  # any reading older than this is dropped
     hysteresis_m: float = 0.05  # against flicker at clear_m, danger_m and between zones
     min_change_m: float = 0.05  # a new cue when the nearest range moves by this much
+    speak_button_pin: int = 0  # BCM pin of a push button (to ground) that asks "how far?"; 0: none
 
     def __post_init__(self) -> None:
         require(3 <= self.fan_zones <= 15 and self.fan_zones % 2 == 1, "fan_zones",
@@ -98,6 +99,7 @@ class BlindAidConfig:
         require(0 <= self.ahead_deg < self.fan_half_width_deg, "ahead_deg",
                 "must be in [0, fan_half_width_deg)")
         require(self.speak_min_gap_s >= 0, "speak_min_gap_s", "must be >= 0")
+        require(0 <= self.speak_button_pin <= 27, "speak_button_pin", "must be a BCM pin 1-27, or 0 for none")
         require(self.max_age_s > 0, "max_age_s", "must be positive")
         require(0 <= self.hold_s <= self.max_age_s, "hold_s", "must be in [0, max_age_s]")
         require(0 <= self.hysteresis_m < self.clear_m - self.danger_m, "hysteresis_m",

@@ -60,6 +60,15 @@ class BlindAidRunner:
         self.player = CuePlayer(Synth.from_config(config.blindaid), sink, chunk_s=config.audio.chunk_ms / 1000,
                                 lead_s=config.audio.lead_ms / 1000 if live else 0.0)
         self._stop = threading.Event()
+        self._asked = threading.Event()  # the button was pressed: say where the nearest thing is
+        self._button = None
+        pin = config.blindaid.speak_button_pin
+        if pin:
+            from gpiozero import Button
+
+            # On the lasers' pin factory: the real GPIO on the device, the mock pins in the simulator.
+            self._button = Button(pin, pull_up=True, bounce_time=0.05, pin_factory=parts.lasers.factory)
+            self._button.when_pressed = lambda: self._asked.set()
         self._clock = threading.Thread(target=self._play, name="blind-aid sound", daemon=True)
         self._clock.start()
 
@@ -87,9 +96,12 @@ class BlindAidRunner:
             cue = self.aid.update(result, t) or self.aid.tick(t)
             if cue is not None:
                 self._play_cue(cue, t, frame_t)
+            if self._asked.is_set():
+                self._asked.clear()
+                log.info("blind aid: asked: %s", self.speak())
 
     def speak(self) -> str:
-        """Say where the nearest obstacle is now (``cmd``-driven or a button on the device)."""
+        """Say where the nearest obstacle is now (the button on the device asks for it)."""
         t = self.now()
         text = self.aid.speak(t)
         self._say(text, t)
@@ -117,6 +129,8 @@ class BlindAidRunner:
         return [start - frame_of[t] for t, start in self.player.starts if t in frame_of]
 
     def close(self) -> None:
+        if self._button is not None:
+            self._button.close()
         self._stop.set()
         self._clock.join(timeout=2.0)
         self.player.close(self.now())
