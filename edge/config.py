@@ -20,7 +20,7 @@ from edge.modes.blindaid import BlindAidConfig
 from edge.modes.guard import GuardConfig
 from edge.ranging import RangingConfig
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Mount, Rig, default_rig, wrap_deg
-from edge.schema import FieldError, build, require
+from edge.schema import FieldError, build, require, show
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -153,7 +153,7 @@ class CameraSettings:
     def __post_init__(self) -> None:
         require(self.analogue_gain >= 1.0, "analogue_gain", "must be >= 1")
         require(self.exposure_us > 0, "exposure_us", "must be positive")
-        require(self.frame_rate_hz > 0, "frame_rate_hz", "must be positive")
+        require(0.1 <= self.frame_rate_hz <= 1000.0, "frame_rate_hz", f"must be 0.1-1000 frames a second, got {self.frame_rate_hz:g}")
         require(
             self.exposure_us <= 1e6 / self.frame_rate_hz,
             "exposure_us",
@@ -455,10 +455,12 @@ def parse_override(text: str) -> tuple[str, Any]:
     key, sep, raw = text.partition("=")
     key = key.strip()
     if not sep or not key:
-        raise ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. --set sim.scene=kitchen")
+        raise ConfigError(f"--set {show(text)}: expected KEY=VALUE, e.g. --set sim.scene=kitchen")
+    if "\n" in text or "\r" in text:
+        raise ConfigError(f"--set {show(text)}: a line break in it; give one KEY=VALUE per --set")
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (tomllib.TOMLDecodeError, ValueError, RecursionError):
         value = raw.strip()
     return key, value
 
@@ -469,7 +471,7 @@ def _apply_override(data: dict[str, Any], key: str, value: Any) -> None:
     for part in parts[:-1]:
         child = node.setdefault(part, {})
         if not isinstance(child, dict):
-            raise ConfigError(f"--set {key}: {part} is not a table")
+            raise ConfigError(f"--set {show(key)}: {show(part)} is not a table")
         node = child
     node[parts[-1]] = value
 
@@ -477,15 +479,22 @@ def _apply_override(data: dict[str, Any], key: str, value: Any) -> None:
 def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> Config:
     """Read and validate a configuration file (default: ``config/sim.toml``)."""
     file = Path(path) if path is not None else default_config_path()
+    name = show(str(file))
     try:
         with open(file, "rb") as fh:
             data = tomllib.load(fh)
     except FileNotFoundError:
-        raise ConfigError(f"{file}: no such configuration file") from None
+        raise ConfigError(f"{name}: no such configuration file") from None
     except OSError as exc:
-        raise ConfigError(f"{file}: cannot read: {exc.strerror}") from None
+        raise ConfigError(f"{name}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{name}: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{file}: not valid TOML: {exc}") from None
+        raise ConfigError(f"{name}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{name}: not usable TOML: nested too deeply") from None
+    except ValueError as exc:  # e.g. a whole number of more digits than Python converts
+        raise ConfigError(f"{name}: not usable TOML: {str(exc).splitlines()[0]}") from None
     return config_from_mapping(data, str(file), overrides)
 
 

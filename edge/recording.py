@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import os
 import shutil
 import struct
@@ -161,6 +162,8 @@ class _Checker:
         # bool is an int in Python but never a number in JSON.
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(where, f"expected a number, got {describe(value, 'an object')}")
+        if isinstance(value, int) and abs(value) > sys.float_info.max:
+            self.fail(where, "expected a finite number, got a whole number too large for one")
         if not math.isfinite(value):
             self.fail(where, f"expected a finite number, got {value}")
         return float(value)
@@ -296,9 +299,14 @@ def _relative_problem(file: str) -> str | None:
 def _frame_path(folder: Path, file: str, fail: Any) -> Path:
     """The frame's file, checked to exist and to stay inside `folder` even through symlinks."""
     path = folder / file
-    if not path.is_file():
+    try:
+        exists = path.is_file()
+        inside = exists and path.resolve().is_relative_to(folder.resolve())
+    except (OSError, RuntimeError) as exc:  # a name too long, a symlink loop
+        fail(f"image is unreadable ({_show(str(getattr(exc, 'strerror', None) or exc))})")
+    if not exists:
         fail(f"image is missing (no file {_show(str(path))})")
-    if not path.resolve().is_relative_to(folder.resolve()):
+    if not inside:
         fail("file: resolves outside the recording folder (through a symbolic link)")
     return path
 
@@ -336,7 +344,7 @@ def _parse_frame(chk: _Checker, raw: Any, index: int, k: int, names: Sequence[st
     for i, name in enumerate(lasers_on):
         chk.string(name, f"{where}: lasers_on[{i}]")
         if name not in names:
-            chk.fail(where, f"lasers_on names unknown laser {name!r} (lasers: {', '.join(names)})")
+            chk.fail(where, f"lasers_on names unknown laser {name!r} (lasers: {', '.join(map(_show, names))})")
         if name in lasers_on[:i]:
             chk.fail(where, f"lasers_on names laser {name!r} twice")
     kinds = {"pan_deg": "number", "tilt_deg": "number", "t_start_ns": "integer",
@@ -392,6 +400,10 @@ def read_recording(path: str | Path, check_images: bool = True) -> Recording:
         chk.fail("", f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})")
     except UnicodeDecodeError:
         chk.fail("", "not valid JSON (not UTF-8 text)")
+    except RecursionError:
+        chk.fail("", "not usable JSON (nested too deeply)")
+    except ValueError as exc:  # a whole number of more digits than Python converts
+        chk.fail("", f"not usable JSON ({str(exc).splitlines()[0]})")
     if not isinstance(doc, dict):
         chk.fail("", f"expected a JSON object, got {describe(doc, 'an object')}")
     fmt = chk.string(chk.get(doc, "format", "format"), "format")

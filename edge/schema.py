@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import types
 import typing
 from collections.abc import Mapping
@@ -57,7 +58,18 @@ def build(
 
 
 def _join(path: str, key: str) -> str:
+    key = show(key)
     return f"{path}.{key}" if path else key
+
+
+def show(text: str) -> str:
+    """`text` fit for a one-line message: as it is when printable, else quoted with escapes (a
+    key or a path with a line break in it must not break the message in two)."""
+    return repr(text) if any(c in text for c in _LINE_BREAKS) else text
+
+
+# What str.splitlines breaks at: a message must stay one line.
+_LINE_BREAKS = "\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"
 
 
 def _type_name(tp: Any) -> str:
@@ -80,7 +92,7 @@ class _Loader:
         self.error = error
 
     def fail(self, path: str, message: str) -> typing.NoReturn:
-        where = f"{self.source}: {path}" if path else self.source
+        where = f"{show(self.source)}: {path}" if path else show(self.source)
         raise self.error(f"{where}: {message}")
 
     def table(self, cls: type[T], data: Any, path: str) -> T:
@@ -125,7 +137,8 @@ class _Loader:
                     continue
             self.fail(path, f"expected one of {', '.join(_type_name(a) for a in inner)}")
         if origin is Literal:
-            if value not in args:
+            # 8.0 == 8 and True == 1: a choice must also have the type it is written with.
+            if not any(value == a and type(value) is type(a) for a in args):
                 choices = ", ".join(repr(a) for a in args)
                 self.fail(path, f"expected one of {choices}, got {value!r}")
             return value
@@ -152,6 +165,8 @@ class _Loader:
         if tp is float:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 self.fail(path, f"expected a number, got {describe(value)}")
+            if isinstance(value, int) and abs(value) > sys.float_info.max:
+                self.fail(path, "expected a finite number, got a whole number too large for one")
             if not math.isfinite(value):
                 self.fail(path, f"expected a finite number, got {value}")
             return float(value)
@@ -170,7 +185,8 @@ def describe(value: Any, table: str = "a table") -> str:
     if isinstance(value, bool):
         return f"boolean {str(value).lower()}"
     if isinstance(value, (int, float)):
-        return f"number {value}"
+        text = str(value) if not isinstance(value, int) or abs(value) < 10**30 else f"of {len(str(abs(value)))} digits"
+        return f"number {text}"
     if isinstance(value, str):
         shown = value if len(value) <= 40 else value[:37] + "..."
         return f"string {shown!r}"

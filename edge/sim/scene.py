@@ -72,7 +72,7 @@ import numpy as np
 
 from edge.errors import SceneError
 from edge.rig import Pose, rot_z
-from edge.schema import build, require
+from edge.schema import build, require, show
 from edge.sim.materials import BUILTIN_MATERIALS, Material
 from edge.sim.raycast import (
     Face, FaceSet, Hits, SceneGeometry, box_faces, footprint, points_in_polygon, polygon_area,
@@ -323,7 +323,7 @@ class SceneSpec:
         used += [(f"boxes[{i}].material", b.material) for i, b in enumerate(self.boxes)]
         used += [(f"movers[{i}].material", m.material) for i, m in enumerate(self.movers)]
         for key, name in used:
-            require(name in known, key, f"unknown material {name!r} (known: {', '.join(known)})")
+            require(name in known, key, f"unknown material {name!r} (known: {', '.join(map(show, known))})")
 
 
 def wall_length(outline: Sequence[Sequence[float]], wall: int) -> float:
@@ -542,10 +542,10 @@ def load_scene(name_or_path: str | Path, search_dirs: Sequence[Path] | None = No
     text = str(name_or_path)
     if text.endswith(".toml"):
         path = Path(text)
-        if not path.is_file():
-            raise SceneError(f"{path}: no such scene file")
+        if not _is_file(path):
+            raise SceneError(f"{show(str(path))}: no such scene file")
     else:
-        found = [Path(d) / f"{text}.toml" for d in dirs if (Path(d) / f"{text}.toml").is_file()]
+        found = [Path(d) / f"{text}.toml" for d in dirs if _is_file(Path(d) / f"{text}.toml")]
         if not found:
             known = ", ".join(available_scenes(dirs)) or "none"
             where = ", ".join(str(d) for d in dirs)
@@ -559,13 +559,19 @@ def load_scene(name_or_path: str | Path, search_dirs: Sequence[Path] | None = No
 def _read_merged(path: Path, chain: tuple[Path, ...]) -> dict:
     """The file's table with its `extends` chain applied; each base is checked on its own first,
     so that a mistake there is reported against the file that holds it."""
-    source = str(path)
+    source = show(str(path))
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{source}: invalid TOML: {' '.join(str(exc).split())}") from None
     except OSError as exc:
         raise SceneError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise SceneError(f"{source}: not UTF-8 text") from None
+    except RecursionError:
+        raise SceneError(f"{source}: invalid TOML: nested too deeply") from None
+    except ValueError as exc:  # a whole number of more digits than Python converts
+        raise SceneError(f"{source}: invalid TOML: {str(exc).splitlines()[0]}") from None
     base_name = data.pop("extends", None)
     if base_name is None:
         return data
@@ -573,7 +579,7 @@ def _read_merged(path: Path, chain: tuple[Path, ...]) -> dict:
         kind = type(base_name).__name__
         raise SceneError(f"{source}: extends: expected a scene name, got {kind}")
     base_path = path.parent / (base_name if base_name.endswith(".toml") else f"{base_name}.toml")
-    if not base_path.is_file():
+    if not _is_file(base_path):
         known = ", ".join(available_scenes([path.parent])) or "none"
         raise SceneError(
             f"{source}: extends: no scene {base_name!r} next to it (available: {known})"
@@ -598,3 +604,10 @@ def _merge(base: dict, child: dict) -> dict:
             out[key] = value
     return out
 
+
+def _is_file(path: Path) -> bool:
+    """Path.is_file, but a name too long for the file system is simply not a file."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
