@@ -89,6 +89,10 @@ class Service:
         from edge.laserhealth import LaserHealth
 
         self.laser_health = LaserHealth(config.rig.build().laser_names)
+        from edge.ranging import Ranger
+
+        # Built once: it lays out each laser's search band, the same for every zone and frame.
+        self.ranger = Ranger(config.rig.build(), config.ranging)
         self._laser_faults: dict[str, str] = {}
         self._camera_faults = 0
         self.camera_restarts = 0
@@ -211,7 +215,6 @@ class Service:
 
     def _range(self, deadline: float | None) -> None:
         from edge.modes.rangefinder import Rangefinder, range_payload
-        from edge.ranging import Ranger
 
         parts = self._parts
         assert parts is not None
@@ -222,7 +225,7 @@ class Service:
             self._zone(ZoneResult(-1, pan, tilt, FAULT, detail=str(exc)))
             self.stop_requested.wait(1.0)  # a unit that failed gets a moment before the next try
             return
-        finder = Rangefinder(parts.capture, Ranger(self.config.rig.build(), self.config.ranging), parts.lasers.names)
+        finder = Rangefinder(parts.capture, self.ranger, parts.lasers.names)
 
         def on_range(result: ZoneResult, filtered: Any, extra: dict) -> None:
             self._publish_live("range", range_payload(result, filtered, extra))
@@ -271,7 +274,7 @@ class Service:
             zone_t[result.index] = time.monotonic() - self.started
             self._zone(result, sweeper)
 
-        sweeper = sweeper_for(self._parts, on_zone=on_zone, config=config)
+        sweeper = sweeper_for(self._parts, on_zone=on_zone, config=config, ranger=self.ranger)
         report = sweeper.run(should_stop=self._should_stop(deadline, sweeping=True))
         if len(report.results) < len(config.sweep.poses()):
             log.info("sweep ended early after %d zones", len(report.results))
@@ -404,7 +407,7 @@ class Service:
         pan, tilt = command.args["pan_deg"], command.args["tilt_deg"]
         self._aim = (pan, tilt)
         self._interrupt = True
-        result = sweeper_for(self._parts).zone(-1, pan, tilt)
+        result = sweeper_for(self._parts, ranger=self.ranger).zone(-1, pan, tilt)
         self._zone(result)
         return None if result.status != FAULT else f"pan {pan:g}°, tilt {tilt:g}°: {result.detail}"
 

@@ -216,12 +216,15 @@ class ConfiguredSweep:
         return [(self.truths.get(r.index) or {}).get("range_m") for r in self.report.results]
 
 
-def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None, config: Config | None = None) -> Sweeper:
+def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None, config: Config | None = None,
+                ranger: Ranger | None = None) -> Sweeper:
     """A sweeper on opened parts (``edge.parts``), ranging with the configured rig (`config`, when
-    given, changes how it sweeps: a mode's own pattern)."""
+    given, changes how it sweeps: a mode's own pattern; `ranger`, when given, is reused rather
+    than built again: building one lays out every laser's search band)."""
     config = config or parts.config
     truth = parts.truth if parts.simulated else None
-    return Sweeper(config, parts.ptu, parts.capture, Ranger(config.rig.build(), config.ranging),
+    ranger = ranger or Ranger(config.rig.build(), config.ranging)
+    return Sweeper(config, parts.ptu, parts.capture, ranger,
                    on_zone=on_zone, truth=truth)
 
 

@@ -53,7 +53,6 @@ class BlindAidRunner:
         fan = replace(config, sweep=replace(config.sweep, pairs_per_zone=1))
         self.sweeper = sweeper_for(parts, on_zone=on_zone, config=fan)
         self.on_cue = on_cue
-        self.latencies_s: list[float] = []  # frame end → cue taken (s), for the benchmark
         self._cue_frames: list[tuple[float, float]] = []  # (cue time, frame end time)
         sink, live = open_audio(config)
         self._t0_ns = time.monotonic_ns()
