@@ -59,4 +59,5 @@ def test_killed_writers_leave_whole_files_or_none(tmp_path: Path) -> None:
     # Nothing half-written is lying where a reader looks; leftovers are hidden temporaries.
     names = {p.name for p in tmp_path.iterdir()}
     assert {"cal.json", "rec"} <= names
-    assert all(n in ("cal.json", "rec") or n.startswith(".") or ".partial-" in n for n in names), names
+    # (a writer killed mid-swap leaves the previous recording as rec.old-<pid>: kept, never read)
+    assert all(n in ("cal.json", "rec") or n.startswith(".") or ".partial-" in n or ".old-" in n for n in names), names
