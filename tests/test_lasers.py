@@ -171,20 +171,29 @@ def test_wiring_reads_what_the_pins_did(factory):
     with Lasers(LASERS, LasersConfig(), factory) as lasers:
         wiring = LaserWiring(LASERS, factory, settle_ns=settle)
         assert isinstance(factory.pin(17), LaserPin)
+        # Claiming an active-low pin as an output drives it low for a few microseconds before
+        # gpiozero writes the off level (lgpio's gpio_claim_output does the same on a Pi): let that
+        # blip's light pass before the window measured below.
+        time.sleep(2 * settle / 1e9)
         lasers.set(["center", "sloped"])
         t_on = factory.pin(17).log[-1][0]  # the GPIO write, as the pin saw it
+        s_on = factory.pin(22).log[-1][0]
         time.sleep(0.02)
         lasers.off()
         t_off = factory.pin(17).log[-1][0]
+        s_off = factory.pin(22).log[-1][0]
         time.sleep(0.005)
         # Light follows the wire `settle` later; an active-low laser is lit while its pin is low.
         f = wiring.fractions(t_on, t_off + settle)
         assert f["parallel"] == 0.0
         assert f["center"] == pytest.approx((t_off - t_on) / (t_off + settle - t_on), abs=1e-9)
-        assert f["sloped"] == pytest.approx(f["center"], abs=1e-3)  # written microseconds apart
-        assert wiring.lit_at(t_on + settle + 1_000_000) == {"center", "sloped"}
+        # Each laser's light follows its own wire: under load the two writes may be far apart.
+        window = t_off + settle - t_on
+        lit = min(s_off + settle, t_off + settle) - max(s_on + settle, t_on)
+        assert f["sloped"] == pytest.approx(max(lit, 0) / window, abs=1e-9)
+        assert wiring.lit_at(max(t_on, s_on) + settle + 1) == {"center", "sloped"}
         assert "center" in wiring.lit_at(t_on + settle)
-        assert wiring.lit_at(t_on + settle - 100_000) == frozenset()
+        assert wiring.lit_at(min(t_on, s_on) + settle - 100_000) == frozenset()
         # Per row, vectorised: rows exposed before, across and after the switch-off.
         exposure = 4_000_000
         rows = np.array([t_on - exposure - 10, t_off + settle - exposure // 2, t_off + settle + 1])
