@@ -197,7 +197,21 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise _usage("--for must be a positive number of seconds")
     config = _config(args)
     logging.getLogger().setLevel(logging.DEBUG if args.verbose else config.log_level.upper())
+    _dump_threads_on_abort()
     return Service(config, run_for_s=args.run_for).run()
+
+
+def _dump_threads_on_abort() -> None:
+    """systemd's watchdog kills a stuck service with SIGABRT: have Python print every thread's
+    stack to stderr first, so the journal says where the loop was stuck."""
+    import faulthandler
+
+    if faulthandler.is_enabled():
+        return  # already (e.g. under pytest, which has its own)
+    try:
+        faulthandler.enable(file=sys.stderr, all_threads=True)
+    except (AttributeError, ValueError, OSError):  # stderr without a file descriptor
+        log.debug("no thread dump on abort: stderr has no file descriptor")
 
 
 def cmd_range(args: argparse.Namespace) -> int:

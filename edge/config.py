@@ -174,6 +174,9 @@ class LasersConfig:
     backend: Literal["sim", "gpio"] = "sim"  # gpio: gpiozero's default pin factory (lgpio on a Pi)
     max_on_s: float = 2.0  # eye safety: a laser on longer than this is switched off
     settle_ms: float = 1.0  # from the GPIO edge to full (or no) light: driver and diode
+    # sim backend only: a file that keeps the simulated pins' levels after the process ends, as
+    # real wires do (for testing `edge lasers off` after a kill); empty: the pins die with the process.
+    sim_wires: str = ""
 
     def __post_init__(self) -> None:
         require(0 < self.max_on_s <= 60, "max_on_s", "must be 0-60 s")

@@ -18,7 +18,7 @@ from edge.config import LasersConfig, load_config
 from edge.errors import HardwareError
 from edge.hw.lasers import Lasers, force_all_off, open_lasers
 from edge.rig import Laser
-from edge.sim.gpio import LaserPin, LaserWiring, laser_factory
+from edge.sim.gpio import LaserPin, LaserWiring, Wires, laser_factory
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -206,3 +206,51 @@ def test_wiring_reads_what_the_pins_did(factory):
     time.sleep(0.002)
     assert wiring.lit_at(time.monotonic_ns()) == frozenset()
     assert wiring.fractions(t_close + settle + 10, time.monotonic_ns())["center"] == 0.0
+
+
+# --- wires that outlive a process ---------------------------------------------------------------
+
+
+def test_wires_keep_a_killed_process_levels_for_the_next_one(tmp_path):
+    """Two factories on one wires file stand for a process that dies with a laser on and the
+    fresh one (systemd's ExecStopPost) that finds it so and switches it off."""
+    wires = tmp_path / "wires"
+    dying = laser_factory(wires)
+    lasers = Lasers(LASERS, LasersConfig(), dying)
+    lasers.set(["center", "sloped"])  # ...and the process is killed here: no close()
+    fresh = laser_factory(wires)
+    assert LaserWiring(LASERS, fresh).lit_at(time.monotonic_ns()) == {"center", "sloped"}
+    assert fresh.pin(17).function == "output" and fresh.pin(17).state  # driven, as the wire was left
+    assert fresh.pin(22).function == "output" and not fresh.pin(22).state  # active low: lit while low
+    force_all_off(_config(), fresh)
+    _assert_all_off(fresh)
+    assert Wires(wires).levels() == OFF_LEVEL
+    assert LaserWiring(LASERS, laser_factory(wires)).lit_at(time.monotonic_ns()) == frozenset()
+    lasers.close()  # a closed device leaves its wire undriven: dark, whatever it floats to
+    assert Wires(wires).levels() == {}
+
+
+def test_a_file_that_is_not_a_wires_file_is_a_hardware_error_naming_it(tmp_path):
+    bad = tmp_path / "notes.txt"
+    bad.write_text("hello")
+    with pytest.raises(HardwareError, match=r"lasers.sim_wires: .*notes.txt is not a wires file \(5 bytes"):
+        laser_factory(bad)
+    bad.write_bytes(bytes([7] * Wires.SIZE))
+    with pytest.raises(HardwareError, match="not a wires file"):
+        laser_factory(bad)
+    with pytest.raises(HardwareError, match="lasers.sim_wires: cannot open"):
+        laser_factory(tmp_path / "no" / "such" / "dir" / "wires")
+
+
+def test_edge_lasers_off_sets_the_simulated_wires(tmp_path):
+    wires = tmp_path / "wires"
+    lasers = Lasers(_config().rig.lasers, LasersConfig(), laser_factory(wires))
+    lasers.set(["center", "parallel", "sloped"])
+    result = subprocess.run(
+        [sys.executable, "-m", "edge", "lasers", "off", "--set", f"lasers.sim_wires={str(wires)!r}".replace("'", '"')],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    assert f"only the simulated wires in {wires}" in result.stdout
+    assert Wires(wires).levels() == {17: False, 27: False, 22: False}  # config/sim.toml: all active high
+    lasers.close()

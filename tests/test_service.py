@@ -23,8 +23,9 @@ TS = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$")
 
 
 def start(broker: Mosquitto, tmp_path: Path, *sets: str, run_for: float | None = None,
-          env: dict | None = None) -> subprocess.Popen:
-    args = [sys.executable, "-m", "edge", "run", "--set", f"device.id={json.dumps(DEVICE)}",
+          env: dict | None = None, config: Path | None = None) -> subprocess.Popen:
+    args = [sys.executable, "-m", "edge", "run", *(["--config", str(config)] if config else []),
+            "--set", f"device.id={json.dumps(DEVICE)}",
             "--set", f"mqtt.port={broker.port}", "--set", 'mqtt.host="127.0.0.1"',
             "--set", f"service.state_dir={json.dumps(str(tmp_path / 'state'))}",
             "--set", "mqtt.reconnect_min_s=0.2", "--set", "mqtt.reconnect_max_s=1.0"]
@@ -318,7 +319,12 @@ def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, t
 def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog(broker, subscriber, tmp_path):
     """Frames stop for 3 s, then three frames come torn: zones meanwhile are `fault`, the camera is
     restarted, ranging resumes. Later the camera hangs (a driver call that never returns): the loop
-    stops, and so do the watchdog notifications, so systemd would kill and restart the service."""
+    stops, and so do the watchdog notifications. Meanwhile the lasers' own timer has switched off the
+    laser the stuck loop left on. Then the watchdog's kill, as systemd sends it (SIGABRT), prints
+    every thread's stack, and the unit's ExecStopPost leaves every laser pin at its off level."""
+    from test_laser_safety import assert_all_off, exec_stop_post, lit, write_config
+
+    config, wires = write_config(tmp_path)
     path = tmp_path / "notify.sock"
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(str(path))
@@ -326,7 +332,7 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
     faults = ('sim.camera_faults=[{kind="stall", at_s=4.0, seconds=3.0}, {kind="corrupt", at_s=9.0, count=3},'
               ' {kind="hang", at_s=14.0, seconds=60.0}]')
     proc = start(broker, tmp_path, 'mode="rangefinder"', "rangefinder.pan_deg=-90.0", "camera.timeout_s=0.5", faults,
-                 env={"NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"})
+                 "mqtt.enabled=true", env={"NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"}, config=config)
     feeds: list[float] = []
     try:
         deadline = time.monotonic() + 40
@@ -338,10 +344,20 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
                 pass
             if feeds and time.monotonic() - feeds[-1] > 8:
                 break  # the feeding has stopped for good
+        assert lit(wires, config) == set(), "a laser stayed on while the loop was stuck"
+        proc.send_signal(signal.SIGABRT)  # systemd's WatchdogSignal=
+        _, err = proc.communicate(timeout=30)
     finally:
-        proc.kill()
-        _, err = proc.communicate()
+        if proc.poll() is None:
+            proc.kill()
+            _, err = proc.communicate()
         sock.close()
+    assert proc.returncode == -signal.SIGABRT
+    assert "Fatal Python error: Aborted" in err and "edge/sim/camera.py" in err, err[-3000:]
+    assert "switched off (eye safety" in err, err[-3000:]
+    result = exec_stop_post(config)
+    assert result.returncode == 0, result.stderr
+    assert_all_off(wires, config)
     ranges = [json.loads(m.payload) for m in subscriber.messages(f"{P}/range")]
     statuses = [r["status"] for r in ranges]
     first_fault = statuses.index("fault")

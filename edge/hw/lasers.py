@@ -58,7 +58,7 @@ def make_factory(settings: LasersConfig) -> Any:
     if settings.backend == "sim":
         from edge.sim.gpio import laser_factory
 
-        return laser_factory()
+        return laser_factory(settings.sim_wires or None)
     return _default_factory()
 
 
@@ -299,7 +299,8 @@ def run(args: argparse.Namespace) -> int:
     for name, pin, level in force_all_off(config):
         print(f"laser {name}: GPIO{pin} driven {'high' if level else 'low'} (off)")
     if config.lasers.backend == "sim":
-        print("(lasers.backend is sim: no real pins were touched)")
+        where = f"the simulated wires in {config.lasers.sim_wires}" if config.lasers.sim_wires else "mock pins"
+        print(f"(lasers.backend is sim: no real pins were touched, only {where})")
     return 0
 
 

@@ -10,18 +10,78 @@ each laser was lit — a rolling shutter sees a switch mid-frame as a brightness
 
 from __future__ import annotations
 
+import mmap
+import os
 import threading
 import time
 from collections.abc import Iterable
+from pathlib import Path
 
 import numpy as np
 from gpiozero.pins.mock import MockFactory, MockPin
 
+from edge.errors import HardwareError
 from edge.rig import Laser
 
 # A pin keeps at most this many changes; older ones are dropped (frames only look back a frame or
 # two, and a long simulated run switches the lasers tens of times a second).
 _MAX_LOG = 4096
+
+
+class Wires:
+    """The levels on the simulated wires, kept in a small file shared between processes.
+
+    A real pin keeps driving its last level after the process that set it dies (SIGKILL, a
+    watchdog kill): that is why systemd runs ``edge lasers off`` after the service stops. Mock pins
+    live and die with their process, so a test could never see a laser left on by a killed
+    process, nor a fresh process switch it off. With ``[lasers] sim_wires`` set, every simulated
+    pin writes its level here (one byte per BCM number: 0 undriven, 1 low, 2 high), and a pin
+    created in a later process starts from what the wire still carries. A shared memory map:
+    a write is in the page cache the moment it is made, so even SIGKILL cannot lose it.
+    """
+
+    SIZE = 64  # BCM 0-53, rounded up
+    _CODE = {None: 0, False: 1, True: 2}
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise HardwareError(f"lasers.sim_wires: cannot open {self.path}: {exc.strerror}") from None
+        try:
+            size = os.fstat(fd).st_size
+            if size == 0:
+                os.ftruncate(fd, self.SIZE)
+            elif size != self.SIZE:
+                raise HardwareError(
+                    f"lasers.sim_wires: {self.path} is not a wires file ({size} bytes, expected {self.SIZE})")
+            self._map = mmap.mmap(fd, self.SIZE)
+        finally:
+            os.close(fd)
+        for code in self._map[:]:
+            if code not in (0, 1, 2):
+                self._map.close()
+                raise HardwareError(f"lasers.sim_wires: {self.path} is not a wires file (a byte is {code})")
+
+    def level(self, bcm: int) -> bool | None:
+        """What the wire of GPIO `bcm` carries: True high, False low, None undriven."""
+        return {0: None, 1: False, 2: True}[self._map[bcm]]
+
+    def levels(self) -> dict[int, bool | None]:
+        """Every driven wire: BCM number → level."""
+        return {bcm: self.level(bcm) for bcm in range(self.SIZE) if self._map[bcm]}
+
+    def drive(self, bcm: int, level: bool | None) -> None:
+        self._map[bcm] = self._CODE[level]
+
+    def close(self) -> None:
+        self._map.close()
+
+
+def _bcm(info) -> int | None:
+    name = str(info.name)
+    return int(name[4:]) if name.startswith("GPIO") and name[4:].isdigit() else None
 
 
 class LaserPin(MockPin):
@@ -35,6 +95,12 @@ class LaserPin(MockPin):
         self._log_lock = threading.Lock()
         self._log: list[tuple[int, bool | None]] = []
         super().__init__(factory, info)
+        self._wires: Wires | None = getattr(factory, "wires", None)
+        self._bcm = _bcm(info)
+        if self._wires is not None and self._bcm is not None:
+            level = self._wires.level(self._bcm)  # a wire left driven by an earlier process
+            if level is not None:
+                self._function, self._state = "output", level
         self._record()
 
     def _driven(self) -> bool | None:
@@ -43,6 +109,8 @@ class LaserPin(MockPin):
     def _record(self) -> None:
         level = self._driven()
         t = time.monotonic_ns()
+        if self._wires is not None and self._bcm is not None:
+            self._wires.drive(self._bcm, level)
         with self._log_lock:
             if self._log and self._log[-1][1] == level:
                 return
@@ -66,9 +134,18 @@ class LaserPin(MockPin):
             return list(self._log)
 
 
-def laser_factory() -> MockFactory:
-    """A mock pin factory for the simulated lasers: its pins are :class:`LaserPin`."""
-    return MockFactory(pin_class=LaserPin)
+class LaserFactory(MockFactory):
+    """gpiozero's mock pin factory with :class:`LaserPin` pins, optionally on shared :class:`Wires`."""
+
+    def __init__(self, wires: Wires | None = None) -> None:
+        super().__init__(pin_class=LaserPin)
+        self.wires = wires
+
+
+def laser_factory(wires_file: str | os.PathLike | None = None) -> LaserFactory:
+    """A mock pin factory for the simulated lasers; with `wires_file`, their levels outlive the
+    process (see :class:`Wires`)."""
+    return LaserFactory(Wires(wires_file) if wires_file else None)
 
 
 class LaserWiring:
