@@ -316,6 +316,15 @@ def report(fleet: list[Device], members: list[Consumer], stats: list[dict[str, i
         lost_devices[kind] = who
     duplicates = {kind: sum(n - 1 for (k, _, _), n in seen.items() if k == kind and n > 1)
                   for kind in ("alert", "sweep")}
+    # Per device: sent, and received (distinct sequence numbers for the QoS 1 kinds, messages for range).
+    got: dict[str, Counter[str]] = defaultdict(Counter)
+    for kind, dev, _seq in seen:
+        got[dev][kind] += 1
+    for kind, dev, *_ in records:
+        if kind == "range":
+            got[dev]["range"] += 1
+    per_device = {d.id: {"sent": {k: d.sent[k] for k in KINDS}, "received": {k: got[d.id][k] for k in KINDS}}
+                  for d in fleet}
     lat = {}
     for kind in ("alert", "sweep"):
         values = sorted(latency[kind])
@@ -334,7 +343,7 @@ def report(fleet: list[Device], members: list[Consumer], stats: list[dict[str, i
         "total_received_per_s": sum(in_window.values()) / seconds,
         "range_delivered": received["range"] / sent["range"] if sent["range"] else float("nan"),
         "latency": lat, "lost": lost, "lost_devices": lost_devices, "duplicates": duplicates,
-        "per_consumer": per_consumer,
+        "per_consumer": per_consumer, "per_device": per_device,
         "foreign": sum(c.foreign for c in members),
         "links": {"refused": sum(s["refused"] for s in stats), "dropped_live": sum(s["dropped_live"] for s in stats),
                   "reconnects": sum(s["connects"] - 1 for s in stats), "pending": sum(s["pending"] for s in stats)},
@@ -402,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
                  first=args.first, group=args.group, nodelay=args.nodelay)
     print_summary(result)
     if args.json:
-        print(json.dumps(result, indent=2, default=str))
+        print(json.dumps({k: v for k, v in result.items() if k != "per_device"}, indent=2, default=str))
     return 0 if result["ok"] else 1
 
 
