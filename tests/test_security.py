@@ -7,6 +7,7 @@ Devices log in with username = device id (dev1, dev2); `dashboard` is the operat
 
 from __future__ import annotations
 
+import ast
 import glob
 import json
 import os
@@ -624,3 +625,52 @@ def test_the_device_opens_no_listening_port(tmp_path, peers):
         # The ACL let through everything the real service sends (a refused PUBACK is logged).
         assert "the broker refused" not in err and "refused 0," in err and "Traceback" not in err, err[-3000:]
         assert dash.messages("edge/dev1/state")
+
+
+# --- nothing reaches a shell -------------------------------------------------------------------
+
+
+def _calls(tree: ast.AST) -> Iterator[tuple[str, ast.Call]]:
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call):
+            yield ast.unparse(node.func), node
+
+
+def test_no_shell_and_no_code_from_data_anywhere_in_the_package():
+    """Commands and files carry data only: no shell, no eval, no pickle anywhere in `edge/`, and
+    every program started gets an argument list (so a config value or a spoken text can only ever
+    be one argument, never a command line)."""
+    started = []
+    for path in sorted((REPO / "edge").rglob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        where = path.relative_to(REPO)
+        for name, call in _calls(tree):
+            assert name not in {"eval", "exec", "compile", "os.system", "os.popen", "pickle.loads", "pickle.load",
+                                "marshal.loads", "__import__", "yaml.load"}, f"{where}:{call.lineno}: {name}"
+            assert not any(k.arg == "shell" for k in call.keywords), f"{where}:{call.lineno}: shell= given"
+            if name.startswith("subprocess.") or name.startswith("os.exec") or name.startswith("os.spawn"):
+                assert name in {"subprocess.Popen", "subprocess.run"}, f"{where}:{call.lineno}: {name}"
+                first = call.args[0] if call.args else None
+                assert isinstance(first, ast.Name | ast.List), f"{where}:{call.lineno}: {name} without an argument list"
+                started.append(f"{where}:{call.lineno}")
+    # The detector sees the two places that do start programs (aplay and espeak-ng): it is not blind.
+    assert len(started) == 2 and all("audio.py" in s for s in started), started
+
+
+def test_a_hostile_text_for_the_speech_engine_is_one_argument(tmp_path, monkeypatch):
+    """The blind aid speaks texts built from ranges; even a hostile text (or voice from a config
+    file) reaches espeak-ng as one argv entry: no shell parses it, a leading dash is no option."""
+    from edge.modes import audio
+
+    fake = tmp_path / "espeak-ng"
+    record = tmp_path / "argv.json"
+    fake.write_text(f"#!{sys.executable}\nimport json, sys\n"
+                    f"json.dump(sys.argv[1:], open({str(record)!r}, 'w'))\n")
+    fake.chmod(0o755)
+    pwned = tmp_path / "pwned"
+    text = f"--help; touch {pwned} $(touch {pwned}) `touch {pwned}`"
+    audio._speak_cached.cache_clear()
+    audio._speak_cached(str(fake), text, 22050, 1.0, f"en; touch {pwned}", 160)
+    argv = json.loads(record.read_text())
+    assert argv[-1] == " " + text and argv[argv.index("-v") + 1] == f"en; touch {pwned}"
+    assert not pwned.exists()
