@@ -7,15 +7,21 @@ the key and the problem. Unknown keys are ignored at every level so that the for
 
 Writing is atomic: :class:`RecordingWriter` builds the recording in a sibling folder
 ``<path>.partial-<pid>`` and renames it into place only once ``sweep.json`` is on disk, so that a
-crash or a power cut never leaves something that looks like a recording but is not one.
+crash or a power cut never leaves something that looks like a recording but is not one. What a
+killed writer leaves beside the recording (``<path>.partial-<pid>``, ``<path>.old-<pid>``) is
+cleaned up by the next writer of the same recording, once process ``<pid>`` is gone. When nothing
+is at ``<path>`` (a writer killed in the middle of its swap), the newest whole recording among them
+— the finished new one, else the old one moved aside — is first put in place.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
-import sys
 import os
+import re
+import sys
 import shutil
 import struct
 import zlib
@@ -36,6 +42,8 @@ FORMAT = "edge-sweep/1"
 SWEEP_JSON = "sweep.json"
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _MISSING = object()
+
+log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -462,6 +470,46 @@ def _jsonable(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
 
 
+def _process_alive(pid: int) -> bool:
+    """Whether process `pid` may still be writing; when in doubt, True."""
+    if pid == os.getpid():
+        return False  # our own leftovers: a crashed process that had our pid; we start afresh
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError):  # PermissionError: alive, another user's process
+        return True
+    return True
+
+
+def _no_recording_at(path: Path) -> bool:
+    """True when nothing, or only an empty folder, is at `path`."""
+    if not os.path.lexists(path):
+        return True
+    try:
+        return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
+    except OSError:
+        return False
+
+
+def _written_ns(path: Path) -> int:
+    """When the recording in `path` was written (its sweep.json's mtime); 0 when unknown."""
+    try:
+        return (path / SWEEP_JSON).stat().st_mtime_ns
+    except OSError:
+        return 0
+
+
+def _is_whole_recording(path: Path) -> bool:
+    """Strictly checked, frames included: a half-deleted old recording must not come back."""
+    try:
+        read_recording(path)
+    except (EdgeError, OSError, ValueError):
+        return False
+    return True
+
+
 class RecordingWriter:
     """Write a recording atomically; use as a context manager::
 
@@ -498,11 +546,73 @@ class RecordingWriter:
                              f"not an {FORMAT} recording")
 
     def __enter__(self) -> RecordingWriter:
+        self._clean_leftovers()
         if self._partial.exists():  # left by a crashed process that had our pid
             shutil.rmtree(self._partial)
         (self._partial / "frames").mkdir(parents=True)
         self._open = True
         return self
+
+    def _clean_leftovers(self) -> None:
+        """Remove what killed writers of this recording left beside it; restore an orphaned old one.
+
+        Why: a writer killed mid-write (SIGKILL, power cut) leaves ``<name>.partial-<pid>`` and
+        ``<name>.old-<pid>`` behind. Readers never look at them, but on a device left alone for
+        months they would fill the SD card. Only real folders of exactly those names whose process
+        is gone (or is us, starting afresh) are touched; a live process may still be writing.
+        Failing to clean up only logs a warning: it must never cost a recording.
+        """
+        target = Path(os.path.abspath(self.path))
+        if not target.name:
+            return  # the root folder: never a recording
+        pattern = re.compile(re.escape(target.name) + r"\.(partial|old)-([1-9][0-9]*)")
+        partials: list[Path] = []
+        olds: list[Path] = []
+        try:
+            names = sorted(os.listdir(target.parent))
+        except OSError as exc:
+            log.warning("%s: cannot look for leftovers of killed writers: %s", target.parent, exc)
+            return
+        for name in names:
+            match = pattern.fullmatch(name)
+            if match is None:
+                continue
+            leftover = target.parent / name
+            # A writer only ever leaves folders; a symbolic link or a file is someone else's.
+            if os.path.islink(leftover) or not os.path.isdir(leftover):
+                continue
+            if _process_alive(int(match.group(2))):
+                continue
+            (partials if match.group(1) == "partial" else olds).append(leftover)
+        if (olds or partials) and _no_recording_at(target):
+            # Killed between moving the old recording aside and renaming the new one in, or
+            # between finishing a first recording and renaming it: the newest whole one goes in
+            # place (a finished partial is newer than the old one it was to replace).
+            whole = [p for p in olds + partials if p != self._partial and _is_whole_recording(p)]
+            if whole:
+                newest = max(whole, key=_written_ns)
+                try:
+                    os.rename(newest, target)
+                except OSError as exc:
+                    log.warning("%s: cannot restore the recording left by a killed writer "
+                                "to %s: %s", newest, target, exc)
+                else:
+                    log.info("%s: restored the recording left by a killed writer to %s",
+                             newest, target)
+                    (olds if newest in olds else partials).remove(newest)
+                    _fsync_dir(target.parent)
+            if _no_recording_at(target):  # never delete the only copies
+                olds = [p for p in olds if p not in whole]
+                partials = [p for p in partials if p not in whole]
+        for leftover in partials + olds:
+            if leftover == self._partial:
+                continue  # ours, removed by __enter__ as before
+            try:
+                shutil.rmtree(leftover)
+            except OSError as exc:
+                log.warning("%s: cannot remove the leftover of a killed writer: %s", leftover, exc)
+            else:
+                log.info("%s: removed the leftover of a killed writer", leftover)
 
     def add_zone(
         self,

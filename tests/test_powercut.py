@@ -13,8 +13,11 @@ import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
+
 from edge.calibration import read_calibration
-from edge.recording import read_recording
+from edge.recording import RecordingWriter, read_recording
+from edge.rig import default_rig
 
 CHILD = textwrap.dedent('''
     import sys, numpy as np
@@ -61,3 +64,13 @@ def test_killed_writers_leave_whole_files_or_none(tmp_path: Path) -> None:
     assert {"cal.json", "rec"} <= names
     # (a writer killed mid-swap leaves the previous recording as rec.old-<pid>: kept, never read)
     assert all(n in ("cal.json", "rec") or n.startswith(".") or ".partial-" in n or ".old-" in n for n in names), names
+    # The next writer of the recording cleans up what the killed ones left (their pids are gone).
+    rig = default_rig()
+    img = np.zeros((rig.camera.height, rig.camera.width, 3), np.uint8)
+    with RecordingWriter(tmp_path / "rec", rig, device="after the kills") as w:
+        for z in range(3):
+            w.add_zone(z, 10.0 * z, 0.0, [(img, [], {}), (img, ["center"], {})])
+    assert read_recording(tmp_path / "rec").device == "after the kills"
+    names = {p.name for p in tmp_path.iterdir()}
+    assert not [n for n in names if ".partial-" in n or ".old-" in n], names
+    assert all(n in ("cal.json", "rec") or n.startswith(".") for n in names), names

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import copy
 import json
+import logging
+import os
 import re
+import shutil
+import subprocess
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -528,6 +533,249 @@ def test_writer_accepts_numpy_scalars(tmp_path: Path) -> None:
 def test_add_zone_outside_with(tmp_path: Path) -> None:
     with pytest.raises(RecordingError, match="outside"):
         RecordingWriter(tmp_path / "rec", small_rig()).add_zone(0, 0.0, 0.0, pair())
+
+
+# --------------------------------------------------------------------------------------------------
+# Leftovers of killed writers: cleaned up by the next writer of the same recording
+
+
+def dead_pid() -> int:
+    """The pid of a process that has exited and been reaped."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    with pytest.raises(ProcessLookupError):
+        os.kill(proc.pid, 0)
+    return proc.pid
+
+
+@pytest.fixture
+def sleeper() -> Any:
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    yield proc.pid
+    proc.kill()
+    proc.wait()
+
+
+def write(rec: Path, device: str, zones: int = 1) -> None:
+    with RecordingWriter(rec, small_rig(), device=device) as w:
+        for z in range(zones):
+            w.add_zone(z, 0.0, 0.0, pair())
+
+
+def half_written(folder: Path) -> Path:
+    """What a writer killed mid-recording leaves: frames, no sweep.json."""
+    write_png(folder / "frames" / "z000-0-off.png", 8, 6)
+    return folder
+
+
+def killed_mid_swap(rec: Path, pid: int, new_device: str = "finished") -> None:
+    """What a writer with `pid`, killed between moving `rec` aside and renaming its new recording
+    in, leaves: no `rec`, the old recording as rec.old-<pid>, the new one (finished: the swap
+    comes after sweep.json is on disk) as rec.partial-<pid>."""
+    os.rename(rec, rec.with_name(f"rec.old-{pid}"))
+    write(rec.with_name("scratch"), new_device)
+    os.rename(rec.with_name("scratch"), rec.with_name(f"rec.partial-{pid}"))
+
+
+def test_leftovers_of_dead_writers_are_removed(tmp_path: Path, caplog: Any) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first")
+    dead = dead_pid()
+    half_written(tmp_path / f"rec.partial-{dead}")
+    shutil.copytree(rec, tmp_path / f"rec.old-{dead}")  # killed while deleting the old one
+    shutil.copytree(rec, tmp_path / f"rec.old-{os.getpid()}")  # our pid: a crashed process's
+    caplog.set_level(logging.INFO, logger="edge.recording")
+    write(rec, "second")
+    assert siblings(tmp_path) == ["rec"]
+    assert read_recording(rec).device == "second"
+    removed = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO]
+    for name in (f"rec.partial-{dead}", f"rec.old-{dead}", f"rec.old-{os.getpid()}"):
+        assert any(str(tmp_path / name) in m and "removed" in m for m in removed), (name, removed)
+
+
+def test_leftovers_of_live_writers_are_kept(tmp_path: Path, sleeper: int) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first")
+    half_written(tmp_path / f"rec.partial-{sleeper}")
+    shutil.copytree(rec, tmp_path / f"rec.old-{sleeper}")
+    half_written(tmp_path / f"rec.partial-{os.getppid()}")
+    before = sorted(tmp_path.rglob("*"))
+    write(rec, "second")
+    assert sorted(tmp_path.rglob("*")) == before
+    assert read_recording(rec).device == "second"
+
+
+def test_leftovers_of_another_users_process_are_kept(tmp_path: Path, monkeypatch: Any) -> None:
+    rec = tmp_path / "rec"
+    dead = dead_pid()
+    half_written(tmp_path / f"rec.partial-{dead}")
+    real_kill = os.kill
+
+    def kill(pid: int, sig: int) -> None:
+        if pid == dead:
+            raise PermissionError(1, "Operation not permitted")
+        real_kill(pid, sig)
+
+    monkeypatch.setattr(os, "kill", kill)
+    write(rec, "first")
+    assert siblings(tmp_path) == ["rec", f"rec.partial-{dead}"]
+
+
+def test_unrelated_siblings_are_kept(tmp_path: Path) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first")
+    dead = dead_pid()
+    outside = tmp_path / "outside"
+    write(outside / "kept", "outside")
+    for name in ("rec.partial-abc", f"rec.partial-{dead}x", "rec.partial-", f"rec.partial-0{dead}",
+                 f"other.partial-{dead}", f"other.old-{dead}", f"recx.partial-{dead}",
+                 f"xrec.old-{dead}", f"rec.partial-{dead}.d", f"rec.backup-{dead}"):
+        half_written(tmp_path / name)
+    (tmp_path / f"rec.partial-{dead}").write_text("a file, not a writer's folder")
+    (tmp_path / f"rec.old-{dead}").symlink_to(outside / "kept")
+    before = sorted(tmp_path.rglob("*"))
+    write(rec, "second")
+    assert sorted(tmp_path.rglob("*")) == before
+    assert read_recording(outside / "kept").device == "outside"
+
+
+def test_a_finished_recording_orphaned_mid_swap_is_put_in_place(tmp_path: Path, caplog: Any) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first", zones=2)
+    dead = dead_pid()
+    killed_mid_swap(rec, dead)
+    assert siblings(tmp_path) == [f"rec.old-{dead}", f"rec.partial-{dead}"]
+    caplog.set_level(logging.INFO, logger="edge.recording")
+    with pytest.raises(RuntimeError):
+        with RecordingWriter(rec, small_rig(), device="second") as w:
+            assert read_recording(rec).device == "finished"  # the newest whole recording
+            assert siblings(tmp_path) == ["rec", f"rec.partial-{os.getpid()}"]
+            w.add_zone(0, 0.0, 0.0, pair())
+            raise RuntimeError("killed midway")
+    assert read_recording(rec).device == "finished"
+    assert siblings(tmp_path) == ["rec"]
+    assert any("restored" in r.getMessage() and str(tmp_path / f"rec.partial-{dead}") in r.getMessage()
+               for r in caplog.records if r.levelno == logging.INFO)
+
+
+def test_orphaned_old_recording_is_restored_when_the_new_one_is_not_whole(tmp_path: Path, caplog: Any) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first", zones=2)
+    dead = dead_pid()
+    killed_mid_swap(rec, dead)
+    (tmp_path / f"rec.partial-{dead}" / "sweep.json").unlink()
+    caplog.set_level(logging.INFO, logger="edge.recording")
+    with pytest.raises(RuntimeError):
+        with RecordingWriter(rec, small_rig(), device="second") as w:
+            assert read_recording(rec).device == "first"  # the recording while this one is made
+            w.add_zone(0, 0.0, 0.0, pair())
+            raise RuntimeError("killed midway")
+    got = read_recording(rec)
+    assert (got.device, [z.index for z in got.zones]) == ("first", [0, 1])
+    assert siblings(tmp_path) == ["rec"]
+    assert any("restored" in r.getMessage() and str(tmp_path / f"rec.old-{dead}") in r.getMessage()
+               for r in caplog.records if r.levelno == logging.INFO)
+
+
+def test_orphaned_old_recording_is_replaced_by_the_next_recording(tmp_path: Path) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first")
+    killed_mid_swap(rec, dead_pid())
+    write(rec, "second")
+    assert read_recording(rec).device == "second"
+    assert siblings(tmp_path) == ["rec"]
+
+
+def test_an_orphaned_recording_goes_into_an_empty_folder(tmp_path: Path) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first")
+    killed_mid_swap(rec, dead_pid())
+    rec.mkdir()
+    with pytest.raises(RuntimeError):
+        with RecordingWriter(rec, small_rig()):
+            raise RuntimeError
+    assert read_recording(rec).device == "finished"
+    assert siblings(tmp_path) == ["rec"]
+
+
+def test_newest_orphaned_old_recording_is_restored(tmp_path: Path) -> None:
+    rec = tmp_path / "rec"
+    older, newer = dead_pid(), dead_pid()
+    for pid, device, when in ((newer, "newer", 2_000_000_000), (older, "older", 1_000_000_000)):
+        write(tmp_path / "scratch", device)  # not at rec: that writer would clean up already
+        os.utime(tmp_path / "scratch" / "sweep.json", (when, when))
+        os.rename(tmp_path / "scratch", tmp_path / f"rec.old-{pid}")
+    with pytest.raises(RuntimeError):
+        with RecordingWriter(rec, small_rig()):
+            raise RuntimeError
+    assert read_recording(rec).device == "newer"
+    assert siblings(tmp_path) == ["rec"]
+
+
+def test_broken_orphaned_old_recording_is_not_restored(tmp_path: Path) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first")
+    dead = dead_pid()
+    killed_mid_swap(rec, dead)
+    (tmp_path / f"rec.old-{dead}" / "frames" / "z000-1-on.png").unlink()  # half deleted
+    (tmp_path / f"rec.partial-{dead}" / "frames" / "z000-1-on.png").unlink()
+    with pytest.raises(RuntimeError):
+        with RecordingWriter(rec, small_rig()):
+            raise RuntimeError
+    assert siblings(tmp_path) == []
+
+
+def test_symlinked_old_recording_is_not_restored(tmp_path: Path) -> None:
+    rec = tmp_path / "rec"
+    write(tmp_path / "elsewhere", "elsewhere")
+    dead = dead_pid()
+    (tmp_path / f"rec.old-{dead}").symlink_to(tmp_path / "elsewhere")
+    write(rec, "new")
+    assert siblings(tmp_path) == ["elsewhere", "rec", f"rec.old-{dead}"]
+    assert read_recording(tmp_path / f"rec.old-{dead}").device == "elsewhere"
+
+
+def test_failing_to_remove_a_leftover_only_warns(tmp_path: Path, monkeypatch: Any,
+                                                 caplog: Any) -> None:
+    rec = tmp_path / "rec"
+    stale = half_written(tmp_path / f"rec.partial-{dead_pid()}")
+    real_rmtree = shutil.rmtree
+
+    def rmtree(path: Any, *args: Any, **kwargs: Any) -> None:
+        if Path(path) == stale:
+            raise PermissionError(13, "Permission denied", str(path))
+        real_rmtree(path, *args, **kwargs)
+
+    monkeypatch.setattr(shutil, "rmtree", rmtree)
+    write(rec, "first")
+    assert read_recording(rec).device == "first"
+    assert siblings(tmp_path) == ["rec", stale.name]
+    assert [r.levelno for r in caplog.records if str(stale) in r.getMessage()] == [logging.WARNING]
+
+
+def test_failing_to_restore_keeps_the_recording_it_could_not_restore(tmp_path: Path, monkeypatch: Any,
+                                                    caplog: Any) -> None:
+    rec = tmp_path / "rec"
+    write(rec, "first")
+    dead = dead_pid()
+    killed_mid_swap(rec, dead)
+    old = tmp_path / f"rec.partial-{dead}"  # the finished one, to be restored
+    real_rename = os.rename
+
+    def rename(src: Any, dst: Any) -> None:
+        if Path(src) == old:
+            raise OSError(5, "Input/output error")
+        real_rename(src, dst)
+
+    monkeypatch.setattr(os, "rename", rename)
+    write(rec, "second")
+    assert read_recording(rec).device == "second"
+    assert read_recording(old).device == "finished"  # never delete the only copy
+    assert siblings(tmp_path) == ["rec", f"rec.old-{dead}", old.name]
+    assert any(r.levelno == logging.WARNING and str(old) in r.getMessage() for r in caplog.records)
+    monkeypatch.undo()
+    write(rec, "third")  # now superseded: removed
+    assert siblings(tmp_path) == ["rec"]
 
 
 # --------------------------------------------------------------------------------------------------
