@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import logging
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -11,13 +13,16 @@ import numpy as np
 
 from edge.errors import EdgeError
 
+log = logging.getLogger(__name__)
+
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write `data` to a temporary file beside `path`, fsync it, rename it over `path`, and fsync
     the folder so that the rename itself survives a power cut."""
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    remove_dead_temporaries(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=folder)
     try:
         os.fchmod(fd, 0o666 & ~current_umask())  # mkstemp's 0600 would hide the file from its group
         with os.fdopen(fd, "wb") as fh:
@@ -33,6 +38,46 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         os.fsync(dir_fd)
     finally:
         os.close(dir_fd)
+
+
+def remove_dead_temporaries(path: Path) -> None:
+    """Remove the temporaries that writers of `path` killed before their rename left beside it
+    (``.<name>.<pid>.<random>.tmp``, `pid` gone): on a device left alone for months they would
+    pile up. Never fails: at worst a temporary stays."""
+    pattern = re.compile(re.escape(f".{path.name}.") + r"([1-9][0-9]*)\.[^/]+\.tmp")
+    folder = path.parent if str(path.parent) else Path(".")
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    for name in names:
+        match = pattern.fullmatch(name)
+        # Not our own pid: another thread of ours may be writing the same file right now.
+        if match is None or int(match.group(1)) == os.getpid() or process_alive(int(match.group(1))):
+            continue
+        leftover = folder / name
+        if leftover.is_symlink() or not leftover.is_file():
+            continue
+        try:
+            leftover.unlink()
+        except OSError as exc:
+            log.warning("%s: cannot remove the leftover of a killed writer: %s", leftover, exc)
+        else:
+            log.info("%s: removed the leftover of a killed writer", leftover)
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` may still be writing; when in doubt, True. Our own pid counts as
+    gone: what it left was left by a crashed process that had our number."""
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError):  # PermissionError: alive, another user's process
+        return True
+    return True
 
 
 def write_png(path: str | Path, image: np.ndarray) -> None:

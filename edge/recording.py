@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from edge.errors import EdgeError, RecordingError
+from edge.fsutil import process_alive
 from edge.rig import CameraModel, Laser, Mount, Rig
 from edge.schema import FieldError, describe
 
@@ -470,19 +471,6 @@ def _jsonable(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
 
 
-def _process_alive(pid: int) -> bool:
-    """Whether process `pid` may still be writing; when in doubt, True."""
-    if pid == os.getpid():
-        return False  # our own leftovers: a crashed process that had our pid; we start afresh
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (OSError, OverflowError):  # PermissionError: alive, another user's process
-        return True
-    return True
-
-
 def _no_recording_at(path: Path) -> bool:
     """True when nothing, or only an empty folder, is at `path`."""
     if not os.path.lexists(path):
@@ -581,7 +569,7 @@ class RecordingWriter:
             # A writer only ever leaves folders; a symbolic link or a file is someone else's.
             if os.path.islink(leftover) or not os.path.isdir(leftover):
                 continue
-            if _process_alive(int(match.group(2))):
+            if process_alive(int(match.group(2))):
                 continue
             (partials if match.group(1) == "partial" else olds).append(leftover)
         if (olds or partials) and _no_recording_at(target):

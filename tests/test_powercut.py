@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.calibration import read_calibration
+from edge.calibration import Calibration, read_calibration, write_calibration
+from edge.fsutil import atomic_write_bytes
 from edge.recording import RecordingWriter, read_recording
 from edge.rig import default_rig
 
@@ -71,6 +72,29 @@ def test_killed_writers_leave_whole_files_or_none(tmp_path: Path) -> None:
         for z in range(3):
             w.add_zone(z, 10.0 * z, 0.0, [(img, [], {}), (img, ["center"], {})])
     assert read_recording(tmp_path / "rec").device == "after the kills"
-    names = {p.name for p in tmp_path.iterdir()}
-    assert not [n for n in names if ".partial-" in n or ".old-" in n], names
-    assert all(n in ("cal.json", "rec") or n.startswith(".") for n in names), names
+    # ...and the next writer of the calibration the temporaries of killed ones.
+    write_calibration(tmp_path / "cal.json", Calibration.from_rig(rig))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.json", "rec"]
+
+
+def test_the_next_atomic_write_removes_temporaries_of_dead_writers_only(tmp_path: Path) -> None:
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    dead = child.pid
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        left = {
+            f".cal.json.{dead}.x1y2.tmp": False,  # a killed writer's: removed
+            f".cal.json.{sleeper.pid}.x1y2.tmp": True,  # still being written: kept
+            f".cal.json.{os.getpid()}.x1y2.tmp": True,  # maybe another thread of ours: kept
+            f".other.json.{dead}.x1y2.tmp": True,  # another file's business
+            f".cal.json.{dead}.x1y2": True,  # not a temporary's name
+        }
+        for name in left:
+            (tmp_path / name).write_text("half")
+        atomic_write_bytes(tmp_path / "cal.json", b"{}")
+        assert (tmp_path / "cal.json").read_bytes() == b"{}"
+        assert {n: (tmp_path / n).exists() for n in left} == left
+    finally:
+        sleeper.kill()
+        sleeper.wait()
