@@ -15,7 +15,7 @@ from edge.errors import SceneError
 from edge.sim.raycast import convex_pieces, polygon_area, polygon_self_intersects
 from edge.sim.scene import MOVER_KEY_BASE, Scene, available_scenes, load_scene, scene_dir
 
-SHIPPED = ("office", "kitchen", "office-walker")
+SHIPPED = ("office", "kitchen", "office-walker", "office-approach", "bench")
 
 
 @pytest.fixture(scope="module")

@@ -106,7 +106,7 @@ class Renderer:
         self._base_to_world = scene.base_to_world()
         # Views by key; a view being rendered (by a prefetch) is a Future the others wait on.
         self._views: dict[tuple, Future[_View]] = {}
-        self._patched: dict[tuple, Future[_View]] = {}  # views with movers, by instant
+        self._patched: dict[tuple, Future[_View]] = {}  # views with movers, by the movers' poses
         self._views_lock = threading.Lock()
         self._normal_bank: np.ndarray | None = None
         exposure_ms = camera.exposure_us / 1000.0
@@ -139,7 +139,8 @@ class Renderer:
         box = self._mover_box(static.camera_to_world, t_s)
         if box is None:
             return static  # no mover in the picture (and the beams only go where the camera looks)
-        key = (static_key[0], static_key[1], t_s)
+        # By where the movers are, not by instant: a standing person is cast once, not every frame.
+        key = (static_key[0], static_key[1], self.scene.mover_poses(t_s))
         return self._cached(key, lambda: self._patched_view(static, t_s, geometry, box), self._patched)
 
     def _cached(self, key: tuple, render: Callable[[], _View], cache: dict | None = None) -> _View:

@@ -409,6 +409,16 @@ class Scene:
             out.append(pose.apply(local))
         return out
 
+    def mover_poses(self, t_s: float) -> tuple:
+        """Where each mover present at `t_s` is, as a hashable key: two instants with equal keys
+        look the same (a person standing still), so a view patched for one serves the other."""
+        out = []
+        for i, m in enumerate(self.movers):
+            pose = m.pose_at(t_s)
+            if pose is not None:
+                out.append((i, *np.round(pose.t, 9).tolist(), *np.round(pose.R.ravel(), 9).tolist()))
+        return tuple(out)
+
     def movers_at(self, t_s: float) -> SceneGeometry | None:
         """Only the movers present at `t_s` (None when none is): what a cached view of the static
         scene needs casting again."""
