@@ -148,7 +148,10 @@ def _live_sweep(config, out: Path, recording: Path | None) -> int:
 
     started = time.monotonic()
     device = "sim" if config.camera.backend == "sim" else config.device.resolved_id()
-    writer = RecordingWriter(recording, config.rig.build(), device=device) if recording else None
+    from edge.calibrated import believed_rig
+
+    # The recording keeps the rig it was ranged with, calibration included, so replay agrees.
+    writer = RecordingWriter(recording, believed_rig(config).rig, device=device) if recording else None
     with writer or contextlib.nullcontext() as recorder:
         sweep = run_configured_sweep(config, _progress("sweep"), recorder=recorder)
     report = sweep.report
@@ -230,6 +233,9 @@ def cmd_config(args: argparse.Namespace) -> int:
     for laser in rig.lasers:
         ref = " (reference)" if laser is rig.reference else ""
         print(f"  laser {laser.name}: pin {laser.pin}{ref}")
+    from edge.calibrated import believed_rig
+
+    print(f"  calibration: {believed_rig(config).health}")
     print(f"  sweep {len(config.sweep.poses())} zones, {config.sweep.pairs_per_zone} pairs each")
     print(f"  sim scene {config.sim.scene}")
     return 0

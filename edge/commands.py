@@ -21,7 +21,7 @@ from edge.errors import CommandError
 MODES = ("rangefinder", "blindaid", "guard")
 MAX_REQUEST_ID_CHARS = 128
 CALIBRATION_DISTANCE_M = (0.25, 5.0)
-CALIBRATION_COUNT = (2, 20)
+CALIBRATION_COUNT = (3, 20)
 # request_id_of reads at most this much: a best-effort helper must not parse a huge payload.
 _REQUEST_ID_SCAN_BYTES = 1 << 20
 _SHOW_CHARS = 40
@@ -201,6 +201,11 @@ def _calibrate(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: 
         if not lo <= d <= hi:
             raise CommandError(f"{where}: distances_m[{i}] = {d:g} m is outside {lo:g}-{hi:g} m")
         distances.append(d)
+    from edge.modes.calibrate import check_distances
+
+    problem = check_distances(distances)
+    if problem:
+        raise CommandError(f"{where}: {problem}")
     return {"distances_m": tuple(distances)}
 
 

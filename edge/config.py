@@ -84,6 +84,9 @@ class RigConfig:
     lasers: tuple[Laser, ...] = _DEFAULT_RIG.lasers
     mount: Mount = field(default_factory=Mount)
     range_limits_m: tuple[float, float] = _DEFAULT_RIG.range_limits_m
+    # An edge-calibration/1 file (relative to the config file) applied to the lasers and camera
+    # above; empty: the service's own <state_dir>/calibration.json if there is one (edge.calibrated).
+    calibration: str = ""
 
     def __post_init__(self) -> None:
         self.build()  # Rig validates laser names, the reference flag and the limits
@@ -292,9 +295,12 @@ class ServiceConfig:
     # The guard sweeps back to back with this many laser-off/on pairs a zone: it compares ranges
     # with a learnt background and its noise, so one pair (no speckle nudge) is enough and faster.
     guard_pairs_per_zone: int = 1
+    # cmd/calibrate: the whole session (someone carrying a target to each distance) ends after this.
+    calibrate_timeout_s: float = 600.0
 
     def __post_init__(self) -> None:
         require(self.sweep_interval_s >= 0, "sweep_interval_s", "must be >= 0")
+        require(10 <= self.calibrate_timeout_s <= 86400, "calibrate_timeout_s", "must be 10-86400 s")
         require(self.outbox_max_messages >= 100, "outbox_max_messages", "must be >= 100")
         require(1 <= self.guard_pairs_per_zone <= 8, "guard_pairs_per_zone", "must be 1-8")
 

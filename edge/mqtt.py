@@ -374,12 +374,14 @@ class MqttLink:
             if self._client is not None and self._connected and not self._closing:
                 self._client.publish(self.topics.state, data, qos=1, retain=True)
 
-    def publish_result(self, name: str, ok: bool, error: str | None = None, request_id: str | None = None) -> None:
-        """A command's result on ``cmd/<name>/result``, QoS 1. Not queued on disk: one given while
-        disconnected is kept by paho and sent after the reconnect."""
+    def publish_result(self, name: str, ok: bool, error: str | None = None, request_id: str | None = None,
+                       extra: dict[str, Any] | None = None) -> None:
+        """A command's result on ``cmd/<name>/result``, QoS 1 (`extra`: more keys, e.g. what a
+        calibration found). Not queued on disk: one given while disconnected is kept by paho and
+        sent after the reconnect."""
         if not name or any(c in name for c in "+#/\0"):
             raise ValueError(f"publish_result: {name!r} is not a command name")
-        body: dict[str, Any] = {"ok": bool(ok)}
+        body: dict[str, Any] = {"ok": bool(ok), **(extra or {})}
         if error is not None:
             body["error"] = error
         if request_id is not None:

@@ -35,6 +35,13 @@ _IDLE_S = 0.05
 CAMERA_RESTART_AFTER = 2
 
 
+class _Later:
+    """What a command handler returns when its result comes later (cmd/calibrate, at the end)."""
+
+
+LATER = _Later()
+
+
 def _part_of(detail: str) -> str | None:
     """Which part a zone's fault detail blames (the drivers' messages start with it)."""
     text = detail.lower()
@@ -89,16 +96,21 @@ class Service:
         from edge.laserhealth import LaserHealth
 
         self.laser_health = LaserHealth(config.rig.build().laser_names)
-        from edge.ranging import Ranger
-
-        # Built once: it lays out each laser's search band, the same for every zone and frame.
-        self.ranger = Ranger(config.rig.build(), config.ranging)
         self._laser_faults: dict[str, str] = {}
         self._camera_faults = 0
         self.camera_restarts = 0
         self._blindaid: Any = None
-        self.health = Health("nominal rig (no calibration file)")
-        self._handlers: dict[str, Callable[[Any], str | None]] = {
+        from edge.calibrated import believed_rig
+
+        believed = believed_rig(config, service=True)
+        if believed.health.startswith("fault"):
+            log.error("calibration: %s", believed.health)
+        self.health = Health(believed.health)
+        self._use_rig(believed.rig, calibrated=believed.calibration is not None)
+        self._calibration: Any = None  # a cmd/calibrate session while one runs
+        self._calibration_request: str | None = None
+        self._calibration_aimed = False
+        self._handlers: dict[str, Callable[[Any], str | _Later | None]] = {
             "mode": self._cmd_mode,
             "sweep": self._cmd_sweep,
             "point": self._cmd_point,
@@ -106,6 +118,14 @@ class Service:
             "calibrate": self._cmd_calibrate,
             "lasers_off": self._cmd_lasers_off,
         }
+
+    def _use_rig(self, rig: Any, calibrated: bool) -> None:
+        from edge.ranging import Ranger
+
+        self.rig = rig
+        self.calibrated = calibrated
+        # Built once per rig: it lays out each laser's search band, the same for every zone and frame.
+        self.ranger = Ranger(rig, self.config.ranging)
 
     # ---- life cycle ----
 
@@ -131,6 +151,7 @@ class Service:
                     try:
                         self._loop(deadline)
                     finally:
+                        self._end_calibration("cancelled: the service is stopping")
                         self._close_blindaid()
                     self._parts = None
             except HardwareError as exc:
@@ -185,7 +206,9 @@ class Service:
             if self._stopping(deadline):
                 break
             self._interrupt = False
-            if self._sweep_now or (self.mode == "rangefinder" and time.monotonic() >= self._next_sweep):
+            if self._calibration is not None:
+                self._calibrate_step()
+            elif self._sweep_now or (self.mode == "rangefinder" and time.monotonic() >= self._next_sweep):
                 self._sweep_now = False
                 if interval > 0:
                     self._next_sweep = time.monotonic() + interval
@@ -240,7 +263,7 @@ class Service:
 
             self._blindaid = BlindAidRunner(self.config, self._parts,
                                             on_cue=lambda cue: self._publish_live("cue", cue.to_json()),
-                                            on_zone=self._zone)
+                                            on_zone=self._zone, ranger=self.ranger)
         self._blindaid.scan(self._should_stop(deadline, lambda: self.mode != "blindaid"))
         if self.mode != "blindaid":
             self._close_blindaid()
@@ -316,6 +339,13 @@ class Service:
         changed = self.health.zone(result)
         if self.laser_health.update(result, lit_when_off) or changed:
             faults = self.laser_health.faults()
+            if not self.calibrated:
+                # A hand-mounted laser half a degree off puts its spot outside the narrow band the
+                # nominal rig searches: on an uncalibrated rig that is the likelier cause.
+                faults = {name: text + ("; or, as this rig is not calibrated, its spot may lie where the nominal "
+                                        "rig does not look: calibrate it (cmd/calibrate)"
+                                        if "does not light" in text else "")
+                          for name, text in faults.items()}
             if faults:
                 self.health.parts["lasers"] = "fault: " + "; ".join(faults.values())
             if faults != self._laser_faults:
@@ -370,6 +400,10 @@ class Service:
             error = self._handlers[command.name](command)
         except EdgeError as exc:
             error = str(exc)
+        if error is LATER:
+            self._calibration_request = command.request_id
+            log.info("command %s started", name)
+            return
         if error:
             log.warning("command %s failed: %s", name, error)
         else:
@@ -382,6 +416,7 @@ class Service:
 
     def _cmd_mode(self, command: Any) -> str | None:
         mode = command.args["mode"]
+        self._end_calibration("cancelled by cmd/mode")
         if mode != self.mode:
             log.info("mode %s → %s", self.mode, mode)
             if self.mode == "blindaid":
@@ -395,13 +430,21 @@ class Service:
         return None
 
     def _cmd_sweep(self, command: Any) -> str | None:
+        if self._calibration is not None:
+            return self._calibrating()
         self._sweep_now = True
         return None
+
+    def _calibrating(self) -> str:
+        return (f"a calibration is running (waiting for the target at {self._calibration.waiting_for:g} m): "
+                "send cmd/mode to cancel it")
 
     def _cmd_point(self, command: Any) -> str | None:
         """Aim and range once; the range finder then keeps ranging there."""
         if self._parts is None:
             return "the rig is not running"
+        if self._calibration is not None:
+            return self._calibrating()
         from edge.sweep import sweeper_for
 
         pan, tilt = command.args["pan_deg"], command.args["tilt_deg"]
@@ -419,11 +462,115 @@ class Service:
         self._interrupt = self.mode == "guard"  # a sweep half done would mix old and new
         return None
 
-    def _cmd_calibrate(self, command: Any) -> str | None:
-        return ("calibration over MQTT is not available in this version: record a flat target with "
-                "`edge record` and run `edge calibrate` (README, Calibration)")
+    def _cmd_calibrate(self, command: Any) -> str | _Later | None:
+        """Start an interactive flat-target calibration (edge.modes.calibrate); its result comes
+        when it ends."""
+        from edge.modes.calibrate import TargetCalibration, check_distances
+
+        if self._parts is None:
+            return "the rig is not running"
+        if self._calibration is not None:
+            return self._calibrating()
+        distances = command.args["distances_m"]
+        problem = check_distances(distances)
+        if problem:
+            return problem
+        folder = self.config.service.resolved_state_dir() / "calibration-frames"
+        self._calibration = TargetCalibration(
+            distances, self.ranger, self.config.rig.build(), self._parts.capture, folder,
+            timeout_s=self.config.service.calibrate_timeout_s, device=self.device_id)
+        self._calibration_aimed = False
+        self._interrupt = True
+        log.info("calibration: hold a flat target squarely in front of the unit at %s m, in this order",
+                 ", ".join(f"{d:g}" for d in distances))
+        self._publish_state()
+        return LATER
+
+    def _calibrate_step(self) -> None:
+        session = self._calibration
+        parts = self._parts
+        assert session is not None and parts is not None
+        self._close_blindaid()  # here, not in the command: the blind aid may be mid-scan there
+        if session.timed_out:
+            self._end_calibration(f"timed out after {self.config.service.calibrate_timeout_s:g} s waiting for "
+                                  f"the target at {session.missing()} m; nothing changed")
+            return
+        try:
+            if not self._calibration_aimed:
+                parts.ptu.move(session.pan_deg, session.tilt_deg)
+                self._calibration_aimed = True
+            taken = session.step()
+        except HardwareError as exc:
+            self._zone(ZoneResult(-1, session.pan_deg, session.tilt_deg, FAULT, detail=str(exc)))
+            self.stop_requested.wait(0.2)
+            return
+        if session.last is not None:
+            # Published for whoever holds the target, but not judged: the rig is being calibrated
+            # and the nominal one may well miss its spots (no laser fault for that).
+            self._publish_live("range", session.last.to_json())
+        if taken is None:
+            return
+        ranged = session.taken[-1]
+        log.info("calibration: took the target at %g m (the nominal rig ranged %s)", taken,
+                 "nothing" if ranged is None else f"{ranged:.3f} m")
+        if session.complete:
+            self._finish_calibration()
+        else:
+            log.info("calibration: now at %g m", session.waiting_for)
+            self._publish_state()
+
+    def _finish_calibration(self) -> None:
+        from edge.calibrated import apply, calibration_file
+        from edge.calibration import report, write_calibration
+
+        session = self._calibration
+        outcome = session.finish()
+        self._calibration = None
+        if outcome.calibration is None:
+            self._calibration_result(False, outcome.error)
+            return
+        cal = outcome.calibration
+        path = calibration_file(self.config, service=True)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_calibration(path, cal)
+            believed = apply(self.config.rig.build(), cal, path)
+        except (EdgeError, OSError) as exc:
+            self._calibration_result(False, f"{exc}; nothing changed")
+            return
+        for line in report(cal, self.config.rig.build()):
+            log.info("calibration: %s", line)
+        self._use_rig(believed.rig, calibrated=True)
+        self.health.parts["calibration"] = believed.health
+        from edge.laserhealth import LaserHealth
+
+        self.laser_health = LaserHealth(believed.rig.laser_names)  # judged afresh with the new rays
+        if self._laser_faults:
+            self._laser_faults = {}
+            self.health.parts["lasers"] = "ok"
+        self._calibration_result(True, None, {"file": str(path), **calibration_summary(cal, self.config.rig.build())})
+
+    def _end_calibration(self, why: str) -> None:
+        """Cancel a running session (a mode change, lasers_off, a stop): nothing changes."""
+        if self._calibration is None:
+            return
+        self._calibration.abandon()
+        self._calibration = None
+        self._calibration_result(False, why)
+
+    def _calibration_result(self, ok: bool, error: str | None, calibration: dict | None = None) -> None:
+        if ok:
+            log.info("command calibrate done")
+        else:
+            log.warning("command calibrate failed: %s", error)
+        if self._link is not None:
+            self._link.publish_result("calibrate", ok, error=error, request_id=self._calibration_request,
+                                      extra={"calibration": calibration} if calibration else None)
+        self._calibration_request = None
+        self._publish_state()
 
     def _cmd_lasers_off(self, command: Any) -> str | None:
+        self._end_calibration("cancelled by cmd/lasers_off")
         if self._parts is not None:
             self._parts.lasers.off()
         return None
@@ -440,6 +587,7 @@ class Service:
             "sweeps": self.sweeps,
             "camera_restarts": self.camera_restarts,
             **({"guard": self._guard.state()} if self._guard is not None else {}),
+            **({"calibration": self._calibration.state()} if self._calibration is not None else {}),
         }
 
     def _publish_state(self) -> None:
@@ -457,3 +605,20 @@ class Service:
     def _result(self, name: str, ok: bool, error: str | None, request_id: str | None) -> None:
         if self._link is not None:
             self._link.publish_result(name, ok, error=error, request_id=request_id)
+
+
+def calibration_summary(cal: Any, nominal: Any) -> dict:
+    """What `cmd/calibrate`'s result says of a new calibration: per laser, how far its ray turned
+    from the nominal one and how well the points fit."""
+    import math
+
+    nominal_by_name = {laser.name: laser for laser in nominal.lasers}
+    lasers = {}
+    for laser in cal.lasers:
+        nom = nominal_by_name[laser.name]
+        angle = math.degrees(math.acos(min(1.0, float(laser.d @ nom.d))))
+        res = cal.residuals_px.get(laser.name, {})
+        lasers[laser.name] = {"angle_from_nominal_deg": round(angle, 4),
+                              "rms_px": round(float(res.get("rms", math.nan)), 4),
+                              "max_px": round(float(res.get("max", math.nan)), 4)}
+    return {"created": cal.created, "distances_m": list(cal.distances_m), "lasers": lasers}

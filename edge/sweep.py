@@ -218,12 +218,16 @@ class ConfiguredSweep:
 
 def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None, config: Config | None = None,
                 ranger: Ranger | None = None) -> Sweeper:
-    """A sweeper on opened parts (``edge.parts``), ranging with the configured rig (`config`, when
+    """A sweeper on opened parts (``edge.parts``), ranging with the configured rig and its
+    calibration (``edge.calibrated``; `config`, when
     given, changes how it sweeps: a mode's own pattern; `ranger`, when given, is reused rather
     than built again: building one lays out every laser's search band)."""
     config = config or parts.config
     truth = parts.truth if parts.simulated else None
-    ranger = ranger or Ranger(config.rig.build(), config.ranging)
+    if ranger is None:
+        from edge.calibrated import believed_rig
+
+        ranger = Ranger(believed_rig(config).rig, config.ranging)
     return Sweeper(config, parts.ptu, parts.capture, ranger,
                    on_zone=on_zone, truth=truth)
 

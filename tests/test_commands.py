@@ -150,13 +150,16 @@ def test_bad_mode():
 
 
 @pytest.mark.parametrize("distances, why", [
-    ([1.0], "distances_m has 1 entries, 2-20 expected"),
-    ([1.0] * 21, "distances_m has 21 entries, 2-20 expected"),
+    ([1.0], "distances_m has 1 entries, 3-20 expected"),
+    ([1.0, 2.0], "distances_m has 2 entries, 3-20 expected"),
+    ([1.0] * 21, "distances_m has 21 entries, 3-20 expected"),
+    ([0.5, 0.6, 0.7], "distances_m spans only a factor 1.40 (0.5 to 0.7 m): it must span at least 1.5 (e.g. 0.5 to 2 m)"),
+    ([0.5, 0.52, 1.0], "distances_m: 0.5 and 0.52 m follow each other but differ by under 10 %: the move cannot be seen"),
     ("1,2,3", "distances_m must be an array of numbers, got a string"),
-    ([1.0, 0.2], "distances_m[1] = 0.2 m is outside 0.25-5 m"),
-    ([5.01, 1.0], "distances_m[0] = 5.01 m is outside 0.25-5 m"),
-    ([1.0, True], "distances_m[1] must be a number, got true"),
-    ([1.0, "2"], 'distances_m[1] must be a number, got "2"'),
+    ([1.0, 0.2, 2.0], "distances_m[1] = 0.2 m is outside 0.25-5 m"),
+    ([5.01, 1.0, 2.0], "distances_m[0] = 5.01 m is outside 0.25-5 m"),
+    ([1.0, True, 2.0], "distances_m[1] must be a number, got true"),
+    ([1.0, "2", 3.0], 'distances_m[1] must be a number, got "2"'),
 ])
 def test_bad_calibration_distances(distances, why):
     assert refused("calibrate", {"distances_m": distances}) == f"cmd/calibrate: {why}"

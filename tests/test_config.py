@@ -51,7 +51,7 @@ def test_overrides_are_typed_and_validated(repo: Path) -> None:
 
 BAD = [
     ("[rig]\nrange_limits_m = [5.0, 0.25]\n", r"rig\.range_limits_m: must be 0 < near < far"),
-    ("[rig]\nwat = 1\n", r"rig\.wat: unknown key \(expected one of: camera, lasers, mount, range_limits_m\)"),
+    ("[rig]\nwat = 1\n", r"rig\.wat: unknown key \(expected one of: calibration, camera, lasers, mount, range_limits_m\)"),
     ("[sweep]\nzones = \"64\"\n", r"sweep\.zones: expected a whole number, got string '64'"),
     ("[sweep]\nzones = true\n", r"sweep\.zones: expected a whole number, got boolean true"),
     ("[sweep]\nzones = 0\n", r"sweep\.zones: must be 1-4096"),

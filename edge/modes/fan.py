@@ -22,7 +22,7 @@ from dataclasses import replace
 from edge.config import Config
 from edge.modes.audio import AplaySink, CuePlayer, NullSink, Synth, WavSink, speak_to_frames
 from edge.modes.blindaid import BlindAid, Cue, fan_poses, scan_order
-from edge.ranging import ZoneResult
+from edge.ranging import Ranger, ZoneResult
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +42,7 @@ class BlindAidRunner:
     """The blind aid's loop step and its sound, on opened parts."""
 
     def __init__(self, config: Config, parts, on_cue: Callable[[Cue], None],
-                 on_zone: Callable[[ZoneResult], None] | None = None) -> None:
+                 on_zone: Callable[[ZoneResult], None] | None = None, ranger: Ranger | None = None) -> None:
         from edge.sweep import sweeper_for
 
         self.config = config
@@ -51,7 +51,7 @@ class BlindAidRunner:
         self.order = scan_order(config.blindaid)
         # One laser-off/on pair a zone: the blind aid wants fresh ranges, not the last millimetre.
         fan = replace(config, sweep=replace(config.sweep, pairs_per_zone=1))
-        self.sweeper = sweeper_for(parts, on_zone=on_zone, config=fan)
+        self.sweeper = sweeper_for(parts, on_zone=on_zone, config=fan, ranger=ranger)
         self.on_cue = on_cue
         self._cue_frames: list[tuple[float, float]] = []  # (cue time, frame end time)
         sink, live = open_audio(config)

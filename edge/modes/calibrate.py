@@ -1,0 +1,230 @@
+"""`cmd/calibrate`: an interactive flat-target calibration, guided over MQTT.
+
+Someone holds a flat, matte target squarely in front of the unit (pan 0, tilt 0) at each requested
+distance in turn, in the order given, measured from the camera's optical centre along its axis.
+There is no button to press: after the command, the target is brought to the first distance, and
+the unit takes it once the target has come to rest there (the spots still for `steady_s`); then it
+waits for the next. `state` says which distance it waits for, and every pair is ranged and
+published on `range` as usual, so whoever holds the target can follow.
+
+An uncalibrated rig cannot be trusted to find its own spots (they may lie outside the narrow bands
+the ranger searches) nor to tell 2 m from 1.3 m (half a degree of laser error shifts a spot as much
+as that step does), so the session follows the spots themselves, anywhere in the picture, and takes
+the target's *rests* in order. A rest is taken for distance k only when:
+- its spots moved since the last rest taken (for the first distance: since what the unit saw when
+  the command came — so send the command first, then bring the target);
+- for the first distance, a spot lies where the nominal rig expects one, within the fit's own
+  first gate (about 2.5° of laser error);
+- from the second distance on, a spot moved from where one was at distance k−1 the way the nominal
+  rig says the reference spot should (the errors shift a spot about as much at both distances),
+  within half that move or 2 px: a target held still half-way, or moved the wrong way, is not
+  taken.
+So: move the target straight from one distance to the next and hold it still at each for a couple
+of seconds. Should a wrong rest still slip through, the fit refuses residuals over half a pixel,
+and nothing changes.
+
+The frames of each distance go into an ``edge-sweep/1`` recording (zone k = distance k) in the state
+folder, so that the same fit can be run again offline with ``edge calibrate``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from edge.calibration import FIRST_GATE_PX, Calibration, find_spots, fit_calibration
+from edge.capture import Capture, Shot
+from edge.errors import CalibrationError
+from edge.ranging import OK, FrameGroup, Ranger, ZoneResult
+from edge.recording import RecordingWriter, read_recording
+from edge.rig import Rig
+
+MOVED_PX = 1.5  # a spot this far from every spot seen before has moved
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """How a session ended: a calibration, or why not."""
+
+    calibration: Calibration | None
+    error: str | None = None
+
+
+def check_distances(distances: Sequence[float]) -> str | None:
+    """Why these distances cannot make a calibration session, or None."""
+    d = list(distances)
+    if len(d) < 3:
+        return f"distances_m has {len(d)} entries: a fit needs at least 3"
+    if max(d) / min(d) < 1.5:
+        return (f"distances_m spans only a factor {max(d) / min(d):.2f} ({min(d):g} to {max(d):g} m): "
+                "it must span at least 1.5 (e.g. 0.5 to 2 m)")
+    for a, b in zip(d, d[1:]):
+        if abs(math.log(b / a)) < math.log(1.1):
+            return f"distances_m: {a:g} and {b:g} m follow each other but differ by under 10 %: the move cannot be seen"
+    return None
+
+
+class TargetCalibration:
+    """One calibration session on opened parts; the service calls :meth:`step` between commands."""
+
+    def __init__(self, distances_m: Sequence[float], ranger: Ranger, nominal: Rig, capture: Capture,
+                 folder: Path, *, pan_deg: float = 0.0, tilt_deg: float = 0.0, pairs: int = 4,
+                 steady_s: float = 1.5, still_px: float = 0.7, timeout_s: float = 600.0,
+                 device: str = "", clock: Callable[[], float] = time.monotonic) -> None:
+        self.distances = tuple(float(d) for d in distances_m)
+        self.ranger = ranger
+        self.nominal = nominal
+        self.capture = capture
+        self.folder = Path(folder)
+        self.pan_deg, self.tilt_deg = pan_deg, tilt_deg
+        self.pairs = pairs
+        self.steady_s = steady_s
+        self.still_px = still_px
+        self.clock = clock
+        self.started = clock()
+        self.deadline = self.started + timeout_s
+        self.taken: list[float | None] = []  # what the nominal rig ranged at each distance taken
+        self.last: ZoneResult | None = None
+        self._recent: deque[tuple[float, list[np.ndarray]]] = deque()  # (time, spots) of each pair
+        self._shots: deque[list[Shot]] = deque(maxlen=pairs)
+        self._before: list[np.ndarray] | None = None  # resting spots at the start, then at the last taken
+        self._taken_spots: list[list[np.ndarray]] = []  # the resting spots at each distance taken
+        self._writer = RecordingWriter(self.folder, nominal, device=device)
+        self._writer.__enter__()
+        self._open = True
+
+    # ---- progress ----
+
+    @property
+    def waiting_for(self) -> float | None:
+        k = len(self.taken)
+        return self.distances[k] if k < len(self.distances) else None
+
+    @property
+    def complete(self) -> bool:
+        return self.waiting_for is None
+
+    def state(self) -> dict:
+        """For `state` while the session runs."""
+        return {
+            "distances_m": list(self.distances),
+            "taken_m": list(self.distances[: len(self.taken)]),
+            "waiting_for_m": self.waiting_for,
+            "ranged_m": None if self.last is None or self.last.range_m is None else round(self.last.range_m, 4),
+            "elapsed_s": round(self.clock() - self.started, 1),
+        }
+
+    # ---- the loop's step ----
+
+    def step(self) -> float | None:
+        """Take one laser-off/on pair, range it and look at its spots; returns the distance taken
+        with it, if any. Raises HardwareError like any capture."""
+        shots = self.capture.zone(pairs=1)
+        off, on = shots
+        group = FrameGroup([on.frame.image], [off.frame.image], on.lasers_on, (self.pan_deg, self.tilt_deg))
+        self.last = self.ranger.range_zone(-1, self.pan_deg, self.tilt_deg, [group])
+        now = self.clock()
+        self._recent.append((now, find_spots([on.frame.image], [off.frame.image])))
+        self._shots.append(shots)
+        while self._recent and self._recent[0][0] < now - self.steady_s:
+            self._recent.popleft()
+        spots = self._resting_spots(now)
+        if spots is None:
+            return None
+        if self._before is None:
+            self._before = spots  # what was there when the session began
+            return None
+        if not self._accept(spots):
+            return None
+        distance = self.waiting_for
+        k = len(self.taken)
+        frames = [(s.frame.image, list(s.lasers_on), {"t_start_ns": s.frame.t_start_ns,
+                                                     "exposure_us": s.frame.exposure_us,
+                                                     "laser_switch_ns": s.laser_switch_ns})
+                  for pair in self._shots for s in pair]
+        self._writer.add_zone(k, self.pan_deg, self.tilt_deg, frames, {"range_m": distance, "point_m": None})
+        measured = self.last.range_m if self.last.status == OK else None
+        self.taken.append(measured)
+        self._taken_spots.append(spots)
+        self._before = spots
+        self._recent.clear()
+        self._shots.clear()
+        return distance
+
+    def _resting_spots(self, now: float) -> list[np.ndarray] | None:
+        """The spots' mean positions when every pair of the last `steady_s` showed the same spots
+        within `still_px` (or none at all); else None (something moves, or not watched long enough)."""
+        if len(self._recent) < max(4, self.pairs) or now - self._recent[0][0] < 0.8 * self.steady_s:
+            return None
+        first = self._recent[0][1]
+        if any(len(spots) != len(first) for _, spots in self._recent):
+            return None
+        tracks = [[p] for p in first]
+        for _, spots in list(self._recent)[1:]:
+            for track in tracks:
+                nearest = min(spots, key=lambda q: float(np.linalg.norm(q - track[0])))
+                if np.linalg.norm(nearest - track[0]) > self.still_px:
+                    return None
+                track.append(nearest)
+        return [np.mean(track, axis=0) for track in tracks]
+
+    def _expected(self, depth: float) -> list[np.ndarray]:
+        cam = self.nominal.camera
+        return [cam.project(laser.point_at_depth(depth)) for laser in self.nominal.lasers]
+
+    def _accept(self, spots: list[np.ndarray]) -> bool:
+        """Whether resting `spots` show the target at the awaited distance (see the module notes)."""
+        if not spots:
+            return False
+        before = self._before or []
+        moved = len(spots) != len(before) or any(
+            min(float(np.linalg.norm(p - q)) for q in before) > MOVED_PX for p in spots)
+        if not moved:
+            return False
+        want = self.waiting_for
+        if not self._taken_spots:
+            # Where the nominal rig expects the spots, give or take the fit's own first gate.
+            return any(float(np.linalg.norm(p - e)) <= FIRST_GATE_PX for p in spots for e in self._expected(want))
+        previous = self.distances[len(self._taken_spots) - 1]
+        # How the reference spot should have moved since the last distance: the lasers' errors
+        # shift their spots by about as much at both distances, so the change is well predicted.
+        ref = self.nominal.reference
+        cam = self.nominal.camera
+        shift = cam.project(ref.point_at_depth(want)) - cam.project(ref.point_at_depth(previous))
+        tolerance = max(2.0, 0.5 * float(np.linalg.norm(shift)))
+        return any(min(float(np.linalg.norm(q - (p + shift))) for q in spots) <= tolerance
+                   for p in self._taken_spots[-1])
+
+    @property
+    def timed_out(self) -> bool:
+        return self.clock() >= self.deadline
+
+    # ---- the end ----
+
+    def finish(self) -> Outcome:
+        """Fit the rig from the distances taken (all of them), or say why not."""
+        try:
+            self._writer.__exit__(None, None, None)
+        finally:
+            self._open = False
+        try:
+            recording = read_recording(self.folder)
+            return Outcome(fit_calibration(recording, self.distances))
+        except CalibrationError as exc:
+            return Outcome(None, f"the fit failed: {exc}; nothing changed (frames kept in {self.folder})")
+
+    def abandon(self) -> None:
+        """End without a fit; what was recorded so far is dropped."""
+        if self._open:
+            self._open = False
+            self._writer.__exit__(RuntimeError, RuntimeError("abandoned"), None)
+
+    def missing(self) -> str:
+        left = self.distances[len(self.taken):]
+        return ", ".join(f"{d:g}" for d in left)

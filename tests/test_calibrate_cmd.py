@@ -1,0 +1,112 @@
+"""`cmd/calibrate` end to end: the real `edge run` on a simulated rig whose lasers are really off
+(``sim.rig_error``), the `bench` scene (a board carried to 2.0, 1.3, 0.8 and 0.5 m), a real
+Mosquitto. The session must take each distance while the board stands there, fit the true rays,
+save and use them — and a session can be refused, cancelled or time out without changing anything."""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import statistics
+from pathlib import Path
+
+import pytest
+from broker import Mosquitto, broker, publish, subscriber  # noqa: F401  (fixtures)
+from test_service import DEVICE, P, finish, payload, start
+
+from edge.calibration import read_calibration
+from edge.config import load_config
+from edge.sim.record import true_rig
+
+pytestmark = pytest.mark.slow
+
+FLAWED = ["sim.rig_error.laser_angle_deg=0.5", "sim.rig_error.laser_offset_m=0.002", "sim.rig_error.seed=4"]
+DISTANCES = [2.0, 1.3, 0.8, 0.5]
+# When the board stands at each distance, in scene seconds (config/scenes/bench.toml), and when
+# the back wall (3.7 m) is in sight again.
+STANDS = [(5.5, 11.5), (12.5, 18.5), (19.21, 25.21), (25.64, 31.64)]
+WALL_M, WALL_FROM_S = 3.7, 32.2
+
+
+def test_a_board_carried_to_each_distance_calibrates_the_rig(broker, subscriber, tmp_path):
+    proc = start(broker, tmp_path, 'sim.scene="bench"', "service.sweep_interval_s=0", *FLAWED, run_for=90)
+    online = subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
+    publish(broker, f"{P}/cmd/calibrate", json.dumps({"distances_m": DISTANCES, "request_id": "cal-1"}))
+    result = subscriber.wait_for(f"{P}/cmd/calibrate/result", timeout=60)
+    subscriber.wait_for(f"{P}/range", lambda m: m.at - online.at > WALL_FROM_S + 3, timeout=30)
+    proc.send_signal(signal.SIGTERM)
+    err = finish(proc)
+    body = payload(result)
+    assert body["ok"] is True and body["request_id"] == "cal-1", body
+
+    # Each distance was taken while the board stood there (scene time runs from the rig's start,
+    # a moment before `online`).
+    states = [(m.at - online.at, payload(m)) for m in subscriber.messages(f"{P}/state")]
+    progress = [(t, s["calibration"]) for t, s in states if "calibration" in s]
+    assert progress[0][1]["waiting_for_m"] == 2.0 and progress[0][1]["taken_m"] == []
+    taken_at = {}
+    for t, c in progress:
+        for d in c["taken_m"]:
+            taken_at.setdefault(d, t)
+    taken_at.setdefault(0.5, result.at - online.at)
+    assert list(taken_at) == DISTANCES
+    for d, (lo, hi) in zip(DISTANCES, STANDS):
+        assert lo <= taken_at[d] <= hi + 1.0, (d, taken_at[d], (lo, hi))
+
+    # The fit found the rig's true rays (the nominal ones are up to 0.55° off) and was saved.
+    saved = tmp_path / "state" / "calibration.json"
+    assert body["calibration"]["file"] == str(saved)
+    cal = read_calibration(saved)
+    truth = true_rig(load_config(None, FLAWED))
+    for laser in cal.lasers:
+        turned = math.degrees(math.acos(min(1.0, float(laser.d @ truth.laser(laser.name).d))))
+        assert turned < 0.05, (laser.name, turned)
+        reported = body["calibration"]["lasers"][laser.name]
+        assert reported["max_px"] < 0.5 and reported["angle_from_nominal_deg"] > 0.1
+    assert "frames kept" not in err and (tmp_path / "state" / "calibration-frames" / "sweep.json").exists()
+    health = [s["health"]["calibration"] for _, s in states]
+    assert health[0] == "nominal rig (no calibration file)" and health[-1].startswith("calibrated ")
+
+    # ...and is used at once: the wall the nominal rig could not range is ranged within 2 %.
+    ranges = [(m.at - online.at, json.loads(m.payload)) for m in subscriber.messages(f"{P}/range")]
+    before = [r for t, r in ranges if t < STANDS[0][0] - 1]
+    after = [r["range_m"] for t, r in ranges if t > WALL_FROM_S + 1 and r["status"] == "ok"]
+    assert before and all(r["status"] != "ok" for r in before), "the nominal rig ranged the wall: no test"
+    assert len(after) > 20 and abs(statistics.median(after) / WALL_M - 1) < 0.02, statistics.median(after)
+
+
+def test_a_session_refuses_other_commands_is_cancelled_by_a_mode_and_times_out(broker, subscriber, tmp_path):
+    proc = start(broker, tmp_path, "service.sweep_interval_s=0", "service.calibrate_timeout_s=10", run_for=60)
+    subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
+
+    def command(name: str, body: dict) -> dict:
+        mark = subscriber.mark()
+        publish(broker, f"{P}/cmd/{name}", json.dumps(body))
+        return payload(subscriber.wait_for(f"{P}/cmd/{name}/result", timeout=15, since=mark))
+
+    first = {"distances_m": [0.5, 1.0, 2.0], "request_id": "one"}
+    mark = subscriber.mark()
+    publish(broker, f"{P}/cmd/calibrate", json.dumps(first))
+    subscriber.wait_for(f"{P}/state", lambda m: b'"calibration":{' in m.payload, timeout=10, since=mark)
+    for name, body in (("sweep", {}), ("point", {"pan_deg": 10.0, "tilt_deg": 0.0}), ("calibrate", first)):
+        answer = command(name, {**body, "request_id": name})
+        assert answer["ok"] is False and answer["request_id"] == name
+        assert answer["error"].startswith("a calibration is running (waiting for the target at 0.5 m)")
+    mark = subscriber.mark()
+    assert command("mode", {"mode": "guard"})["ok"] is True
+    cancelled = payload(subscriber.wait_for(f"{P}/cmd/calibrate/result", timeout=5, since=mark))
+    assert cancelled == {**cancelled, "ok": False, "error": "cancelled by cmd/mode", "request_id": "one"}
+
+    # Nobody brings a target: after calibrate_timeout_s the session ends and nothing changed.
+    mark = subscriber.mark()
+    publish(broker, f"{P}/cmd/calibrate", json.dumps({"distances_m": [0.5, 1.0, 2.0], "request_id": "two"}))
+    late = payload(subscriber.wait_for(f"{P}/cmd/calibrate/result", timeout=25, since=mark))
+    assert late["ok"] is False and late["request_id"] == "two"
+    assert late["error"] == "timed out after 10 s waiting for the target at 0.5, 1, 2 m; nothing changed"
+    proc.send_signal(signal.SIGTERM)
+    finish(proc)
+    assert not (tmp_path / "state" / "calibration.json").exists()
+    states = [payload(m) for m in subscriber.messages(f"{P}/state")]
+    assert states[-1]["health"]["calibration"] == "nominal rig (no calibration file)"
+    assert "calibration" not in states[-1]

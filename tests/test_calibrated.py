@@ -1,0 +1,104 @@
+"""Which rig ranging believes: the configured calibration file, else the service's own, else the
+nominal rig — and a configured file that cannot be used is an error, never a silent default."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edge.calibrated import NOMINAL, believed_rig
+from edge.calibration import Calibration, write_calibration
+from edge.config import load_config
+from edge.errors import ConfigError
+from edge.rig import default_rig
+from edge.service import Service
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def turned(rig, degrees: float = 0.4) -> Calibration:
+    """A calibration whose lasers are turned a little about the camera's y axis."""
+    a = np.radians(degrees)
+    rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    lasers = tuple(replace(laser, direction=tuple(float(c) for c in rot @ np.asarray(laser.direction)))
+                   for laser in rig.lasers)
+    return Calibration(lasers, rig.camera, (0.5, 1.0, 2.0), {ln.name: {"rms": 0.1, "max": 0.2, "n": 3}
+                                                           for ln in rig.lasers}, "2026-11-23T10:00:00Z")
+
+
+def directions(rig) -> list[tuple[float, ...]]:
+    return [tuple(round(c, 9) for c in laser.direction) for laser in rig.lasers]
+
+
+def test_without_any_calibration_the_nominal_rig(tmp_path):
+    config = load_config(None, [f"service.state_dir={json.dumps(str(tmp_path))}"])
+    for service in (False, True):
+        believed = believed_rig(config, service=service)
+        assert believed.rig == config.rig.build() and believed.health == NOMINAL and believed.path is None
+
+
+def test_a_configured_calibration_is_applied_relative_to_the_config_file(tmp_path):
+    cal = turned(default_rig())
+    write_calibration(tmp_path / "rig-cal.json", cal)
+    (tmp_path / "edge.toml").write_text('[rig]\ncalibration = "rig-cal.json"\n')
+    config = load_config(str(tmp_path / "edge.toml"))
+    believed = believed_rig(config)
+    assert directions(believed.rig) == directions(cal.apply(config.rig.build()))
+    assert directions(believed.rig) != directions(config.rig.build())
+    assert [ln.pin for ln in believed.rig.lasers] == [17, 27, 22]  # the wiring stays the config's
+    assert believed.health.startswith("calibrated 2026-11-23T10:00:00Z at 0.5, 1, 2 m, residuals ≤ 0.20 px")
+    assert str(tmp_path / "rig-cal.json") in believed.health
+
+
+def test_a_configured_calibration_that_cannot_be_used_is_an_error(tmp_path):
+    config = load_config(None, [f"rig.calibration={json.dumps(str(tmp_path / 'nope.json'))}"])
+    with pytest.raises(ConfigError, match=r"^rig.calibration: .*nope.json: no such calibration file"):
+        believed_rig(config)
+    (tmp_path / "nope.json").write_text("{")
+    with pytest.raises(ConfigError, match=r"^rig.calibration: .*nope.json: not valid JSON"):
+        believed_rig(config, service=True)
+    # and from the command line: one line, no traceback, exit status of a bad input
+    result = subprocess.run([sys.executable, "-m", "edge", "run", "--set",
+                             f"rig.calibration={json.dumps(str(tmp_path / 'nope.json'))}", "--for", "1"],
+                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    lines = [ln for ln in result.stderr.splitlines() if ln.startswith("edge:")]
+    assert len(lines) == 1 and "rig.calibration:" in lines[0] and "nope.json: not valid JSON" in lines[0]
+    assert "Traceback" not in result.stderr
+
+
+def test_the_service_uses_its_own_calibration_and_other_commands_do_not(tmp_path):
+    config = load_config(None, [f"service.state_dir={json.dumps(str(tmp_path))}", "mqtt.enabled=false"])
+    cal = turned(config.rig.build())
+    write_calibration(tmp_path / "calibration.json", cal)
+    assert directions(believed_rig(config, service=True).rig) == directions(cal.apply(config.rig.build()))
+    assert believed_rig(config).health == NOMINAL  # `edge sweep` in the same folder: only if configured
+    service = Service(config)
+    assert directions(service.ranger.rig) == directions(cal.apply(config.rig.build()))
+    assert service.state()["health"]["calibration"].startswith("calibrated 2026-11-23T10:00:00Z")
+
+
+def test_a_broken_own_calibration_is_reported_and_the_service_ranges_nominally(tmp_path, caplog):
+    config = load_config(None, [f"service.state_dir={json.dumps(str(tmp_path))}", "mqtt.enabled=false"])
+    other = replace(turned(config.rig.build()), lasers=turned(config.rig.build()).lasers[:2])  # a laser short
+    write_calibration(tmp_path / "calibration.json", other)
+    service = Service(config)
+    health = service.state()["health"]["calibration"]
+    assert health.startswith("fault: the calibration has no laser 'sloped'") and "nominal rig" in health
+    assert directions(service.ranger.rig) == directions(config.rig.build())
+    assert any("calibration" in r.getMessage() and r.levelname == "ERROR" for r in caplog.records)
+
+
+def test_edge_config_says_what_the_rig_is_based_on(tmp_path):
+    write_calibration(tmp_path / "c.json", turned(default_rig()))
+    result = subprocess.run([sys.executable, "-m", "edge", "config", "--set",
+                             f"rig.calibration={json.dumps(str(tmp_path / 'c.json'))}"],
+                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert "calibration: calibrated 2026-11-23T10:00:00Z" in result.stdout
