@@ -476,9 +476,12 @@ class Service:
         if problem:
             return problem
         folder = self.config.service.resolved_state_dir() / "calibration-frames"
-        self._calibration = TargetCalibration(
-            distances, self.ranger, self.config.rig.build(), self._parts.capture, folder,
-            timeout_s=self.config.service.calibrate_timeout_s, device=self.device_id)
+        try:
+            self._calibration = TargetCalibration(
+                distances, self.ranger, self.config.rig.build(), self._parts.capture, folder,
+                timeout_s=self.config.service.calibrate_timeout_s, device=self.device_id)
+        except OSError as exc:  # the state folder is not writable, or full
+            return f"cannot keep the calibration frames in {folder}: {exc.strerror or exc}"
         self._calibration_aimed = False
         self._interrupt = True
         log.info("calibration: hold a flat target squarely in front of the unit at %s m, in this order",
@@ -524,8 +527,12 @@ class Service:
         from edge.calibration import report, write_calibration
 
         session = self._calibration
-        outcome = session.finish()
         self._calibration = None
+        try:
+            outcome = session.finish()
+        except (EdgeError, OSError) as exc:  # the frames could not be saved (a full card)
+            self._calibration_result(False, f"cannot keep the calibration frames: {exc}; nothing changed")
+            return
         if outcome.calibration is None:
             self._calibration_result(False, outcome.error)
             return
