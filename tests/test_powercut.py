@@ -46,7 +46,7 @@ def test_killed_writers_leave_whole_files_or_none(tmp_path: Path) -> None:
     last = 0
     for attempt in range(8):
         proc = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path)], stdout=subprocess.PIPE, text=True)
-        time.sleep(1.5 + rng.random() * 1.5)
+        time.sleep(1.0 + rng.random() * 1.0)
         os.kill(proc.pid, signal.SIGKILL)
         out, _ = proc.communicate()
         done = [int(x) for x in out.split()]
