@@ -70,31 +70,108 @@ def check_distances(distances: Sequence[float]) -> str | None:
     return None
 
 
+class RestWatcher:
+    """The pure half of a session: from the spots of each laser-off/on pair, when the target rests
+    at the distance awaited (see the module notes). Knows nothing of cameras or files."""
+
+    def __init__(self, nominal: Rig, distances_m: Sequence[float], *, steady_s: float = 1.5,
+                 still_px: float = 0.7, min_pairs: int = 4) -> None:
+        self.nominal = nominal
+        self.distances = tuple(float(d) for d in distances_m)
+        self.steady_s = steady_s
+        self.still_px = still_px
+        self.min_pairs = min_pairs
+        self.taken: list[list[np.ndarray]] = []  # the resting spots at each distance taken
+        self._recent: deque[tuple[float, list[np.ndarray]]] = deque()  # (time, spots) of each pair
+        self._before: list[np.ndarray] | None = None  # resting spots at the start, then at the last taken
+
+    @property
+    def waiting_for(self) -> float | None:
+        k = len(self.taken)
+        return self.distances[k] if k < len(self.distances) else None
+
+    def add(self, t_s: float, spots: list[np.ndarray]) -> bool:
+        """One pair's spots at time `t_s`; True when the target is to be taken now for
+        :attr:`waiting_for` (it then waits for the next distance)."""
+        if self.waiting_for is None:
+            return False
+        self._recent.append((t_s, [np.asarray(p, dtype=np.float64) for p in spots]))
+        while self._recent and self._recent[0][0] < t_s - self.steady_s:
+            self._recent.popleft()
+        resting = self._resting(t_s)
+        if resting is None:
+            return False
+        if self._before is None:
+            self._before = resting  # what was there when the session began
+            return False
+        if not self._accept(resting):
+            return False
+        self.taken.append(resting)
+        self._before = resting
+        self._recent.clear()
+        return True
+
+    def _resting(self, now: float) -> list[np.ndarray] | None:
+        """The spots' mean positions when every pair of the last `steady_s` showed the same spots
+        within `still_px` (or none at all); else None (something moves, or not watched long enough)."""
+        if len(self._recent) < self.min_pairs or now - self._recent[0][0] < 0.8 * self.steady_s:
+            return None
+        first = self._recent[0][1]
+        if any(len(spots) != len(first) for _, spots in self._recent):
+            return None
+        tracks = [[p] for p in first]
+        for _, spots in list(self._recent)[1:]:
+            for track in tracks:
+                nearest = min(spots, key=lambda q: float(np.linalg.norm(q - track[0])))
+                if np.linalg.norm(nearest - track[0]) > self.still_px:
+                    return None
+                track.append(nearest)
+        return [np.mean(track, axis=0) for track in tracks]
+
+    def _accept(self, spots: list[np.ndarray]) -> bool:
+        """Whether resting `spots` show the target at the awaited distance (see the module notes)."""
+        if not spots:
+            return False
+        before = self._before or []
+        moved = len(spots) != len(before) or any(
+            min(float(np.linalg.norm(p - q)) for q in before) > MOVED_PX for p in spots)
+        if not moved:
+            return False
+        want = self.waiting_for
+        cam = self.nominal.camera
+        if not self.taken:
+            # Where the nominal rig expects the spots, give or take the fit's own first gate.
+            expected = [cam.project(laser.point_at_depth(want)) for laser in self.nominal.lasers]
+            return any(float(np.linalg.norm(p - e)) <= FIRST_GATE_PX for p in spots for e in expected)
+        previous = self.distances[len(self.taken) - 1]
+        # How the reference spot should have moved since the last distance: the lasers' errors
+        # shift their spots by about as much at both distances, so the change is well predicted.
+        ref = self.nominal.reference
+        shift = cam.project(ref.point_at_depth(want)) - cam.project(ref.point_at_depth(previous))
+        tolerance = max(2.0, 0.5 * float(np.linalg.norm(shift)))
+        return any(min(float(np.linalg.norm(q - (p + shift))) for q in spots) <= tolerance
+                   for p in self.taken[-1])
+
+
 class TargetCalibration:
     """One calibration session on opened parts; the service calls :meth:`step` between commands."""
 
     def __init__(self, distances_m: Sequence[float], ranger: Ranger, nominal: Rig, capture: Capture,
                  folder: Path, *, pan_deg: float = 0.0, tilt_deg: float = 0.0, pairs: int = 4,
-                 steady_s: float = 1.5, still_px: float = 0.7, timeout_s: float = 600.0,
-                 device: str = "", clock: Callable[[], float] = time.monotonic) -> None:
-        self.distances = tuple(float(d) for d in distances_m)
+                 timeout_s: float = 600.0, device: str = "",
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.watcher = RestWatcher(nominal, distances_m, min_pairs=max(4, pairs))
+        self.distances = self.watcher.distances
         self.ranger = ranger
-        self.nominal = nominal
         self.capture = capture
         self.folder = Path(folder)
         self.pan_deg, self.tilt_deg = pan_deg, tilt_deg
-        self.pairs = pairs
-        self.steady_s = steady_s
-        self.still_px = still_px
         self.clock = clock
         self.started = clock()
         self.deadline = self.started + timeout_s
-        self.taken: list[float | None] = []  # what the nominal rig ranged at each distance taken
+        self.taken: list[float | None] = []  # what the rig in use ranged at each distance taken
         self.last: ZoneResult | None = None
-        self._recent: deque[tuple[float, list[np.ndarray]]] = deque()  # (time, spots) of each pair
-        self._shots: deque[list[Shot]] = deque(maxlen=pairs)
-        self._before: list[np.ndarray] | None = None  # resting spots at the start, then at the last taken
-        self._taken_spots: list[list[np.ndarray]] = []  # the resting spots at each distance taken
+        self._shots: deque[list[Shot]] = deque(maxlen=pairs)  # the latest pairs: saved when taken
         self._writer = RecordingWriter(self.folder, nominal, device=device)
         self._writer.__enter__()
         self._open = True
@@ -103,8 +180,7 @@ class TargetCalibration:
 
     @property
     def waiting_for(self) -> float | None:
-        k = len(self.taken)
-        return self.distances[k] if k < len(self.distances) else None
+        return self.watcher.waiting_for
 
     @property
     def complete(self) -> bool:
@@ -129,77 +205,19 @@ class TargetCalibration:
         off, on = shots
         group = FrameGroup([on.frame.image], [off.frame.image], on.lasers_on, (self.pan_deg, self.tilt_deg))
         self.last = self.ranger.range_zone(-1, self.pan_deg, self.tilt_deg, [group])
-        now = self.clock()
-        self._recent.append((now, find_spots([on.frame.image], [off.frame.image])))
         self._shots.append(shots)
-        while self._recent and self._recent[0][0] < now - self.steady_s:
-            self._recent.popleft()
-        spots = self._resting_spots(now)
-        if spots is None:
-            return None
-        if self._before is None:
-            self._before = spots  # what was there when the session began
-            return None
-        if not self._accept(spots):
-            return None
         distance = self.waiting_for
+        if not self.watcher.add(self.clock(), find_spots([on.frame.image], [off.frame.image])):
+            return None
         k = len(self.taken)
         frames = [(s.frame.image, list(s.lasers_on), {"t_start_ns": s.frame.t_start_ns,
                                                      "exposure_us": s.frame.exposure_us,
                                                      "laser_switch_ns": s.laser_switch_ns})
                   for pair in self._shots for s in pair]
         self._writer.add_zone(k, self.pan_deg, self.tilt_deg, frames, {"range_m": distance, "point_m": None})
-        measured = self.last.range_m if self.last.status == OK else None
-        self.taken.append(measured)
-        self._taken_spots.append(spots)
-        self._before = spots
-        self._recent.clear()
+        self.taken.append(self.last.range_m if self.last.status == OK else None)
         self._shots.clear()
         return distance
-
-    def _resting_spots(self, now: float) -> list[np.ndarray] | None:
-        """The spots' mean positions when every pair of the last `steady_s` showed the same spots
-        within `still_px` (or none at all); else None (something moves, or not watched long enough)."""
-        if len(self._recent) < max(4, self.pairs) or now - self._recent[0][0] < 0.8 * self.steady_s:
-            return None
-        first = self._recent[0][1]
-        if any(len(spots) != len(first) for _, spots in self._recent):
-            return None
-        tracks = [[p] for p in first]
-        for _, spots in list(self._recent)[1:]:
-            for track in tracks:
-                nearest = min(spots, key=lambda q: float(np.linalg.norm(q - track[0])))
-                if np.linalg.norm(nearest - track[0]) > self.still_px:
-                    return None
-                track.append(nearest)
-        return [np.mean(track, axis=0) for track in tracks]
-
-    def _expected(self, depth: float) -> list[np.ndarray]:
-        cam = self.nominal.camera
-        return [cam.project(laser.point_at_depth(depth)) for laser in self.nominal.lasers]
-
-    def _accept(self, spots: list[np.ndarray]) -> bool:
-        """Whether resting `spots` show the target at the awaited distance (see the module notes)."""
-        if not spots:
-            return False
-        before = self._before or []
-        moved = len(spots) != len(before) or any(
-            min(float(np.linalg.norm(p - q)) for q in before) > MOVED_PX for p in spots)
-        if not moved:
-            return False
-        want = self.waiting_for
-        if not self._taken_spots:
-            # Where the nominal rig expects the spots, give or take the fit's own first gate.
-            return any(float(np.linalg.norm(p - e)) <= FIRST_GATE_PX for p in spots for e in self._expected(want))
-        previous = self.distances[len(self._taken_spots) - 1]
-        # How the reference spot should have moved since the last distance: the lasers' errors
-        # shift their spots by about as much at both distances, so the change is well predicted.
-        ref = self.nominal.reference
-        cam = self.nominal.camera
-        shift = cam.project(ref.point_at_depth(want)) - cam.project(ref.point_at_depth(previous))
-        tolerance = max(2.0, 0.5 * float(np.linalg.norm(shift)))
-        return any(min(float(np.linalg.norm(q - (p + shift))) for q in spots) <= tolerance
-                   for p in self._taken_spots[-1])
 
     @property
     def timed_out(self) -> bool:
