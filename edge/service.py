@@ -549,6 +549,12 @@ class Service:
             log.info("calibration: %s", line)
         self._use_rig(believed.rig, calibrated=True)
         self.health.parts["calibration"] = believed.health
+        if self._guard is not None:
+            # Its background was ranged with the old rays: against the new ones a wall would
+            # seem to have moved by a percent or two. Learn it again rather than raise alarms.
+            log.info("guard: learning the background again with the calibrated rig")
+            for event in self._guard.relearn():
+                self._publish_event("alert", event.to_json())
         from edge.laserhealth import LaserHealth
 
         self.laser_health = LaserHealth(believed.rig.laser_names)  # judged afresh with the new rays

@@ -102,3 +102,32 @@ def test_edge_config_says_what_the_rig_is_based_on(tmp_path):
                             cwd=REPO, capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert "calibration: calibrated 2026-11-23T10:00:00Z" in result.stdout
+
+
+def test_a_new_calibration_is_saved_used_and_makes_the_guard_learn_again(tmp_path):
+    """The end of a cmd/calibrate session in the service, with the session's own outcome given:
+    the file is written, the ranger uses it, and a guard that had learnt its room with the old
+    rays learns it again (against the new ones every wall would seem to have moved)."""
+    from edge.modes.calibrate import Outcome
+    from edge.ranging import OK, ZoneResult
+
+    config = load_config(None, [f"service.state_dir={json.dumps(str(tmp_path))}", "mqtt.enabled=false",
+                                'mode="guard"', "guard.learn_sweeps=2"])
+    service = Service(config)
+    guard = service._guard_for(8)
+    for sweep in (1, 2):
+        guard.update([ZoneResult(i, 45.0 * i, 0.0, OK, range_m=2.0, sigma_m=0.005) for i in range(8)], sweep, sweep)
+    assert not guard.learning
+    cal = turned(config.rig.build())
+
+    class Finished:  # a session whose board has been carried to every distance
+        def finish(self):
+            return Outcome(cal)
+
+    service._calibration = Finished()
+    service._finish_calibration()
+    assert directions(service.ranger.rig) == directions(cal.apply(config.rig.build()))
+    assert service.calibrated and service._calibration is None
+    assert service.state()["health"]["calibration"].startswith("calibrated 2026-11-23T10:00:00Z")
+    assert (tmp_path / "calibration.json").exists()
+    assert service._guard.learning
