@@ -173,6 +173,8 @@ class _Loader:
         if tp is str:
             if not isinstance(value, str):
                 self.fail(path, f"expected a string, got {describe(value)}")
+            if "\0" in value:  # no path, host, name or text of ours can hold one; the OS refuses it
+                self.fail(path, "must not contain a NUL character")
             return value
         if tp is Any:
             return value

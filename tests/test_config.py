@@ -51,6 +51,8 @@ def test_overrides_are_typed_and_validated(repo: Path) -> None:
 
 BAD = [
     ("[rig]\nrange_limits_m = [5.0, 0.25]\n", r"rig\.range_limits_m: must be 0 < near < far"),
+    ('[rig]\ncalibration = "a\\u0000b"\n', r"rig\.calibration: must not contain a NUL character"),
+    ('[lasers]\nsim_wires = "w\\u0000"\n', r"lasers\.sim_wires: must not contain a NUL character"),
     ("[rig]\nwat = 1\n", r"rig\.wat: unknown key \(expected one of: calibration, camera, lasers, mount, range_limits_m\)"),
     ("[sweep]\nzones = \"64\"\n", r"sweep\.zones: expected a whole number, got string '64'"),
     ("[sweep]\nzones = true\n", r"sweep\.zones: expected a whole number, got boolean true"),
