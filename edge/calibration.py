@@ -51,7 +51,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from edge.errors import CalibrationError, UsageError
+from edge.errors import CalibrationError, CommandError, UsageError
 from edge.fsutil import atomic_write_bytes
 from edge.recording import Recording, read_recording, rig_from_json, rig_to_json
 from edge.replay import zone_groups
@@ -517,14 +517,22 @@ def read_calibration(path: str | Path) -> Calibration:
 
 def add_parser(sub: Any) -> None:
     """Register `edge calibrate` on an argparse sub-parsers object."""
-    p = sub.add_parser("calibrate", help="fit the laser rays from a flat target at known distances")
-    p.add_argument("--recording", metavar="DIR", required=True,
+    p = sub.add_parser(
+        "calibrate", help="fit the laser rays from a flat target at known distances",
+        description="Either fit a recording offline (--recording, --out), or have a running device "
+                    "calibrate itself through the broker while you carry the target (--device).")
+    p.add_argument("--recording", metavar="DIR",
                    help="recording whose zone i shows a flat target squarely at distance i")
     p.add_argument("--distances", metavar="D1,D2,...", required=True,
                    help="target distances in metres from the optical centre, one per zone, e.g. 0.5,1,2")
-    p.add_argument("--out", metavar="FILE", required=True, help="calibration file to write (JSON)")
+    p.add_argument("--out", metavar="FILE", help="calibration file to write (JSON)")
     p.add_argument("--fit-focal", action="store_true",
                    help="also fit the focal length (laser origins then held at their nominal values)")
+    p.add_argument("--device", metavar="ID",
+                   help="instead: send cmd/calibrate to this running device and follow it (broker from --config)")
+    p.add_argument("--config", metavar="FILE", help="configuration file, for --device's broker (default: config/sim.toml)")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
+                   help="change one configuration key, e.g. --set mqtt.host=\"broker\" (repeatable)")
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     p.set_defaults(func=run)
 
@@ -558,8 +566,27 @@ def report(cal: Calibration, nominal: Rig) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """`edge calibrate`: read, fit, write, report."""
+    """`edge calibrate`: read, fit, write, report; or, with --device, over the broker."""
     distances = parse_distances(args.distances)
+    if args.device is not None:
+        if args.recording or args.out or args.fit_focal:
+            raise UsageError("--device calibrates a running device: --recording, --out and --fit-focal "
+                             "are for a recording")
+        from edge.commands import parse_command
+        from edge.config import load_config
+        from edge.monitor import calibrate_device
+
+        config = load_config(args.config, args.set)
+        # The device would refuse what the command check refuses: say it here, before any wait.
+        try:
+            parse_command("calibrate", json.dumps({"distances_m": distances}).encode(),
+                          max_bytes=config.mqtt.max_payload_bytes, pan_limits=(-180.0, 180.0),
+                          tilt_limits=(-90.0, 90.0))
+        except CommandError as exc:
+            raise UsageError(f"--distances: {str(exc).removeprefix('cmd/calibrate: ')}") from None
+        return calibrate_device(config, args.device, distances)
+    if not args.recording or not args.out:
+        raise UsageError("give --recording and --out (a fit of a recording), or --device (a running device)")
     recording = read_recording(args.recording)
     cal = fit_calibration(recording, distances, fit_focal=args.fit_focal)
     write_calibration(args.out, cal)

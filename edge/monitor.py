@@ -1,8 +1,13 @@
-"""`edge range`: the range finder's output, live, from the broker.
+"""Tools that talk to a running device through the broker, as an operator would.
 
-Subscribes to ``<prefix>/<id>/range`` and shows each range on one line that updates in place on a
-terminal (one line per message otherwise, for pipes and logs). It reads what the service
-publishes, so it works beside a running ``edge run`` and from any machine that reaches the broker.
+- `edge range`: the range finder's output, live. Subscribes to ``<prefix>/<id>/range`` and shows
+  each range on one line that updates in place on a terminal (one line per message otherwise, for
+  pipes and logs).
+- `edge calibrate --device ID --distances …`: sends ``cmd/calibrate`` and follows the session —
+  which distance the device waits for, what it ranges, what it took — until its result.
+
+Both read what the service publishes, so they work beside a running ``edge run`` and from any
+machine that reaches the broker, with the credentials of ``[mqtt]``.
 """
 
 from __future__ import annotations
@@ -10,7 +15,10 @@ from __future__ import annotations
 import json
 import queue
 import sys
+import threading
 import time
+import uuid
+from collections.abc import Sequence
 from typing import Any
 
 from edge.config import Config
@@ -32,32 +40,57 @@ def format_range(payload: dict) -> str:
     return f"{text}  {where}{tail}"
 
 
-def watch(config: Config, device: str | None, count: int | None, timeout_s: float) -> int:
-    """Print ranges until `count` arrived or nothing came for `timeout_s`. Returns how many came."""
+def _connect(config: Config, topics: list[tuple[str, int]], inbox: queue.Queue) -> Any:
+    """An MQTT 5 client of the configured broker, subscribed to `topics`, messages (topic,
+    payload) into `inbox`; started. The caller stops it."""
     import paho.mqtt.client as mqtt
 
-    device = device or config.device.resolved_id()
-    topic = f"{config.mqtt.prefix}/{device}/range"
-    inbox: queue.Queue[bytes] = queue.Queue()
+    from edge.mqtt import read_password, set_credentials
+
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5)
-    if config.mqtt.username:
-        client.username_pw_set(config.mqtt.username, config.mqtt.password or None)
-    if config.mqtt.tls.enabled:
-        client.tls_set(ca_certs=config.mqtt.tls.ca_file or None,
-                       certfile=config.mqtt.tls.cert_file or None, keyfile=config.mqtt.tls.key_file or None)
-    client.on_connect = lambda c, *_: c.subscribe(topic, qos=0)
-    client.on_message = lambda _c, _u, msg: inbox.put(msg.payload)
+    set_credentials(client, config.mqtt, read_password(config.mqtt))
+    subscribed = threading.Event()
+    refused: list[str] = []
+
+    def on_connect(c: Any, _userdata: Any, _flags: Any, reason: Any, _props: Any) -> None:
+        if reason.is_failure:
+            refused.append(str(reason))
+            subscribed.set()
+        else:
+            c.subscribe(topics)
+
+    client.on_connect = on_connect
+    client.on_subscribe = lambda *_: subscribed.set()
+    client.on_message = lambda _c, _u, msg: inbox.put((msg.topic, msg.payload))
     try:
         client.connect(config.mqtt.host, config.mqtt.port, keepalive=config.mqtt.keepalive_s)
     except OSError as exc:
         raise HardwareError(f"broker {config.mqtt.host}:{config.mqtt.port}: {exc}") from None
     client.loop_start()
+    if not subscribed.wait(10.0) or refused:
+        _stop(client)
+        why = f"refused the connection: {refused[0]}" if refused else "no answer within 10 s"
+        raise HardwareError(f"broker {config.mqtt.host}:{config.mqtt.port}: {why} (as {config.mqtt.username or 'anonymous'})")
+    return client
+
+
+def _stop(client: Any) -> None:
+    client.loop_stop()
+    client.disconnect()
+
+
+def watch(config: Config, device: str | None, count: int | None, timeout_s: float) -> int:
+    """Print ranges until `count` arrived or nothing came for `timeout_s`. Returns how many came."""
+    device = device or config.device.resolved_id()
+    topic = f"{config.mqtt.prefix}/{device}/range"
+    inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
+    client = _connect(config, [(topic, 0)], inbox)
     tty = sys.stdout.isatty()
     seen = 0
     try:
         while count is None or seen < count:
             try:
-                raw = inbox.get(timeout=timeout_s)
+                _, raw = inbox.get(timeout=timeout_s)
             except queue.Empty:
                 break
             try:
@@ -76,9 +109,79 @@ def watch(config: Config, device: str | None, count: int | None, timeout_s: floa
     finally:
         if tty and seen:
             sys.stdout.write("\n")
-        client.loop_stop()
-        client.disconnect()
+        _stop(client)
     if not seen:
         print(f"no range on {topic} within {timeout_s:g} s (is `edge run` running in range-finder mode?)",
               file=sys.stderr)
     return seen
+
+
+def calibrate_device(config: Config, device: str | None, distances: Sequence[float], answer_s: float = 10.0) -> int:
+    """Ask the device to calibrate itself at `distances` (``cmd/calibrate``) and follow the session
+    until its result: 0 when it calibrated, 1 when not (the device's reason on stderr)."""
+    device = device or config.device.resolved_id()
+    base = f"{config.mqtt.prefix}/{device}"
+    inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
+    client = _connect(config, [(f"{base}/state", 1), (f"{base}/range", 0), (f"{base}/cmd/calibrate/result", 1)],
+                      inbox)
+    request = f"cli-{uuid.uuid4().hex[:12]}"
+    tty = sys.stdout.isatty()
+    try:
+        client.publish(f"{base}/cmd/calibrate", json.dumps({"distances_m": list(distances), "request_id": request}),
+                       qos=1).wait_for_publish(answer_s)
+        print(f"{device}: calibrating at {', '.join(f'{d:g}' for d in distances)} m. Bring a flat, matte "
+              "target squarely in front of the unit to each distance in turn and hold it still there.")
+        answered, waiting, last_heard = False, None, time.monotonic()
+        # The session ends by itself (the device's service.calibrate_timeout_s); we only give up on
+        # a device that says nothing at all.
+        while True:
+            try:
+                topic, raw = inbox.get(timeout=1.0)
+            except queue.Empty:
+                if time.monotonic() - last_heard > (answer_s if not answered else 120.0):
+                    print(file=sys.stderr)
+                    print(f"edge: {device} said nothing for {time.monotonic() - last_heard:.0f} s: is `edge run` "
+                          "running there and connected?", file=sys.stderr)
+                    return 1
+                continue
+            last_heard = time.monotonic()
+            try:
+                payload: Any = json.loads(raw)
+            except ValueError:
+                continue
+            if not isinstance(payload, dict):
+                continue
+            if topic.endswith("/result"):
+                if payload.get("request_id") != request:
+                    continue
+                if tty:
+                    sys.stdout.write("\n")
+                return _report_result(payload)
+            if topic.endswith("/state"):
+                session = payload.get("calibration")
+                if isinstance(session, dict):
+                    answered = True
+                    if session.get("waiting_for_m") != waiting:
+                        waiting = session.get("waiting_for_m")
+                        taken = session.get("taken_m") or []
+                        done = f"took {', '.join(f'{d:g}' for d in taken)} m; " if taken else ""
+                        if tty:
+                            sys.stdout.write("\n")
+                        print(f"{done}waiting for the target at {waiting:g} m" if waiting is not None else done)
+            elif topic.endswith("/range") and tty and answered:
+                sys.stdout.write("\r  " + format_range(payload).ljust(76))
+                sys.stdout.flush()
+    finally:
+        _stop(client)
+
+
+def _report_result(result: dict) -> int:
+    if not result.get("ok"):
+        print(f"edge: cmd/calibrate: {result.get('error', 'failed')}", file=sys.stderr)
+        return 1
+    cal = result.get("calibration") or {}
+    for name, laser in (cal.get("lasers") or {}).items():
+        print(f"  laser {name}: {laser.get('angle_from_nominal_deg', float('nan')):.3f}° from nominal, "
+              f"residuals rms {laser.get('rms_px', float('nan')):.3f} px, max {laser.get('max_px', float('nan')):.3f} px")
+    print(f"calibrated; the device keeps it in {cal.get('file', '?')} and ranges with it from now on")
+    return 0

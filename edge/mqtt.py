@@ -181,6 +181,25 @@ def discovery_payloads(config: MqttConfig, device_id: str, version: str) -> dict
     }
 
 
+def set_credentials(client: paho.Client, config: MqttConfig, password: str | None) -> None:
+    """User name, password and TLS from ``[mqtt]``, for the device's link and for the tools that
+    talk to the broker as an operator (``edge range``, ``edge calibrate --device``)."""
+    if config.username or password:
+        client.username_pw_set(config.username or None, password)
+    if not config.tls.enabled:
+        return
+    tls = config.tls
+    for key in ("ca_file", "cert_file", "key_file"):
+        name = getattr(tls, key)
+        if name and not Path(name).expanduser().is_file():
+            raise ConfigError(f"mqtt.tls.{key}: no such file: {name}")
+    try:
+        client.tls_set(ca_certs=tls.ca_file or None, certfile=tls.cert_file or None, keyfile=tls.key_file or None)
+    except (OSError, ValueError) as exc:  # ssl.SSLError is an OSError
+        raise ConfigError(f"mqtt.tls: cannot use the certificates: {exc}") from None
+    client.tls_insecure_set(tls.insecure)
+
+
 def read_password(config: MqttConfig) -> str | None:
     """The broker password: ``password``, or the first line of ``password_file`` (read now, so
     that the secret never sits in the config file)."""
@@ -260,10 +279,7 @@ class MqttLink:
             log.warning("MQTT: paho-mqtt %s has no drop_out_messages() (2.2 and later have): after a "
                         "reconnect an old retained sweep or state may be delivered last", paho_version)
         client.will_set(self.topics.status, "offline", qos=1, retain=True)
-        if cfg.username or password:
-            client.username_pw_set(cfg.username or None, password)
-        if cfg.tls.enabled:
-            self._set_tls(client)
+        set_credentials(client, cfg, password)
         client.reconnect_delay_set(cfg.reconnect_min_s, cfg.reconnect_max_s)  # type: ignore[arg-type]
         client.max_inflight_messages_set(PAHO_INFLIGHT)
         client.on_connect = _guarded(self._on_connect)
@@ -281,18 +297,6 @@ class MqttLink:
         self._sender.start()
         client.loop_start()
         log.info("MQTT: connecting to %s:%d as %s", cfg.host, cfg.port, self.client_id)
-
-    def _set_tls(self, client: paho.Client) -> None:
-        tls = self.config.tls
-        for key in ("ca_file", "cert_file", "key_file"):
-            name = getattr(tls, key)
-            if name and not Path(name).expanduser().is_file():
-                raise ConfigError(f"mqtt.tls.{key}: no such file: {name}")
-        try:
-            client.tls_set(ca_certs=tls.ca_file or None, certfile=tls.cert_file or None, keyfile=tls.key_file or None)
-        except (OSError, ValueError) as exc:  # ssl.SSLError is an OSError
-            raise ConfigError(f"mqtt.tls: cannot use the certificates: {exc}") from None
-        client.tls_insecure_set(tls.insecure)
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Send what can be sent of the outbox within `timeout_s` (the rest stays on disk for the

@@ -9,6 +9,8 @@ import json
 import math
 import signal
 import statistics
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -32,13 +34,24 @@ WALL_M, WALL_FROM_S = 3.7, 32.2
 def test_a_board_carried_to_each_distance_calibrates_the_rig(broker, subscriber, tmp_path):
     proc = start(broker, tmp_path, 'sim.scene="bench"', "service.sweep_interval_s=0", *FLAWED, run_for=90)
     online = subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
-    publish(broker, f"{P}/cmd/calibrate", json.dumps({"distances_m": DISTANCES, "request_id": "cal-1"}))
-    result = subscriber.wait_for(f"{P}/cmd/calibrate/result", timeout=60)
+    # As an operator would: `edge calibrate --device` sends the command and follows the session.
+    tool = subprocess.run(
+        [sys.executable, "-m", "edge", "calibrate", "--device", DEVICE, "--distances", "2,1.3,0.8,0.5",
+         "--set", f"mqtt.port={broker.port}", "--set", 'mqtt.host="127.0.0.1"'],
+        capture_output=True, text=True, timeout=90)
+    assert tool.returncode == 0, tool.stderr[-2000:]
+    said = tool.stdout.splitlines()
+    assert said[0].startswith(f"{DEVICE}: calibrating at 2, 1.3, 0.8, 0.5 m.")
+    assert [ln for ln in said if ln.startswith(("waiting", "took"))] == [
+        "waiting for the target at 2 m", "took 2 m; waiting for the target at 1.3 m",
+        "took 2, 1.3 m; waiting for the target at 0.8 m", "took 2, 1.3, 0.8 m; waiting for the target at 0.5 m"]
+    assert said[-1].startswith("calibrated; the device keeps it in ")
+    result = subscriber.wait_for(f"{P}/cmd/calibrate/result", timeout=5)
     subscriber.wait_for(f"{P}/range", lambda m: m.at - online.at > WALL_FROM_S + 3, timeout=30)
     proc.send_signal(signal.SIGTERM)
     err = finish(proc)
     body = payload(result)
-    assert body["ok"] is True and body["request_id"] == "cal-1", body
+    assert body["ok"] is True and body["request_id"].startswith("cli-"), body
 
     # Each distance was taken while the board stood there (scene time runs from the rig's start,
     # a moment before `online`).
@@ -100,10 +113,14 @@ def test_a_session_refuses_other_commands_is_cancelled_by_a_mode_and_times_out(b
 
     # Nobody brings a target: after calibrate_timeout_s the session ends and nothing changed.
     mark = subscriber.mark()
-    publish(broker, f"{P}/cmd/calibrate", json.dumps({"distances_m": [0.5, 1.0, 2.0], "request_id": "two"}))
-    late = payload(subscriber.wait_for(f"{P}/cmd/calibrate/result", timeout=25, since=mark))
-    assert late["ok"] is False and late["request_id"] == "two"
-    assert late["error"] == "timed out after 10 s waiting for the target at 0.5, 1, 2 m; nothing changed"
+    tool = subprocess.run(
+        [sys.executable, "-m", "edge", "calibrate", "--device", DEVICE, "--distances", "0.5,1,2",
+         "--set", f"mqtt.port={broker.port}", "--set", 'mqtt.host="127.0.0.1"'],
+        capture_output=True, text=True, timeout=60)
+    assert tool.returncode == 1 and tool.stderr.strip() == (
+        "edge: cmd/calibrate: timed out after 10 s waiting for the target at 0.5, 1, 2 m; nothing changed")
+    late = payload(subscriber.wait_for(f"{P}/cmd/calibrate/result", timeout=5, since=mark))
+    assert late["ok"] is False and late["request_id"].startswith("cli-")
     proc.send_signal(signal.SIGTERM)
     finish(proc)
     assert not (tmp_path / "state" / "calibration.json").exists()

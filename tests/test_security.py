@@ -616,6 +616,20 @@ def test_the_device_opens_no_listening_port(tmp_path, peers):
             assert proc.poll() is None, "the service ended before it could be looked at"
             assert to_broker, "the service's own MQTT connection was not found: the /proc mapping is broken"
             assert not listening, f"the device listens: {listening}"
+            # An operator watches with `edge range`, logging in with a password file as the device does.
+            watcher = subprocess.run(
+                [sys.executable, "-m", "edge", "range", "--device", "dev1", "--count", "3",
+                 "--set", f"mqtt.port={b.port}", "--set", 'mqtt.host="127.0.0.1"', "--set", 'mqtt.username="dashboard"',
+                 "--set", f"mqtt.password_file={json.dumps(password_file(tmp_path, 'dashboard'))}"],
+                cwd=REPO, capture_output=True, text=True, timeout=30)
+            assert watcher.returncode == 0, watcher.stderr[-2000:]
+            assert len([ln for ln in watcher.stdout.splitlines() if "pan" in ln]) == 3, watcher.stdout
+            stranger = subprocess.run(
+                [sys.executable, "-m", "edge", "range", "--device", "dev1", "--count", "3",
+                 "--set", f"mqtt.port={b.port}", "--set", 'mqtt.host="127.0.0.1"', "--set", 'mqtt.username="dashboard"',
+                 "--set", 'mqtt.password="wrong"'], cwd=REPO, capture_output=True, text=True, timeout=30)
+            assert stranger.returncode == 1 and stranger.stderr.strip() == (
+                f"edge: broker 127.0.0.1:{b.port}: refused the connection: Not authorized (as dashboard)")
             _, err = proc.communicate(timeout=30)
         finally:
             if proc.poll() is None:
