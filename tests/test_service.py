@@ -319,7 +319,7 @@ def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, t
 def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog(broker, subscriber, tmp_path):
     """Frames stop for 3 s, then three frames come torn: zones meanwhile are `fault`, the camera is
     restarted, ranging resumes. Later the camera hangs (a driver call that never returns): the loop
-    stops, and so do the watchdog notifications. Meanwhile the lasers' own timer has switched off the
+    stops, and so do the watchdog notifications. Meanwhile the lasers' own timer has switched off any
     laser the stuck loop left on. Then the watchdog's kill, as systemd sends it (SIGABRT), prints
     every thread's stack, and the unit's ExecStopPost leaves every laser pin at its off level."""
     from test_laser_safety import assert_all_off, exec_stop_post, lit, write_config
@@ -344,6 +344,8 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
                 pass
             if feeds and time.monotonic() - feeds[-1] > 8:
                 break  # the feeding has stopped for good
+        # Whichever frame it hung in: a laser it had on was switched off by the lasers' own timer
+        # (max_on_s), so none is lit now.
         assert lit(wires, config) == set(), "a laser stayed on while the loop was stuck"
         proc.send_signal(signal.SIGABRT)  # systemd's WatchdogSignal=
         _, err = proc.communicate(timeout=30)
@@ -354,7 +356,6 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
         sock.close()
     assert proc.returncode == -signal.SIGABRT
     assert "Fatal Python error: Aborted" in err and "edge/sim/camera.py" in err, err[-3000:]
-    assert "switched off (eye safety" in err, err[-3000:]
     result = exec_stop_post(config)
     assert result.returncode == 0, result.stderr
     assert_all_off(wires, config)
