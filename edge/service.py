@@ -475,10 +475,16 @@ class Service:
         problem = check_distances(distances)
         if problem:
             return problem
+        from edge.sweep import sweeper_for
+
         folder = self.config.service.resolved_state_dir() / "calibration-frames"
+        # Each distance: 4 laser-off/on pairs, nudged as in a sweep (fresh speckle for each).
+        config = replace(self.config, sweep=replace(self.config.sweep, pairs_per_zone=4))
+        sweeper = sweeper_for(self._parts, config=config, ranger=self.ranger)
         try:
             self._calibration = TargetCalibration(
                 distances, self.ranger, self.config.rig.build(), self._parts.capture, folder,
+                lambda k, writer: sweeper.zone(k, 0.0, 0.0, recorder=writer),
                 timeout_s=self.config.service.calibrate_timeout_s, device=self.device_id)
         except OSError as exc:  # the state folder is not writable, or full
             return f"cannot keep the calibration frames in {folder}: {exc.strerror or exc}"
@@ -513,6 +519,7 @@ class Service:
             self._publish_live("range", session.last.to_json())
         if taken is None:
             return
+        self._calibration_aimed = False  # the zone's nudges left the unit a little off pan 0
         ranged = session.taken[-1]
         log.info("calibration: took the target at %g m (the nominal rig ranged %s)", taken,
                  "nothing" if ranged is None else f"{ranged:.3f} m")

@@ -23,8 +23,9 @@ So: move the target straight from one distance to the next and hold it still at 
 of seconds. Should a wrong rest still slip through, the fit refuses residuals over half a pixel,
 and nothing changes.
 
-The frames of each distance go into an ``edge-sweep/1`` recording (zone k = distance k) in the state
-folder, so that the same fit can be run again offline with ``edge calibrate``.
+The frames of each distance (a sweep zone's pairs, nudged for fresh speckle) go into an
+``edge-sweep/1`` recording (zone k = distance k) in the state folder, so that the same fit can be
+run again offline with ``edge calibrate``.
 """
 
 from __future__ import annotations
@@ -39,9 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from edge.calibration import FIRST_GATE_PX, Calibration, find_spots, fit_calibration
-from edge.capture import Capture, Shot
-from edge.errors import CalibrationError
-from edge.ranging import OK, FrameGroup, Ranger, ZoneResult
+from edge.capture import Capture
+from edge.errors import CalibrationError, HardwareError
+from edge.ranging import FAULT, OK, FrameGroup, Ranger, ZoneResult
 from edge.recording import RecordingWriter, read_recording
 from edge.rig import Rig
 
@@ -111,6 +112,13 @@ class RestWatcher:
         self._recent.clear()
         return True
 
+    def forget_last(self) -> None:
+        """Undo the last take (its frames could not be recorded): wait for that distance again."""
+        if self.taken:
+            self.taken.pop()
+            self._before = self.taken[-1] if self.taken else None
+            self._recent.clear()
+
     def _resting(self, now: float) -> list[np.ndarray] | None:
         """The spots' mean positions when every pair of the last `steady_s` showed the same spots
         within `still_px` (or none at all); else None (something moves, or not watched long enough)."""
@@ -157,10 +165,14 @@ class TargetCalibration:
     """One calibration session on opened parts; the service calls :meth:`step` between commands."""
 
     def __init__(self, distances_m: Sequence[float], ranger: Ranger, nominal: Rig, capture: Capture,
-                 folder: Path, *, pan_deg: float = 0.0, tilt_deg: float = 0.0, pairs: int = 4,
-                 timeout_s: float = 600.0, device: str = "",
+                 folder: Path, record_zone: Callable[[int, RecordingWriter], ZoneResult], *,
+                 pan_deg: float = 0.0, tilt_deg: float = 0.0, timeout_s: float = 600.0, device: str = "",
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.watcher = RestWatcher(nominal, distances_m, min_pairs=max(4, pairs))
+        """`record_zone(k, writer)` takes and records zone k's frames where the unit points — with a
+        sweep's pan nudges between pairs, so that each pair sees fresh speckle: a target at rest
+        shows the same speckle in every frame, and the fit would inherit its bias."""
+        self.watcher = RestWatcher(nominal, distances_m)
+        self.record_zone = record_zone
         self.distances = self.watcher.distances
         self.ranger = ranger
         self.capture = capture
@@ -171,7 +183,6 @@ class TargetCalibration:
         self.deadline = self.started + timeout_s
         self.taken: list[float | None] = []  # what the rig in use ranged at each distance taken
         self.last: ZoneResult | None = None
-        self._shots: deque[list[Shot]] = deque(maxlen=pairs)  # the latest pairs: saved when taken
         self._writer = RecordingWriter(self.folder, nominal, device=device)
         self._writer.__enter__()
         self._open = True
@@ -205,18 +216,15 @@ class TargetCalibration:
         off, on = shots
         group = FrameGroup([on.frame.image], [off.frame.image], on.lasers_on, (self.pan_deg, self.tilt_deg))
         self.last = self.ranger.range_zone(-1, self.pan_deg, self.tilt_deg, [group])
-        self._shots.append(shots)
         distance = self.waiting_for
         if not self.watcher.add(self.clock(), find_spots([on.frame.image], [off.frame.image])):
             return None
         k = len(self.taken)
-        frames = [(s.frame.image, list(s.lasers_on), {"t_start_ns": s.frame.t_start_ns,
-                                                     "exposure_us": s.frame.exposure_us,
-                                                     "laser_switch_ns": s.laser_switch_ns})
-                  for pair in self._shots for s in pair]
-        self._writer.add_zone(k, self.pan_deg, self.tilt_deg, frames, {"range_m": distance, "point_m": None})
-        self.taken.append(self.last.range_m if self.last.status == OK else None)
-        self._shots.clear()
+        result = self.record_zone(k, self._writer)
+        if result.status == FAULT:  # a part failed while recording: wait for the next rest
+            self.watcher.forget_last()
+            raise HardwareError(result.detail)
+        self.taken.append(result.range_m if result.status == OK else None)
         return distance
 
     @property
