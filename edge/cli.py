@@ -236,6 +236,8 @@ def cmd_config(args: argparse.Namespace) -> int:
     from edge.calibrated import believed_rig
 
     print(f"  calibration: {believed_rig(config).health}")
+    if not config.rig.calibration:  # the service also looks in its state folder
+        print(f"  calibration of edge run: {believed_rig(config, service=True).health}")
     print(f"  sweep {len(config.sweep.poses())} zones, {config.sweep.pairs_per_zone} pairs each")
     print(f"  sim scene {config.sim.scene}")
     return 0

@@ -131,3 +131,13 @@ def test_a_new_calibration_is_saved_used_and_makes_the_guard_learn_again(tmp_pat
     assert service.state()["health"]["calibration"].startswith("calibrated 2026-11-23T10:00:00Z")
     assert (tmp_path / "calibration.json").exists()
     assert service._guard.learning
+
+
+def test_edge_config_also_says_what_the_service_would_use(tmp_path):
+    write_calibration(tmp_path / "calibration.json", turned(default_rig()))
+    result = subprocess.run([sys.executable, "-m", "edge", "config", "--set",
+                             f"service.state_dir={json.dumps(str(tmp_path))}"],
+                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert f"  calibration: {NOMINAL}\n" in result.stdout
+    assert "  calibration of edge run: calibrated 2026-11-23T10:00:00Z" in result.stdout
