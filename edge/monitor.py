@@ -130,7 +130,8 @@ def calibrate_device(config: Config, device: str | None, distances: Sequence[flo
         client.publish(f"{base}/cmd/calibrate", json.dumps({"distances_m": list(distances), "request_id": request}),
                        qos=1).wait_for_publish(answer_s)
         print(f"{device}: calibrating at {', '.join(f'{d:g}' for d in distances)} m. Bring a flat, matte "
-              "target squarely in front of the unit to each distance in turn and hold it still there.")
+              "target squarely in front of the unit to each distance in turn (starting from elsewhere) and hold "
+              "it still a couple of seconds at each.")
         answered, waiting, last_heard = False, None, time.monotonic()
         # The session ends by itself (the device's service.calibrate_timeout_s); we only give up on
         # a device that says nothing at all.

@@ -490,7 +490,8 @@ class Service:
             return f"cannot keep the calibration frames in {folder}: {exc.strerror or exc}"
         self._calibration_aimed = False
         self._interrupt = True
-        log.info("calibration: hold a flat target squarely in front of the unit at %s m, in this order",
+        log.info("calibration: bring a flat target squarely in front of the unit to %s m in this order, "
+                 "starting from elsewhere, and hold it still at each",
                  ", ".join(f"{d:g}" for d in distances))
         self._publish_state()
         return LATER
