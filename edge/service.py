@@ -514,6 +514,9 @@ class Service:
             self._zone(ZoneResult(-1, session.pan_deg, session.tilt_deg, FAULT, detail=str(exc)))
             self.stop_requested.wait(0.2)
             return
+        except (EdgeError, OSError) as exc:  # the frames could not be written (a full card)
+            self._end_calibration(f"cannot keep the calibration frames: {exc}; nothing changed")
+            return
         if session.last is not None:
             # Published for whoever holds the target, but not judged: the rig is being calibrated
             # and the nominal one may well miss its spots (no laser fault for that).
