@@ -536,6 +536,7 @@ class Service:
     def _finish_calibration(self) -> None:
         from edge.calibrated import apply, calibration_file
         from edge.calibration import report, write_calibration
+        from edge.modes.calibrate import summary
 
         session = self._calibration
         self._calibration = None
@@ -572,7 +573,7 @@ class Service:
         if self._laser_faults:
             self._laser_faults = {}
             self.health.parts["lasers"] = "ok"
-        self._calibration_result(True, None, {"file": str(path), **calibration_summary(cal, self.config.rig.build())})
+        self._calibration_result(True, None, {"file": str(path), **summary(cal, self.config.rig.build())})
 
     def _end_calibration(self, why: str) -> None:
         """Cancel a running session (a mode change, lasers_off, a stop): nothing changes."""
@@ -630,19 +631,3 @@ class Service:
         if self._link is not None:
             self._link.publish_result(name, ok, error=error, request_id=request_id)
 
-
-def calibration_summary(cal: Any, nominal: Any) -> dict:
-    """What `cmd/calibrate`'s result says of a new calibration: per laser, how far its ray turned
-    from the nominal one and how well the points fit."""
-    import math
-
-    nominal_by_name = {laser.name: laser for laser in nominal.lasers}
-    lasers = {}
-    for laser in cal.lasers:
-        nom = nominal_by_name[laser.name]
-        angle = math.degrees(math.acos(min(1.0, float(laser.d @ nom.d))))
-        res = cal.residuals_px.get(laser.name, {})
-        lasers[laser.name] = {"angle_from_nominal_deg": round(angle, 4),
-                              "rms_px": round(float(res.get("rms", math.nan)), 4),
-                              "max_px": round(float(res.get("max", math.nan)), 4)}
-    return {"created": cal.created, "distances_m": list(cal.distances_m), "lasers": lasers}

@@ -254,3 +254,18 @@ class TargetCalibration:
     def missing(self) -> str:
         left = self.distances[len(self.taken):]
         return ", ".join(f"{d:g}" for d in left)
+
+
+def summary(cal: Calibration, nominal: Rig) -> dict:
+    """What `cmd/calibrate`'s result says of a new calibration: per laser, how far its ray turned
+    from the nominal one and how well the points fit."""
+    nominal_by_name = {laser.name: laser for laser in nominal.lasers}
+    lasers = {}
+    for laser in cal.lasers:
+        nom = nominal_by_name[laser.name]
+        angle = math.degrees(math.acos(min(1.0, float(laser.d @ nom.d))))
+        res = cal.residuals_px.get(laser.name, {})
+        lasers[laser.name] = {"angle_from_nominal_deg": round(angle, 4),
+                              "rms_px": round(float(res.get("rms", math.nan)), 4),
+                              "max_px": round(float(res.get("max", math.nan)), 4)}
+    return {"created": cal.created, "distances_m": list(cal.distances_m), "lasers": lasers}
