@@ -55,19 +55,15 @@ def believed_rig(config: Config, service: bool = False) -> BelievedRig:
     calibration file is missing or does not fit the rig."""
     nominal = config.rig.build()
     path = calibration_file(config, service)
-    if path is None:
+    configured = bool(config.rig.calibration)
+    if path is None or (not configured and not path.exists()):
         return BelievedRig(nominal, NOMINAL)
-    if not config.rig.calibration:
-        if not path.exists():
-            return BelievedRig(nominal, NOMINAL)
-        try:
-            return apply(nominal, read_calibration(path), path)
-        except CalibrationError as exc:
-            return BelievedRig(nominal, f"fault: {exc}; ranging with the nominal rig")
     try:
         return apply(nominal, read_calibration(path), path)
-    except CalibrationError as exc:  # the configuration names a file it cannot use: bad input
-        raise ConfigError(f"rig.calibration: {exc}") from None
+    except CalibrationError as exc:
+        if configured:  # the configuration names a file it cannot use: bad input
+            raise ConfigError(f"rig.calibration: {exc}") from None
+        return BelievedRig(nominal, f"fault: {exc}; ranging with the nominal rig")
 
 
 def apply(nominal: Rig, cal: Calibration, path: Path) -> BelievedRig:

@@ -22,6 +22,7 @@ MODES = ("rangefinder", "blindaid", "guard")
 MAX_REQUEST_ID_CHARS = 128
 CALIBRATION_DISTANCE_M = (0.25, 5.0)
 CALIBRATION_COUNT = (3, 20)
+CALIBRATION_MIN_STEP = 1.1  # from one distance to the next
 # request_id_of reads at most this much: a best-effort helper must not parse a huge payload.
 _REQUEST_ID_SCAN_BYTES = 1 << 20
 _SHOW_CHARS = 40
@@ -201,11 +202,17 @@ def _calibrate(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: 
         if not lo <= d <= hi:
             raise CommandError(f"{where}: distances_m[{i}] = {d:g} m is outside {lo:g}-{hi:g} m")
         distances.append(d)
-    from edge.modes.calibrate import check_distances
+    # What a session can take (edge.modes.calibrate): a span the fit can use, and steps it can see.
+    from edge.calibration import MIN_SPAN
 
-    problem = check_distances(distances)
-    if problem:
-        raise CommandError(f"{where}: {problem}")
+    span = max(distances) / min(distances)
+    if span < MIN_SPAN:
+        raise CommandError(f"{where}: distances_m spans only a factor {span:.2f} ({min(distances):g} to "
+                           f"{max(distances):g} m): it must span at least {MIN_SPAN:g} (e.g. 0.5 to 2 m)")
+    for a, b in zip(distances, distances[1:]):
+        if abs(math.log(b / a)) < math.log(CALIBRATION_MIN_STEP):
+            raise CommandError(f"{where}: distances_m: {a:g} and {b:g} m follow each other but differ by under "
+                               f"{100 * (CALIBRATION_MIN_STEP - 1):.0f} %: the move cannot be seen")
     return {"distances_m": tuple(distances)}
 
 

@@ -93,11 +93,8 @@ def watch(config: Config, device: str | None, count: int | None, timeout_s: floa
                 _, raw = inbox.get(timeout=timeout_s)
             except queue.Empty:
                 break
-            try:
-                payload: Any = json.loads(raw)
-            except ValueError:
-                continue
-            if not isinstance(payload, dict):
+            payload = _json_object(raw)
+            if payload is None:
                 continue
             seen += 1
             line = format_range(payload)
@@ -146,34 +143,35 @@ def calibrate_device(config: Config, device: str | None, distances: Sequence[flo
                     return 1
                 continue
             last_heard = time.monotonic()
-            try:
-                payload: Any = json.loads(raw)
-            except ValueError:
+            payload = _json_object(raw)
+            if payload is None:
                 continue
-            if not isinstance(payload, dict):
-                continue
-            if topic.endswith("/result"):
-                if payload.get("request_id") != request:
-                    continue
+            if topic.endswith("/result") and payload.get("request_id") == request:
                 if tty:
                     sys.stdout.write("\n")
                 return _report_result(payload)
-            if topic.endswith("/state"):
-                session = payload.get("calibration")
-                if isinstance(session, dict):
-                    answered = True
-                    if session.get("waiting_for_m") != waiting:
-                        waiting = session.get("waiting_for_m")
-                        taken = session.get("taken_m") or []
-                        done = f"took {', '.join(f'{d:g}' for d in taken)} m; " if taken else ""
-                        if tty:
-                            sys.stdout.write("\n")
-                        print(f"{done}waiting for the target at {waiting:g} m" if waiting is not None else done)
+            session = payload.get("calibration") if topic.endswith("/state") else None
+            if isinstance(session, dict):
+                answered = True
+                if session.get("waiting_for_m") not in (waiting, None):
+                    waiting = session["waiting_for_m"]
+                    taken = session.get("taken_m") or []
+                    done = f"took {', '.join(f'{d:g}' for d in taken)} m; " if taken else ""
+                    print(("\n" if tty else "") + f"{done}waiting for the target at {waiting:g} m")
             elif topic.endswith("/range") and tty and answered:
                 sys.stdout.write("\r  " + format_range(payload).ljust(76))
                 sys.stdout.flush()
     finally:
         _stop(client)
+
+
+def _json_object(raw: bytes) -> dict | None:
+    """A payload that is a JSON object, else None (anything else on a topic is ignored)."""
+    try:
+        payload = json.loads(raw)
+    except ValueError:
+        return None
+    return payload if isinstance(payload, dict) else None
 
 
 def _report_result(result: dict) -> int:

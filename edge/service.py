@@ -122,7 +122,6 @@ class Service:
     def _use_rig(self, rig: Any, calibrated: bool) -> None:
         from edge.ranging import Ranger
 
-        self.rig = rig
         self.calibrated = calibrated
         # Built once per rig: it lays out each laser's search band, the same for every zone and frame.
         self.ranger = Ranger(rig, self.config.ranging)
@@ -465,16 +464,13 @@ class Service:
     def _cmd_calibrate(self, command: Any) -> str | _Later | None:
         """Start an interactive flat-target calibration (edge.modes.calibrate); its result comes
         when it ends."""
-        from edge.modes.calibrate import TargetCalibration, check_distances
+        from edge.modes.calibrate import TargetCalibration
 
         if self._parts is None:
             return "the rig is not running"
         if self._calibration is not None:
             return self._calibrating()
-        distances = command.args["distances_m"]
-        problem = check_distances(distances)
-        if problem:
-            return problem
+        distances = command.args["distances_m"]  # checked by edge.commands: a session can take them
         from edge.sweep import sweeper_for
 
         folder = self.config.service.resolved_state_dir() / "calibration-frames"
@@ -483,8 +479,7 @@ class Service:
         sweeper = sweeper_for(self._parts, config=config, ranger=self.ranger)
         try:
             self._calibration = TargetCalibration(
-                distances, self.ranger, self.config.rig.build(), self._parts.capture, folder,
-                lambda k, writer: sweeper.zone(k, 0.0, 0.0, recorder=writer),
+                distances, self.ranger, self.config.rig.build(), self._parts.capture, folder, sweeper.zone,
                 timeout_s=self.config.service.calibrate_timeout_s, device=self.device_id)
         except OSError as exc:  # the state folder is not writable, or full
             return f"cannot keep the calibration frames in {folder}: {exc.strerror or exc}"
@@ -524,8 +519,8 @@ class Service:
         if taken is None:
             return
         self._calibration_aimed = False  # the zone's nudges left the unit a little off pan 0
-        ranged = session.taken[-1]
-        log.info("calibration: took the target at %g m (the nominal rig ranged %s)", taken,
+        ranged = session.recorded.range_m if session.recorded is not None else None
+        log.info("calibration: took the target at %g m (the rig in use ranged %s)", taken,
                  "nothing" if ranged is None else f"{ranged:.3f} m")
         if session.complete:
             self._finish_calibration()
@@ -549,15 +544,16 @@ class Service:
             self._calibration_result(False, outcome.error)
             return
         cal = outcome.calibration
+        nominal = self.config.rig.build()
         path = calibration_file(self.config, service=True)
         try:
+            believed = apply(nominal, cal, path)  # before writing: a file the rig cannot use is never saved
             path.parent.mkdir(parents=True, exist_ok=True)
             write_calibration(path, cal)
-            believed = apply(self.config.rig.build(), cal, path)
         except (EdgeError, OSError) as exc:
             self._calibration_result(False, f"{exc}; nothing changed")
             return
-        for line in report(cal, self.config.rig.build()):
+        for line in report(cal, nominal):
             log.info("calibration: %s", line)
         self._use_rig(believed.rig, calibrated=True)
         self.health.parts["calibration"] = believed.health
@@ -573,7 +569,7 @@ class Service:
         if self._laser_faults:
             self._laser_faults = {}
             self.health.parts["lasers"] = "ok"
-        self._calibration_result(True, None, {"file": str(path), **summary(cal, self.config.rig.build())})
+        self._calibration_result(True, None, {"file": str(path), **summary(cal, nominal)})
 
     def _end_calibration(self, why: str) -> None:
         """Cancel a running session (a mode change, lasers_off, a stop): nothing changes."""

@@ -239,9 +239,11 @@ def run_configured_sweep(
     on_zone: Callable[[ZoneResult], None] | None = None,
 ) -> ConfiguredSweep:
     """One sweep on the configured parts (real or simulated), lasers off and parts closed after.
-    With `recorder`, every zone's frames are saved as it goes (``edge record``)."""
+    With `recorder`, every zone's frames are saved as it goes (``edge record``), ranged with the
+    recording's rig, so that a replay ranges alike."""
     from edge.parts import open_parts
 
+    ranger = Ranger(recorder.rig, config.ranging) if recorder is not None else None
     with open_parts(config) as parts:
-        report = sweeper_for(parts, on_zone).run(recorder=recorder, progress=progress)
+        report = sweeper_for(parts, on_zone, ranger=ranger).run(recorder=recorder, progress=progress)
         return ConfiguredSweep(report, dict(parts.truths), parts.room())

@@ -42,7 +42,7 @@ import numpy as np
 from edge.calibration import FIRST_GATE_PX, Calibration, find_spots, fit_calibration
 from edge.capture import Capture
 from edge.errors import CalibrationError, HardwareError
-from edge.ranging import FAULT, OK, FrameGroup, Ranger, ZoneResult
+from edge.ranging import FAULT, FrameGroup, Ranger, ZoneResult
 from edge.recording import RecordingWriter, read_recording
 from edge.rig import Rig
 
@@ -55,20 +55,6 @@ class Outcome:
 
     calibration: Calibration | None
     error: str | None = None
-
-
-def check_distances(distances: Sequence[float]) -> str | None:
-    """Why these distances cannot make a calibration session, or None."""
-    d = list(distances)
-    if len(d) < 3:
-        return f"distances_m has {len(d)} entries: a fit needs at least 3"
-    if max(d) / min(d) < 1.5:
-        return (f"distances_m spans only a factor {max(d) / min(d):.2f} ({min(d):g} to {max(d):g} m): "
-                "it must span at least 1.5 (e.g. 0.5 to 2 m)")
-    for a, b in zip(d, d[1:]):
-        if abs(math.log(b / a)) < math.log(1.1):
-            return f"distances_m: {a:g} and {b:g} m follow each other but differ by under 10 %: the move cannot be seen"
-    return None
 
 
 class RestWatcher:
@@ -84,7 +70,7 @@ class RestWatcher:
         self.min_pairs = min_pairs
         self.taken: list[list[np.ndarray]] = []  # the resting spots at each distance taken
         self._recent: deque[tuple[float, list[np.ndarray]]] = deque()  # (time, spots) of each pair
-        self._before: list[np.ndarray] | None = None  # resting spots at the start, then at the last taken
+        self._start: list[np.ndarray] | None = None  # the resting spots when the session began
 
     @property
     def waiting_for(self) -> float | None:
@@ -102,13 +88,12 @@ class RestWatcher:
         resting = self._resting(t_s)
         if resting is None:
             return False
-        if self._before is None:
-            self._before = resting  # what was there when the session began
+        if self._start is None:
+            self._start = resting  # what was there when the command came
             return False
         if not self._accept(resting):
             return False
         self.taken.append(resting)
-        self._before = resting
         self._recent.clear()
         return True
 
@@ -116,7 +101,6 @@ class RestWatcher:
         """Undo the last take (its frames could not be recorded): wait for that distance again."""
         if self.taken:
             self.taken.pop()
-            self._before = self.taken[-1] if self.taken else None
             self._recent.clear()
 
     def _resting(self, now: float) -> list[np.ndarray] | None:
@@ -140,7 +124,7 @@ class RestWatcher:
         """Whether resting `spots` show the target at the awaited distance (see the module notes)."""
         if not spots:
             return False
-        before = self._before or []
+        before = self.taken[-1] if self.taken else self._start or []  # the last rest taken, or the start
         moved = len(spots) != len(before) or any(
             min(float(np.linalg.norm(p - q)) for q in before) > MOVED_PX for p in spots)
         if not moved:
@@ -165,10 +149,10 @@ class TargetCalibration:
     """One calibration session on opened parts; the service calls :meth:`step` between commands."""
 
     def __init__(self, distances_m: Sequence[float], ranger: Ranger, nominal: Rig, capture: Capture,
-                 folder: Path, record_zone: Callable[[int, RecordingWriter], ZoneResult], *,
+                 folder: Path, record_zone: Callable[[int, float, float, RecordingWriter], ZoneResult], *,
                  pan_deg: float = 0.0, tilt_deg: float = 0.0, timeout_s: float = 600.0, device: str = "",
                  clock: Callable[[], float] = time.monotonic) -> None:
-        """`record_zone(k, writer)` takes and records zone k's frames where the unit points — with a
+        """`record_zone(k, pan, tilt, writer)` takes and records zone k's frames there — with a
         sweep's pan nudges between pairs, so that each pair sees fresh speckle: a target at rest
         shows the same speckle in every frame, and the fit would inherit its bias."""
         self.watcher = RestWatcher(nominal, distances_m)
@@ -181,8 +165,8 @@ class TargetCalibration:
         self.clock = clock
         self.started = clock()
         self.deadline = self.started + timeout_s
-        self.taken: list[float | None] = []  # what the rig in use ranged at each distance taken
-        self.last: ZoneResult | None = None
+        self.last: ZoneResult | None = None  # the latest pair's range, for whoever holds the target
+        self.recorded: ZoneResult | None = None  # the latest distance taken, as the rig in use ranged it
         self._writer = RecordingWriter(self.folder, nominal, device=device)
         self._writer.__enter__()
         self._open = True
@@ -201,7 +185,7 @@ class TargetCalibration:
         """For `state` while the session runs."""
         return {
             "distances_m": list(self.distances),
-            "taken_m": list(self.distances[: len(self.taken)]),
+            "taken_m": list(self.distances[: len(self.watcher.taken)]),
             "waiting_for_m": self.waiting_for,
             "ranged_m": None if self.last is None or self.last.range_m is None else round(self.last.range_m, 4),
             "elapsed_s": round(self.clock() - self.started, 1),
@@ -219,12 +203,12 @@ class TargetCalibration:
         distance = self.waiting_for
         if not self.watcher.add(self.clock(), find_spots([on.frame.image], [off.frame.image])):
             return None
-        k = len(self.taken)
-        result = self.record_zone(k, self._writer)
+        k = len(self.watcher.taken) - 1
+        result = self.record_zone(k, self.pan_deg, self.tilt_deg, self._writer)
         if result.status == FAULT:  # a part failed while recording: wait for the next rest
             self.watcher.forget_last()
             raise HardwareError(result.detail)
-        self.taken.append(result.range_m if result.status == OK else None)
+        self.recorded = result
         return distance
 
     @property
@@ -252,7 +236,7 @@ class TargetCalibration:
             self._writer.__exit__(RuntimeError, RuntimeError("abandoned"), None)
 
     def missing(self) -> str:
-        left = self.distances[len(self.taken):]
+        left = self.distances[len(self.watcher.taken):]
         return ", ".join(f"{d:g}" for d in left)
 
 

@@ -41,7 +41,7 @@ class Wires:
     """
 
     SIZE = 64  # BCM 0-53, rounded up
-    _CODE = {None: 0, False: 1, True: 2}
+    _LEVELS = (None, False, True)  # by code: 0 undriven, 1 low, 2 high
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
@@ -66,17 +66,14 @@ class Wires:
 
     def level(self, bcm: int) -> bool | None:
         """What the wire of GPIO `bcm` carries: True high, False low, None undriven."""
-        return {0: None, 1: False, 2: True}[self._map[bcm]]
+        return self._LEVELS[self._map[bcm]]
 
     def levels(self) -> dict[int, bool | None]:
         """Every driven wire: BCM number → level."""
         return {bcm: self.level(bcm) for bcm in range(self.SIZE) if self._map[bcm]}
 
     def drive(self, bcm: int, level: bool | None) -> None:
-        self._map[bcm] = self._CODE[level]
-
-    def close(self) -> None:
-        self._map.close()
+        self._map[bcm] = self._LEVELS.index(level)
 
 
 def _bcm(info) -> int | None:

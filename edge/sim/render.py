@@ -130,18 +130,17 @@ class Renderer:
         def static_view() -> _View:
             return self._cached(static_key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
 
-        if not self.scene.movers:
-            return static_view()
-        geometry = self.scene.at(t_s)
-        if geometry is self.scene.static:
-            return static_view()
+        poses = self.scene.mover_poses(t_s) if self.scene.movers else ()
+        if not poses:
+            return static_view()  # no mover present
         static = static_view()
         box = self._mover_box(static.camera_to_world, t_s)
         if box is None:
             return static  # no mover in the picture (and the beams only go where the camera looks)
-        # By where the movers are, not by instant: a standing person is cast once, not every frame.
-        key = (static_key[0], static_key[1], self.scene.mover_poses(t_s))
-        return self._cached(key, lambda: self._patched_view(static, t_s, geometry, box), self._patched)
+        # By where the movers are, not by instant: a standing person is cast once, not every frame
+        # (and the scene with its movers is only put together when a view is cast).
+        key = (static_key[0], static_key[1], poses)
+        return self._cached(key, lambda: self._patched_view(static, t_s, self.scene.at(t_s), box), self._patched)
 
     def _cached(self, key: tuple, render: Callable[[], _View], cache: dict | None = None) -> _View:
         cache = self._views if cache is None else cache
