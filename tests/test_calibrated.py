@@ -32,6 +32,14 @@ def turned(rig, degrees: float = 0.4) -> Calibration:
                                                            for ln in rig.lasers}, "2026-11-23T10:00:00Z")
 
 
+def edge_config(setting: str) -> str:
+    """What `edge config --set setting` prints; it must succeed."""
+    result = subprocess.run([sys.executable, "-m", "edge", "config", "--set", setting],
+                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    return result.stdout
+
+
 def directions(rig) -> list[tuple[float, ...]]:
     return [tuple(round(c, 9) for c in laser.direction) for laser in rig.lasers]
 
@@ -97,11 +105,8 @@ def test_a_broken_own_calibration_is_reported_and_the_service_ranges_nominally(t
 
 def test_edge_config_says_what_the_rig_is_based_on(tmp_path):
     write_calibration(tmp_path / "c.json", turned(default_rig()))
-    result = subprocess.run([sys.executable, "-m", "edge", "config", "--set",
-                             f"rig.calibration={json.dumps(str(tmp_path / 'c.json'))}"],
-                            cwd=REPO, capture_output=True, text=True, timeout=60)
-    assert result.returncode == 0, result.stderr
-    assert "calibration: calibrated 2026-11-23T10:00:00Z" in result.stdout
+    said = edge_config(f"rig.calibration={json.dumps(str(tmp_path / 'c.json'))}")
+    assert "calibration: calibrated 2026-11-23T10:00:00Z" in said
 
 
 def test_a_new_calibration_is_saved_used_and_makes_the_guard_learn_again(tmp_path):
@@ -135,9 +140,6 @@ def test_a_new_calibration_is_saved_used_and_makes_the_guard_learn_again(tmp_pat
 
 def test_edge_config_also_says_what_the_service_would_use(tmp_path):
     write_calibration(tmp_path / "calibration.json", turned(default_rig()))
-    result = subprocess.run([sys.executable, "-m", "edge", "config", "--set",
-                             f"service.state_dir={json.dumps(str(tmp_path))}"],
-                            cwd=REPO, capture_output=True, text=True, timeout=60)
-    assert result.returncode == 0, result.stderr
-    assert f"  calibration: {NOMINAL}\n" in result.stdout
-    assert "  calibration of edge run: calibrated 2026-11-23T10:00:00Z" in result.stdout
+    said = edge_config(f"service.state_dir={json.dumps(str(tmp_path))}")
+    assert f"  calibration: {NOMINAL}\n" in said
+    assert "  calibration of edge run: calibrated 2026-11-23T10:00:00Z" in said

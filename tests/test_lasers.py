@@ -3,6 +3,7 @@ and the simulated wires that tell the simulated camera what the lasers did."""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import subprocess
@@ -247,7 +248,7 @@ def test_edge_lasers_off_sets_the_simulated_wires(tmp_path):
     lasers = Lasers(_config().rig.lasers, LasersConfig(), laser_factory(wires))
     lasers.set(["center", "parallel", "sloped"])
     result = subprocess.run(
-        [sys.executable, "-m", "edge", "lasers", "off", "--set", f"lasers.sim_wires={str(wires)!r}".replace("'", '"')],
+        [sys.executable, "-m", "edge", "lasers", "off", "--set", f"lasers.sim_wires={json.dumps(str(wires))}"],
         cwd=REPO, capture_output=True, text=True, timeout=60,
     )
     assert result.returncode == 0, result.stderr

@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -140,21 +141,36 @@ def test_a_killed_service_leaves_its_last_will(broker, subscriber, tmp_path):
         proc.communicate()
 
 
+def take_the_broker_away(broker: Mosquitto, down_s: Callable[[int], float], times: int = 10) -> list[tuple[float, float]]:
+    """Stop and restart the broker `times` times, down for `down_s(k)` seconds and up for 0.8 s
+    each; returns the (stopped, restarted) wall-clock times."""
+    outages = []
+    for k in range(times):
+        broker.stop()
+        down = time.time()
+        time.sleep(down_s(k))
+        outages.append((down, time.time()))
+        broker.restart()
+        time.sleep(0.8)
+    return outages
+
+
+def made_while_down(docs: list[dict], outages: list[tuple[float, float]]) -> list[dict]:
+    """The published documents whose `ts` falls inside an outage."""
+    def made(doc: dict) -> float:
+        return time.mktime(time.strptime(doc["ts"][:19], "%Y-%m-%dT%H:%M:%S")) - time.timezone
+
+    return [doc for doc in docs if any(a + 0.1 < made(doc) < b - 0.1 for a, b in outages)]
+
+
 def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, subscriber, tmp_path):
     # Small sweeps back to back (a map sweep every 0.5 s in range-finder mode), the broker stopped
     # ten times for a second or two: every sweep arrives, once or more, in order, and the device
     # kept sweeping while the broker was away (its loop never waits for the broker).
     proc = start(broker, tmp_path, "sweep.zones=3", "sweep.pan_step_deg=10.0", "service.sweep_interval_s=0.5")
-    outages = []
     try:
         first = subscriber.wait_count(f"{P}/sweep", 2, timeout=30)
-        for k in range(10):
-            broker.stop()
-            down = time.time()
-            time.sleep(1.0 + 0.2 * (k % 4))
-            outages.append((down, time.time()))
-            broker.restart()
-            time.sleep(0.8)
+        outages = take_the_broker_away(broker, lambda k: 1.0 + 0.2 * (k % 4))
         mark = subscriber.mark()
         subscriber.wait_count(f"{P}/sweep", 3, timeout=30, since=mark)
         proc.send_signal(signal.SIGTERM)
@@ -169,13 +185,9 @@ def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, s
     assert seen == list(range(1, max(numbers) + 1)), numbers  # none lost, in order
     for a, b in zip(numbers, numbers[1:]):
         assert b == a + 1 or b <= a, numbers  # a repeat steps back, then goes on in order
-    made_while_down = 0
-    for m in subscriber.messages(f"{P}/sweep"):
-        doc = payload(m)
-        assert len(doc["zones"]) == 3 and doc["duration_s"] > 0
-        made = time.mktime(time.strptime(doc["ts"][:19], "%Y-%m-%dT%H:%M:%S")) - time.timezone
-        made_while_down += any(a + 0.1 < made < b - 0.1 for a, b in outages)
-    assert made_while_down >= 5  # swept (and queued) while the broker was away
+    docs = [payload(m) for m in subscriber.messages(f"{P}/sweep")]
+    assert all(len(doc["zones"]) == 3 and doc["duration_s"] > 0 for doc in docs)
+    assert len(made_while_down(docs, outages)) >= 5  # swept (and queued) while the broker was away
     # What the process knew it had delivered left the queue; nothing is stuck in it.
     import sqlite3
 
@@ -234,20 +246,13 @@ def test_guard_alerts_survive_ten_broker_outages_exactly_as_raised_and_in_order(
     (scenes / "visitor.toml").write_text(WALKER.format(start=14.0, stand=10.0))
     proc = start(broker, tmp_path, 'mode="guard"', f"sim.scene={json.dumps(str(scenes / 'visitor.toml'))}",
                  "sweep.zones=32", "sweep.pan_step_deg=11.25", "guard.learn_sweeps=2", "ptu.settle_ms=10.0")
-    outages = []
     try:
         # Learning done: the state says so. Then the visitor comes; while the guard follows them,
         # take the broker away and bring it back ten times.
         subscriber.wait_for(f"{P}/state", lambda m: json.loads(m.payload).get("guard", {}).get("learning") is False,
                             timeout=60)
         subscriber.wait_for(f"{P}/alert", lambda m: json.loads(m.payload)["event"] == "intrusion", timeout=60)
-        for k in range(10):
-            broker.stop()
-            down = time.time()
-            time.sleep(1.5 + 0.3 * (k % 3))
-            outages.append((down, time.time()))
-            broker.restart()
-            time.sleep(0.8)
+        outages = take_the_broker_away(broker, lambda k: 1.5 + 0.3 * (k % 3))
         subscriber.wait_for(f"{P}/alert", lambda m: json.loads(m.payload)["event"] == "cleared", timeout=90)
         proc.send_signal(signal.SIGTERM)
         err = finish(proc)
@@ -268,13 +273,8 @@ def test_guard_alerts_survive_ten_broker_outages_exactly_as_raised_and_in_order(
     # sweeping and alerting while the broker was away (its loop never waits for the broker).
     numbers = list(dict.fromkeys(payload(m)["sweep"] for m in subscriber.messages(f"{P}/sweep")))
     assert numbers == list(range(1, max(numbers) + 1)), numbers
-
-    def made(doc: dict) -> float:
-        return time.mktime(time.strptime(doc["ts"][:19], "%Y-%m-%dT%H:%M:%S")) - time.timezone
-
-    while_down = [doc for doc in [*got, *(payload(m) for m in subscriber.messages(f"{P}/sweep"))]
-                  if any(a + 0.1 < made(doc) < b - 0.1 for a, b in outages)]
-    assert while_down, (outages, [d["ts"] for d in got])  # 4 in a run here (the sweeps test asks more)
+    sweeps = [payload(m) for m in subscriber.messages(f"{P}/sweep")]
+    assert made_while_down([*got, *sweeps], outages), outages  # 4 in a run here (the sweeps test asks more)
 
 
 def _beeps(path: Path) -> tuple[int, list[tuple[float, float, float]]]:
