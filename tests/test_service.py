@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from datetime import datetime
 from pathlib import Path
 
 import pytest
@@ -157,8 +158,8 @@ def take_the_broker_away(broker: Mosquitto, down_s: Callable[[int], float], time
 
 def made_while_down(docs: list[dict], outages: list[tuple[float, float]]) -> list[dict]:
     """The published documents whose `ts` falls inside an outage."""
-    def made(doc: dict) -> float:
-        return time.mktime(time.strptime(doc["ts"][:19], "%Y-%m-%dT%H:%M:%S")) - time.timezone
+    def made(doc: dict) -> float:  # to the millisecond: outages last a second or two
+        return datetime.fromisoformat(doc["ts"].replace("Z", "+00:00")).timestamp()
 
     return [doc for doc in docs if any(a + 0.1 < made(doc) < b - 0.1 for a, b in outages)]
 
@@ -274,7 +275,7 @@ def test_guard_alerts_survive_ten_broker_outages_exactly_as_raised_and_in_order(
     numbers = list(dict.fromkeys(payload(m)["sweep"] for m in subscriber.messages(f"{P}/sweep")))
     assert numbers == list(range(1, max(numbers) + 1)), numbers
     sweeps = [payload(m) for m in subscriber.messages(f"{P}/sweep")]
-    assert made_while_down([*got, *sweeps], outages), outages  # 4 in a run here (the sweeps test asks more)
+    assert made_while_down([*got, *sweeps], outages), outages  # 4 of 11-12 in runs here (the sweeps test asks more)
 
 
 def _beeps(path: Path) -> tuple[int, list[tuple[float, float, float]]]:
