@@ -93,7 +93,7 @@ def bench_blindaid(config: Config, repeats: int = 3) -> list[str]:
     are reported apart. A live sound card adds the lead and its buffer, reported as such."""
     from dataclasses import replace
 
-    from edge.modes.fan import BlindAidRunner
+    from edge.modes.blindaid.runner import BlindAidRunner
     from edge.parts import open_parts
 
     config = replace(config, audio=replace(config.audio, out=""))

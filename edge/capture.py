@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from edge.config import Config
-from edge.errors import HardwareError
+from edge.errors import CameraError, LaserError
 from edge.hw.base import Camera, Frame, LaserBank
 
 log = logging.getLogger(__name__)
@@ -84,17 +84,17 @@ class Capture:
                 return Shot(frame, self._order(on), switch_ns)
             self.dropped += 1
             log.warning("frame %d overlapped a laser switch at %d: taking another", frame.sequence, later)
-        raise HardwareError(f"capture: the lasers kept switching during the exposure ({_MAX_RETAKES + 1} tries)")
+        raise LaserError(f"capture: the lasers kept switching during the exposure ({_MAX_RETAKES + 1} tries)")
 
     def _check(self, frame: Frame) -> None:
         """A frame of the wrong size or type is a torn or foreign buffer: a camera fault."""
         want = getattr(self, "frame_size", None)
         image = frame.image
         if want is not None and (image.shape[1], image.shape[0]) != want:
-            raise HardwareError(f"camera: frame {frame.sequence} is {image.shape[1]}x{image.shape[0]}, "
+            raise CameraError(f"camera: frame {frame.sequence} is {image.shape[1]}x{image.shape[0]}, "
                                 f"expected {want[0]}x{want[1]} (a torn or corrupt frame)")
         if image.dtype not in (np.uint8, np.uint16):
-            raise HardwareError(f"camera: frame {frame.sequence} has pixels of type {image.dtype}, expected uint8 or uint16")
+            raise CameraError(f"camera: frame {frame.sequence} has pixels of type {image.dtype}, expected uint8 or uint16")
 
     def _straddlers(self, frame: Frame, switch_ns: int, effective_ns: int) -> int:
         """How many frames just before `frame` were being exposed while the switch at `switch_ns`

@@ -148,7 +148,7 @@ def _live_sweep(config, out: Path, recording: Path | None) -> int:
 
     started = time.monotonic()
     device = "sim" if config.camera.backend == "sim" else config.device.resolved_id()
-    from edge.calibrated import believed_rig
+    from edge.calibration.in_use import believed_rig
 
     # The recording keeps the rig it was ranged with, calibration included, so replay agrees.
     writer = RecordingWriter(recording, believed_rig(config).rig, device=device) if recording else None
@@ -233,7 +233,7 @@ def cmd_config(args: argparse.Namespace) -> int:
     for laser in rig.lasers:
         ref = " (reference)" if laser is rig.reference else ""
         print(f"  laser {laser.name}: pin {laser.pin}{ref}")
-    from edge.calibrated import believed_rig
+    from edge.calibration.in_use import believed_rig
 
     print(f"  calibration: {believed_rig(config).health}")
     if not config.rig.calibration:  # the service also looks in its state folder
@@ -250,7 +250,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     recording = read_recording(args.recording)
     rig = recording.rig
     if args.calibration:
-        from edge.calibration import read_calibration
+        from edge.calibration.fit import read_calibration
 
         rig = read_calibration(args.calibration).apply(rig)
     replayer = Replayer(rig, args.estimator, _config(args).ranging)
@@ -327,7 +327,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.set_defaults(func=cmd_replay)
 
-    from edge import calibration
+    from edge.calibration import fit as calibration
     from edge.hw import lasers, ptu
 
     calibration.add_parser(sub)

@@ -202,8 +202,8 @@ def _calibrate(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: 
         if not lo <= d <= hi:
             raise CommandError(f"{where}: distances_m[{i}] = {d:g} m is outside {lo:g}-{hi:g} m")
         distances.append(d)
-    # What a session can take (edge.modes.calibrate): a span the fit can use, and steps it can see.
-    from edge.calibration import MIN_SPAN
+    # What a session can take (edge.calibration.session): a span the fit can use, and steps it can see.
+    from edge.calibration.fit import MIN_SPAN
 
     span = max(distances) / min(distances)
     if span < MIN_SPAN:

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from edge.errors import ConfigError
-from edge.modes.blindaid import BlindAidConfig
+from edge.modes.blindaid.logic import BlindAidConfig
 from edge.modes.guard import GuardConfig
 from edge.ranging import RangingConfig
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Mount, Rig, default_rig, wrap_deg
@@ -85,7 +85,7 @@ class RigConfig:
     mount: Mount = field(default_factory=Mount)
     range_limits_m: tuple[float, float] = _DEFAULT_RIG.range_limits_m
     # An edge-calibration/1 file (relative to the config file) applied to the lasers and camera
-    # above; empty: the service's own <state_dir>/calibration.json if there is one (edge.calibrated).
+    # above; empty: the service's own <state_dir>/calibration.json if there is one (edge.calibration.in_use).
     calibration: str = ""
 
     def __post_init__(self) -> None:

@@ -36,9 +36,48 @@ class SceneError(EdgeError):
 
 
 class HardwareError(EdgeError):
-    """A part of the rig (camera, lasers, pan-tilt unit) did not deliver."""
+    """A part of the rig (camera, lasers, pan-tilt unit) did not deliver.
+
+    ``part`` names the part to blame (one of :data:`PARTS`), or None when no single part is: the
+    service routes health and recovery by it, never by the words of the message, which are for
+    people. Drivers raise the subclass of their part.
+    """
 
     exit_code = 1
+    part: str | None = None
+
+    def __init__(self, message: str = "", *, part: str | None = None) -> None:
+        super().__init__(message)
+        if part is not None:
+            self.part = part
+
+
+class CameraError(HardwareError):
+    """The camera: no frame in time, a torn or corrupt frame, it would not open or restart."""
+
+    part = "camera"
+
+
+class LaserError(HardwareError):
+    """The lasers: GPIO not available, a pin that cannot be driven, switching that never settles."""
+
+    part = "lasers"
+
+
+class PtuError(HardwareError):
+    """The pan-tilt unit: no or garbled replies, a refused setting, a move out of its limits."""
+
+    part = "ptu"
+
+
+class AudioError(HardwareError):
+    """The blind aid's sound output (a sound card or a WAV file)."""
+
+    part = "audio"
+
+
+# The parts a HardwareError may blame, as the service's `state` names them.
+PARTS = ("camera", "lasers", "ptu", "audio")
 
 
 class CalibrationError(EdgeError):

@@ -101,6 +101,9 @@ class ZoneResult:
     normal: np.ndarray | None = None
     lasers: dict[str, LaserMeasurement] = field(default_factory=dict)
     detail: str = ""  # why a zone is not ok, for people
+    # A fault's part to blame (edge.errors.PARTS), for health and recovery; not published: the
+    # detail says it in words.
+    part: str | None = None
 
     def to_json(self) -> dict:
         def vec(v: np.ndarray | None, nd: int = 5) -> list[float] | None:

@@ -42,15 +42,6 @@ class _Later:
 LATER = _Later()
 
 
-def _part_of(detail: str) -> str | None:
-    """Which part a zone's fault detail blames (the drivers' messages start with it)."""
-    text = detail.lower()
-    for prefix, part in (("pan-tilt", "ptu"), ("camera", "camera"), ("capture", "lasers"), ("laser", "lasers")):
-        if text.startswith(prefix):
-            return part
-    return None
-
-
 class Health:
     """Each part's latest condition, as `state` reports it: "ok" or what went wrong."""
 
@@ -62,7 +53,7 @@ class Health:
     def zone(self, result: ZoneResult) -> bool:
         """Take a zone's outcome into account; True when something changed."""
         before = dict(self.parts)
-        part = _part_of(result.detail) if result.status == FAULT else None
+        part = result.part if result.status == FAULT else None
         if part is not None:
             self.parts[part] = f"fault: {result.detail}"
         elif result.status != FAULT:
@@ -100,7 +91,7 @@ class Service:
         self._camera_faults = 0
         self.camera_restarts = 0
         self._blindaid: Any = None
-        from edge.calibrated import believed_rig
+        from edge.calibration.in_use import believed_rig
 
         believed = believed_rig(config, service=True)
         if believed.health.startswith("fault"):
@@ -155,9 +146,8 @@ class Service:
                     self._parts = None
             except HardwareError as exc:
                 # Say why on MQTT before systemd restarts us: a silent restart loop helps nobody.
-                for part in ("camera", "lasers", "ptu"):
-                    if _part_of(str(exc)) == part:
-                        self.health.parts[part] = f"fault: {exc}"
+                if exc.part in self.health.parts:
+                    self.health.parts[exc.part] = f"fault: {exc}"
                 self._publish_state()
                 raise
             notifier.stopping()
@@ -244,7 +234,7 @@ class Service:
         try:
             parts.ptu.move(pan, tilt)
         except HardwareError as exc:
-            self._zone(ZoneResult(-1, pan, tilt, FAULT, detail=str(exc)))
+            self._zone(ZoneResult(-1, pan, tilt, FAULT, detail=str(exc), part=exc.part))
             self.stop_requested.wait(1.0)  # a unit that failed gets a moment before the next try
             return
         finder = Rangefinder(parts.capture, self.ranger, parts.lasers.names)
@@ -258,7 +248,7 @@ class Service:
 
     def _fan(self, deadline: float | None) -> None:
         if self._blindaid is None:
-            from edge.modes.fan import BlindAidRunner
+            from edge.modes.blindaid.runner import BlindAidRunner
 
             self._blindaid = BlindAidRunner(self.config, self._parts,
                                             on_cue=lambda cue: self._publish_live("cue", cue.to_json()),
@@ -356,7 +346,7 @@ class Service:
             changed = True
         if changed:
             self._publish_state()
-        self._camera_faults = self._camera_faults + 1 if _part_of(result.detail) == "camera" and result.status == FAULT else 0
+        self._camera_faults = self._camera_faults + 1 if result.part == "camera" and result.status == FAULT else 0
         if self._camera_faults >= CAMERA_RESTART_AFTER:
             self._restart_camera()
 
@@ -462,9 +452,9 @@ class Service:
         return None
 
     def _cmd_calibrate(self, command: Any) -> str | _Later | None:
-        """Start an interactive flat-target calibration (edge.modes.calibrate); its result comes
+        """Start an interactive flat-target calibration (edge.calibration.session); its result comes
         when it ends."""
-        from edge.modes.calibrate import TargetCalibration
+        from edge.calibration.session import TargetCalibration
 
         if self._parts is None:
             return "the rig is not running"
@@ -506,7 +496,7 @@ class Service:
                 self._calibration_aimed = True
             taken = session.step()
         except HardwareError as exc:
-            self._zone(ZoneResult(-1, session.pan_deg, session.tilt_deg, FAULT, detail=str(exc)))
+            self._zone(ZoneResult(-1, session.pan_deg, session.tilt_deg, FAULT, detail=str(exc), part=exc.part))
             self.stop_requested.wait(0.2)
             return
         except (EdgeError, OSError) as exc:  # the frames could not be written (a full card)
@@ -529,9 +519,9 @@ class Service:
             self._publish_state()
 
     def _finish_calibration(self) -> None:
-        from edge.calibrated import apply, calibration_file
-        from edge.calibration import report, write_calibration
-        from edge.modes.calibrate import summary
+        from edge.calibration.in_use import apply, calibration_file
+        from edge.calibration.fit import report, write_calibration
+        from edge.calibration.session import summary
 
         session = self._calibration
         self._calibration = None

@@ -109,7 +109,7 @@ class Sweeper:
         try:
             start = self.ptu.position()
         except HardwareError as exc:
-            raise HardwareError(f"cannot start the sweep: {exc}") from None
+            raise type(exc)(f"cannot start the sweep: {exc}", part=exc.part) from None
         order = visiting_order(poses, start)
         views = [self.views(*poses[i]) for i in order]
         report.limit_s = sweep_limit_s(self.config, self.ptu, views, start)
@@ -129,7 +129,8 @@ class Sweeper:
                 progress(done + 1, len(poses))
             if in_a_row >= MAX_FAULTS_IN_A_ROW:
                 raise HardwareError(
-                    f"sweep stopped after {in_a_row} failed zones in a row (last: {result.detail})"
+                    f"sweep stopped after {in_a_row} failed zones in a row (last: {result.detail})",
+                    part=result.part,
                 )
         report.results.sort(key=lambda r: r.index)
         report.duration_s = time.monotonic() - started
@@ -154,7 +155,7 @@ class Sweeper:
                     self.last_frame_end_ns = frame.t_end_ns
         except HardwareError as exc:
             log.warning("zone %d (pan %.2f°, tilt %.2f°): %s", index, pan, tilt, exc)
-            return ZoneResult(index, pan, tilt, FAULT, detail=str(exc))
+            return ZoneResult(index, pan, tilt, FAULT, detail=str(exc), part=exc.part)
         groups = _groups(taken)
         result = self.ranger.range_zone(index, reached[0], reached[1], groups)
         self.lit_when_off = lit_when_off(self.ranger, result, groups)
@@ -219,13 +220,13 @@ class ConfiguredSweep:
 def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None, config: Config | None = None,
                 ranger: Ranger | None = None) -> Sweeper:
     """A sweeper on opened parts (``edge.parts``), ranging with the configured rig and its
-    calibration (``edge.calibrated``; `config`, when
+    calibration (``edge.calibration.in_use``; `config`, when
     given, changes how it sweeps: a mode's own pattern; `ranger`, when given, is reused rather
     than built again: building one lays out every laser's search band)."""
     config = config or parts.config
     truth = parts.truth if parts.simulated else None
     if ranger is None:
-        from edge.calibrated import believed_rig
+        from edge.calibration.in_use import believed_rig
 
         ranger = Ranger(believed_rig(config).rig, config.ranging)
     return Sweeper(config, parts.ptu, parts.capture, ranger,

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from edge.errors import HardwareError
-from edge.modes import audio
-from edge.modes.audio import (
+from edge.modes.blindaid import sound as audio
+from edge.modes.blindaid.sound import (
     AplaySink,
     CuePlayer,
     NullSink,
@@ -27,7 +27,7 @@ from edge.modes.audio import (
     resample_linear,
     speak_to_frames,
 )
-from edge.modes.blindaid import BEEP, SILENCE, TONE, BlindAid, BlindAidConfig, Cue
+from edge.modes.blindaid.logic import BEEP, SILENCE, TONE, BlindAid, BlindAidConfig, Cue
 from edge.ranging import OK, ZoneResult
 
 SR = 22050
@@ -346,7 +346,7 @@ def test_speech_missing_returns_none_and_logs(tmp_path: Path, monkeypatch: pytes
                                               caplog: pytest.LogCaptureFixture) -> None:
     monkeypatch.setenv("PATH", str(tmp_path))
     monkeypatch.setattr(audio, "_SPEECH_MISSING_LOGGED", False)
-    with caplog.at_level("INFO", logger="edge.modes.audio"):
+    with caplog.at_level("INFO", logger="edge.modes.blindaid.sound"):
         assert speak_to_frames("way clear", SR) is None
     assert "espeak-ng is not installed" in caplog.text
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edge.errors import ConfigError
-from edge.modes.blindaid import (
+from edge.modes.blindaid.logic import (
     BEEP,
     SILENCE,
     TONE,

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge.calibrated import NOMINAL, believed_rig
-from edge.calibration import Calibration, write_calibration
+from edge.calibration.in_use import NOMINAL, believed_rig
+from edge.calibration.fit import Calibration, write_calibration
 from edge.config import load_config
 from edge.errors import ConfigError
 from edge.rig import default_rig
@@ -113,7 +113,7 @@ def test_a_new_calibration_is_saved_used_and_makes_the_guard_learn_again(tmp_pat
     """The end of a cmd/calibrate session in the service, with the session's own outcome given:
     the file is written, the ranger uses it, and a guard that had learnt its room with the old
     rays learns it again (against the new ones every wall would seem to have moved)."""
-    from edge.modes.calibrate import Outcome
+    from edge.calibration.session import Outcome
     from edge.ranging import OK, ZoneResult
 
     config = load_config(None, [f"service.state_dir={json.dumps(str(tmp_path))}", "mqtt.enabled=false",

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge.calibration import (
+from edge.calibration.fit import (
     FORMAT, Blob, Calibration, add_parser, assign_spots, fit_calibration, read_calibration,
     write_calibration,
 )

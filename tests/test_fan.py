@@ -8,7 +8,7 @@ import wave
 from pathlib import Path
 
 from edge.config import load_config
-from edge.modes.fan import BlindAidRunner
+from edge.modes.blindaid.runner import BlindAidRunner
 from edge.parts import open_parts
 
 

@@ -11,7 +11,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from edge.modes.calibrate import RestWatcher
+from edge.calibration.session import RestWatcher
 from edge.rig import default_rig
 
 RIG = default_rig()

@@ -674,7 +674,7 @@ def test_no_shell_and_no_code_from_data_anywhere_in_the_package():
 def test_a_hostile_text_for_the_speech_engine_is_one_argument(tmp_path, monkeypatch):
     """The blind aid speaks texts built from ranges; even a hostile text (or voice from a config
     file) reaches espeak-ng as one argv entry: no shell parses it, a leading dash is no option."""
-    from edge.modes import audio
+    from edge.modes.blindaid import sound as audio
 
     fake = tmp_path / "espeak-ng"
     record = tmp_path / "argv.json"

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from edge.config import CameraSettings, Config
-from edge.errors import HardwareError
+from edge.errors import CameraError
 from edge.hw.base import Camera, Frame
 
 log = logging.getLogger(__name__)
@@ -50,7 +50,7 @@ class Picamera2Camera:
         try:
             from picamera2 import Picamera2
         except ImportError:
-            raise HardwareError(PICAMERA2_MISSING) from None
+            raise CameraError(PICAMERA2_MISSING) from None
         self.settings = settings
         self.frame_ns = settings.frame_ns
         self.size = size
@@ -60,7 +60,7 @@ class Picamera2Camera:
         try:
             self._cam = Picamera2(camera_num)
         except Exception as exc:
-            raise HardwareError(f"camera: cannot open Pi camera {camera_num}: {exc}") from None
+            raise CameraError(f"camera: cannot open Pi camera {camera_num}: {exc}") from None
         frame_us = int(round(1e6 / settings.frame_rate_hz))
         self.controls: dict[str, Any] = {
             "AeEnable": False,
@@ -80,7 +80,7 @@ class Picamera2Camera:
             self._cam.configure(self._cam.create_video_configuration(**kwargs))
         except Exception as exc:
             self._close_quietly()
-            raise HardwareError(f"camera: cannot configure the Pi camera: {exc}") from None
+            raise CameraError(f"camera: cannot configure the Pi camera: {exc}") from None
         # The readout (row 0 to the last row) is not in the metadata. The shortest frame duration
         # of the sensor mode bounds it (that is the readout plus the least vertical blanking).
         # FrameDuration − exposure would not bound it: a longer exposure does not make the rows read
@@ -94,7 +94,7 @@ class Picamera2Camera:
         try:
             self._cam.start()
         except Exception as exc:
-            raise HardwareError(f"camera: cannot start the Pi camera: {exc}") from None
+            raise CameraError(f"camera: cannot start the Pi camera: {exc}") from None
 
     def stop(self) -> None:
         try:
@@ -125,7 +125,7 @@ class Picamera2Camera:
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
-                raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
+                raise CameraError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
             # flush: picamera2 itself releases the frames that started earlier (it tests
             # SensorTimestamp − ExposureTime, as below); flush=0 would mean "no flush".
             try:
@@ -135,15 +135,15 @@ class Picamera2Camera:
                     request = self._cam.capture_request(wait=left)
             except TypeError as exc:
                 if not self._flush:
-                    raise HardwareError(f"camera: capture failed: {exc}") from None
+                    raise CameraError(f"camera: capture failed: {exc}") from None
                 # An older picamera2 without flush: the check below then skips early frames.
                 log.info("picamera2 has no capture_request(flush=...): skipping early frames here")
                 self._flush = False
                 continue
             except TimeoutError:
-                raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s") from None
+                raise CameraError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s") from None
             except Exception as exc:
-                raise HardwareError(f"camera: capture failed: {exc}") from None
+                raise CameraError(f"camera: capture failed: {exc}") from None
             try:
                 image = request.make_array("main")
                 metadata = dict(request.get_metadata())
@@ -159,7 +159,7 @@ class Picamera2Camera:
             sensor_ns = int(metadata["SensorTimestamp"])
             exposure_us = float(metadata["ExposureTime"])
         except KeyError as exc:
-            raise HardwareError(f"camera: frame metadata lacks {exc.args[0]}") from None
+            raise CameraError(f"camera: frame metadata lacks {exc.args[0]}") from None
         # SensorTimestamp marks the first row's readout (the end of its exposure), not its start.
         t_start = sensor_ns - int(round(exposure_us * 1000))
         period_ns = int(metadata.get("FrameDuration", 1e6 / self.settings.frame_rate_hz)) * 1000
@@ -211,9 +211,9 @@ class OpenCVCamera:
         self._thread.start()
         if not self._opened.wait(open_timeout_s):
             self._stopping.set()
-            raise HardwareError(f"camera: opening video device {settings.device!r} took over {open_timeout_s:g} s")
+            raise CameraError(f"camera: opening video device {settings.device!r} took over {open_timeout_s:g} s")
         if self._error:
-            raise HardwareError(self._error)
+            raise CameraError(self._error)
 
     def _open(self) -> Any:
         import cv2
@@ -226,7 +226,7 @@ class OpenCVCamera:
         cap = cv2.VideoCapture(source, api)
         if not cap.isOpened():
             cap.release()
-            raise HardwareError(
+            raise CameraError(
                 f"camera: cannot open video device {device!r} ([camera] device; is the webcam plugged in?)"
             )
         if self.size:
@@ -245,7 +245,7 @@ class OpenCVCamera:
     def _run(self) -> None:
         try:
             cap = self._open()
-        except HardwareError as exc:
+        except CameraError as exc:
             self._error = str(exc)
             self._opened.set()
             return
@@ -306,10 +306,10 @@ class OpenCVCamera:
                                      {"delivered_ns": delivered})
                     self.skipped += 1
                 if self._error:
-                    raise HardwareError(self._error)
+                    raise CameraError(self._error)
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
+                    raise CameraError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
                 self._cond.wait(left)
 
 
@@ -330,7 +330,7 @@ def open_camera(config: Config, sim_world: Any = None) -> Camera:
     from edge.sim.camera import SimCamera
 
     if sim_world is None:
-        raise HardwareError("camera: the simulated camera needs the simulated lasers' pin factory (sim_world)")
+        raise CameraError("camera: the simulated camera needs the simulated lasers' pin factory (sim_world)")
     if isinstance(sim_world, dict):
         kwargs = dict(sim_world)
     else:  # the simulated Lasers, or their factory

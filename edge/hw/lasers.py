@@ -26,7 +26,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from edge.config import Config, LasersConfig
-from edge.errors import HardwareError
+from edge.errors import LaserError
 from edge.rig import Laser
 
 log = logging.getLogger(__name__)
@@ -46,7 +46,7 @@ def _default_factory() -> Any:
         for w in fallbacks:
             log.info("gpiozero: %s", w.message)
     except Exception as exc:  # gpiozero raises several kinds (BadPinFactory, ImportError, ...)
-        raise HardwareError(
+        raise LaserError(
             f"lasers: no GPIO available ({exc}); on a Raspberry Pi install python3-lgpio, elsewhere "
             "use [lasers] backend = \"sim\""
         ) from None
@@ -66,7 +66,7 @@ def _wired(lasers: Iterable[Laser]) -> list[Laser]:
     lasers = list(lasers)
     missing = [laser.name for laser in lasers if laser.pin is None]
     if missing:
-        raise HardwareError(f"lasers: no GPIO pin configured for {', '.join(missing)} (rig.lasers[].pin)")
+        raise LaserError(f"lasers: no GPIO pin configured for {', '.join(missing)} (rig.lasers[].pin)")
     return lasers
 
 
@@ -105,9 +105,9 @@ class Lasers:
                 )
         except Exception as exc:
             self._close_devices()
-            if isinstance(exc, HardwareError):
+            if isinstance(exc, LaserError):
                 raise
-            raise HardwareError(f"lasers: cannot set up GPIO: {exc}") from None
+            raise LaserError(f"lasers: cannot set up GPIO: {exc}") from None
         self._last_switch_ns = time.monotonic_ns()
         # Run close() at interpreter exit, without the registry keeping this object alive.
         self._atexit = functools.partial(_close_if_alive, weakref.ref(self))
@@ -126,7 +126,7 @@ class Lasers:
             raise ValueError(f"unknown laser {', '.join(map(repr, unknown))} (known: {', '.join(self.names)})")
         with self._lock:
             if self._closed:
-                raise HardwareError("lasers: already closed")
+                raise LaserError("lasers: already closed")
             changed = False
             # Off before on, so that for a moment fewer lasers are lit, never more.
             for name in self.names:
@@ -273,7 +273,7 @@ def force_all_off(config: Config, factory: Any = None) -> list[tuple[str, int, b
             for key in [k for k, p in table.items() if any(p is q for q in pins)]:
                 del table[key]
     if errors:
-        raise HardwareError(f"lasers off: could not drive {'; '.join(errors)}")
+        raise LaserError(f"lasers off: could not drive {'; '.join(errors)}")
     return driven
 
 

@@ -35,7 +35,7 @@ import time
 from typing import Any
 
 from edge.config import PtuConfig
-from edge.errors import HardwareError
+from edge.errors import PtuError
 from edge.sim.ptu_emulator import Emulator, trapezoid_s
 
 log = logging.getLogger(__name__)
@@ -79,11 +79,11 @@ class PanTiltUnit:
         import serial
 
         if config.port.startswith("sim://"):
-            raise HardwareError("ptu.port sim:// is the emulator: use edge.hw.ptu.open_ptu(config)")
+            raise PtuError("ptu.port sim:// is the emulator: use edge.hw.ptu.open_ptu(config)")
         try:
             ser = serial.serial_for_url(config.port, config.baudrate, timeout=_POLL_S)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise HardwareError(f"cannot open the pan-tilt unit's port {config.port}: {exc}; "
+            raise PtuError(f"cannot open the pan-tilt unit's port {config.port}: {exc}; "
                                 "check ptu.port and the cable") from None
         unit = cls(config, ser)
         if initialise:
@@ -110,7 +110,7 @@ class PanTiltUnit:
         self._exchange("I", recover=False)  # immediate mode: PP/TP start moving at once
         try:
             self.model = self._exchange("V", "text", recover=False)
-        except HardwareError as exc:  # older firmware may not know V; nothing depends on it
+        except PtuError as exc:  # older firmware may not know V; nothing depends on it
             log.debug("%s", exc)
             self.model = "(model unknown)"
 
@@ -121,12 +121,12 @@ class PanTiltUnit:
         self.limits = ((int(q("PN")), int(q("PX"))), (int(q("TN")), int(q("TX"))))
         self.speed_bounds = ((int(q("PL")), int(q("PU"))), (int(q("TL")), int(q("TU"))))
         if min(self.res_arcsec) <= 0 or any(lo >= hi for lo, hi in self.limits):
-            raise HardwareError(f"pan-tilt unit on {self.port} reports nonsense (resolution "
+            raise PtuError(f"pan-tilt unit on {self.port} reports nonsense (resolution "
                                 f"{self.res_arcsec}, limits {self.limits}); reset it and retry")
         speed = self._per_axis(self.config.speed_deg_s)
         if not all(b[0] <= s <= b[1] for s, b in zip(speed, self.speed_bounds)):
             lo, hi = self.speed_range_deg_s
-            raise HardwareError(f"ptu.speed_deg_s = {self.config.speed_deg_s:g} °/s is outside what "
+            raise PtuError(f"ptu.speed_deg_s = {self.config.speed_deg_s:g} °/s is outside what "
                                 f"the pan-tilt unit allows ({lo:.2f}–{hi:.2f} °/s); set "
                                 "ptu.speed_deg_s within that range")
         accel = self._per_axis(self.config.accel_deg_s2)
@@ -134,8 +134,8 @@ class PanTiltUnit:
             q(f"{axis}S{s}", "ack")
             try:
                 q(f"{axis}A{a}", "ack")
-            except HardwareError as exc:
-                raise HardwareError(f"{exc}; check ptu.accel_deg_s2") from None
+            except PtuError as exc:
+                raise PtuError(f"{exc}; check ptu.accel_deg_s2") from None
         self._pos = (int(q("PP")), int(q("TP")))
         self._ready = True
         log.info("pan-tilt unit on %s: %s; %.4f″/position; at %s", self.port, self.model,
@@ -176,7 +176,7 @@ class PanTiltUnit:
         for name, deg, pos, (lo, hi), r in zip(("pan", "tilt"), (pan_deg, tilt_deg), target,
                                                self.limits, (rp, rt)):
             if not lo <= pos <= hi:
-                raise HardwareError(f"{name} {deg:g}° is outside the pan-tilt unit's limits "
+                raise PtuError(f"{name} {deg:g}° is outside the pan-tilt unit's limits "
                                     f"{lo * r:.2f}°…{hi * r:.2f}°; choose a {name} within them")
         return target
 
@@ -211,7 +211,7 @@ class PanTiltUnit:
                 # The unit was reset while moving: it is at 0 now, not at the target. Again.
                 log.warning("pan-tilt unit on %s was reset during a move; moving again", self.port)
             else:
-                raise HardwareError(f"pan-tilt unit on {self.port} reset itself twice during one move; "
+                raise PtuError(f"pan-tilt unit on {self.port} reset itself twice during one move; "
                                     "check its power supply")
             self._moving = False
             # The await answered: both axes are at the target (a stepper reports the position it
@@ -243,7 +243,7 @@ class PanTiltUnit:
             if self._moving and self._terse and self._ser.is_open:
                 try:  # one try only: a unit that does not answer must not hold up closing
                     self._exchange("H", tries=1)
-                except HardwareError as exc:
+                except PtuError as exc:
                     log.warning("%s", exc)
         finally:
             self._ser.close()
@@ -256,8 +256,8 @@ class PanTiltUnit:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _not_ready(self) -> HardwareError:
-        return HardwareError(f"pan-tilt unit on {self.port} is not initialised; call initialise() first")
+    def _not_ready(self) -> PtuError:
+        return PtuError(f"pan-tilt unit on {self.port} is not initialised; call initialise() first")
 
     # ---- the line ----
 
@@ -275,7 +275,7 @@ class PanTiltUnit:
                 return self._transact(cmd, kind, timeout, tries)
             except _UnitReset:
                 if not recover:
-                    raise HardwareError(f"pan-tilt unit on {self.port} was reset while being set up; "
+                    raise PtuError(f"pan-tilt unit on {self.port} was reset while being set up; "
                                         "call initialise() again") from None
             log.warning("pan-tilt unit on %s answers with echo or verbose replies: it was reset or "
                         "power-cycled (position lost); initialising it again", self.port)
@@ -284,7 +284,7 @@ class PanTiltUnit:
             try:
                 return self._transact(cmd, kind, timeout, tries)
             except _UnitReset:
-                raise HardwareError(f"pan-tilt unit on {self.port} keeps resetting; check its power "
+                raise PtuError(f"pan-tilt unit on {self.port} keeps resetting; check its power "
                                     "supply, then call initialise()") from None
 
     def _transact(self, cmd: str, kind: str, timeout: float | None, tries: int) -> str:
@@ -309,9 +309,9 @@ class PanTiltUnit:
                         self.port, what, cmd, attempt + 1, tries)
         spent = time.monotonic() - started
         if garbled:
-            raise HardwareError(f"pan-tilt unit on {self.port} gives garbled replies to {cmd} (last "
+            raise PtuError(f"pan-tilt unit on {self.port} gives garbled replies to {cmd} (last "
                                 f"{garbled!r}); check ptu.baudrate and the cable")
-        raise HardwareError(f"pan-tilt unit on {self.port} does not answer (no reply to {cmd} in "
+        raise PtuError(f"pan-tilt unit on {self.port} does not answer (no reply to {cmd} in "
                             f"{tries} tries, {spent:.1f} s); check power and cable")
 
     def _classify(self, cmd: str, line: str, kind: str) -> str | None:
@@ -330,7 +330,7 @@ class PanTiltUnit:
         if echoed and self._terse:
             raise _UnitReset
         if line[0] == "!":
-            raise HardwareError(f"pan-tilt unit on {self.port} refused {cmd}: {line[1:].strip()}")
+            raise PtuError(f"pan-tilt unit on {self.port} refused {cmd}: {line[1:].strip()}")
         payload = line[1:].strip()
         if kind not in ("int", "float"):
             return payload
@@ -349,7 +349,7 @@ class PanTiltUnit:
             waiting = int(self._ser.in_waiting)
             return waiting if op == "waiting" else self._ser.read(max(1, waiting))
         except Exception as exc:
-            raise HardwareError(f"pan-tilt unit port {self.port} failed: {exc}; check the cable") from None
+            raise PtuError(f"pan-tilt unit port {self.port} failed: {exc}; check the cable") from None
 
     def _read_line(self, deadline: float) -> str | None:
         """The next non-empty line (CR or LF ends it), or None at the deadline."""

@@ -96,7 +96,7 @@ class Rangefinder:
                 try:
                     shot = self.capture.take(self.lasers if lit else ())
                 except HardwareError as exc:
-                    on_range(ZoneResult(-1, pan_deg, tilt_deg, FAULT, detail=str(exc)), None, {})
+                    on_range(ZoneResult(-1, pan_deg, tilt_deg, FAULT, detail=str(exc), part=exc.part), None, {})
                     previous = None
                     continue
                 frames += 1

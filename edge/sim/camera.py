@@ -27,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 
 from edge.config import CameraSettings, Config
-from edge.errors import ConfigError, HardwareError
+from edge.errors import CameraError, ConfigError
 from edge.hw.base import Frame
 from edge.sim.gpio import LaserWiring
 from edge.sim.render import Renderer
@@ -165,14 +165,14 @@ class SimCamera:
     def frame_start_ns(self, k: int) -> int:
         """When frame k's first row starts its exposure."""
         if self._t0 is None:
-            raise HardwareError("camera: not started")
+            raise CameraError("camera: not started")
         return self._t0 + k * self.frame_ns
 
     def frame_after(self, t_ns: int, timeout_s: float | None = None) -> Frame:
         """The first frame whose exposure starts at or after `t_ns`, once it has been read out.
         Raises HardwareError when that takes longer than `timeout_s` (default: the settings')."""
         if self._t0 is None:
-            raise HardwareError("camera: not started")
+            raise CameraError("camera: not started")
         timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
         fault = self._fault_now()
         if fault is not None and fault.kind == "hang":
@@ -180,7 +180,7 @@ class SimCamera:
         elif fault is not None and fault.kind == "stall":
             _sleep_until(min(self._fault_end_ns(fault), time.monotonic_ns() + int(timeout_s * 1e9)))
             if time.monotonic_ns() < self._fault_end_ns(fault):
-                raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
+                raise CameraError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
         now = time.monotonic_ns()
         deadline = now + int(timeout_s * 1e9)
         span = self.readout_ns + self.exposure_ns  # first row's start to last row's end
@@ -191,7 +191,7 @@ class SimCamera:
         ready = self.frame_start_ns(k) + span
         if ready > deadline:
             _sleep_until(deadline)
-            raise HardwareError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
+            raise CameraError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
         _sleep_until(ready)
         self._last_k = k
         frame = self._render(k)

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from gpiozero.pins.mock import MockFactory, MockPin
 
-from edge.errors import HardwareError
+from edge.errors import LaserError
 from edge.rig import Laser
 
 # A pin keeps at most this many changes; older ones are dropped (frames only look back a frame or
@@ -48,13 +48,13 @@ class Wires:
         try:
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
-            raise HardwareError(f"lasers.sim_wires: cannot open {self.path}: {exc.strerror}") from None
+            raise LaserError(f"lasers.sim_wires: cannot open {self.path}: {exc.strerror}") from None
         try:
             size = os.fstat(fd).st_size
             if size == 0:
                 os.ftruncate(fd, self.SIZE)
             elif size != self.SIZE:
-                raise HardwareError(
+                raise LaserError(
                     f"lasers.sim_wires: {self.path} is not a wires file ({size} bytes, expected {self.SIZE})")
             self._map = mmap.mmap(fd, self.SIZE)
         finally:
@@ -62,7 +62,7 @@ class Wires:
         for code in self._map[:]:
             if code not in (0, 1, 2):
                 self._map.close()
-                raise HardwareError(f"lasers.sim_wires: {self.path} is not a wires file (a byte is {code})")
+                raise LaserError(f"lasers.sim_wires: {self.path} is not a wires file (a byte is {code})")
 
     def level(self, bcm: int) -> bool | None:
         """What the wire of GPIO `bcm` carries: True high, False low, None undriven."""

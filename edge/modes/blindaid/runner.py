@@ -1,9 +1,9 @@
 """The blind aid on the rig: scan the fan, turn each zone's range into a cue, play it.
 
-The pure part (which obstacle, which sound) is :mod:`edge.modes.blindaid`, the sound is
-:mod:`edge.modes.audio`; this module moves the unit through the fan one zone at a time, feeds each
+The pure part (which obstacle, which sound) is :mod:`edge.modes.blindaid.logic`, the sound is
+:mod:`edge.modes.blindaid.sound`; this module moves the unit through the fan one zone at a time, feeds each
 result to the :class:`~edge.modes.blindaid.BlindAid`, and keeps the sound going: a thread advances
-the :class:`~edge.modes.audio.CuePlayer` on the clock every few milliseconds, whatever the unit is
+the :class:`~edge.modes.blindaid.sound.CuePlayer` on the clock every few milliseconds, whatever the unit is
 doing, so beeps keep their rhythm while the head moves. Speech is synthesised in a thread of its
 own (espeak-ng takes 50-200 ms on a Pi) and mixed in when ready.
 
@@ -20,8 +20,8 @@ from collections.abc import Callable
 from dataclasses import replace
 
 from edge.config import Config
-from edge.modes.audio import AplaySink, CuePlayer, NullSink, Synth, WavSink, speak_to_frames
-from edge.modes.blindaid import BlindAid, Cue, fan_poses, scan_order
+from edge.modes.blindaid.sound import AplaySink, CuePlayer, NullSink, Synth, WavSink, speak_to_frames
+from edge.modes.blindaid.logic import BlindAid, Cue, fan_poses, scan_order
 from edge.ranging import Ranger, ZoneResult
 
 log = logging.getLogger(__name__)

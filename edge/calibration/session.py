@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.calibration import FIRST_GATE_PX, Calibration, find_spots, fit_calibration
+from edge.calibration.fit import FIRST_GATE_PX, Calibration, find_spots, fit_calibration
 from edge.capture import Capture
 from edge.errors import CalibrationError, HardwareError
 from edge.ranging import FAULT, FrameGroup, Ranger, ZoneResult
@@ -207,7 +207,7 @@ class TargetCalibration:
         result = self.record_zone(k, self.pan_deg, self.tilt_deg, self._writer)
         if result.status == FAULT:  # a part failed while recording: wait for the next rest
             self.watcher.forget_last()
-            raise HardwareError(result.detail)
+            raise HardwareError(result.detail, part=result.part)
         self.recorded = result
         return distance
 

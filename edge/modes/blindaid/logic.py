@@ -9,7 +9,7 @@ keeps the latest reading of each zone; the nearest valid obstacle within ``clear
 - at or inside ``danger_m``: a continuous **tone**.
 
 Everything here is pure: results and times in, :class:`Cue` values out. No clocks, no I/O; the
-sound itself is made by :mod:`edge.modes.audio`, and the service publishes each cue on ``cue``.
+sound itself is made by :mod:`edge.modes.blindaid.sound`, and the service publishes each cue on ``cue``.
 
 The laws (``u`` = how far into the warning band the obstacle is, 0 at ``clear_m``, 1 at
 ``danger_m``: ``u = (clear_m − d) / (clear_m − danger_m)``, clipped to [0, 1])::

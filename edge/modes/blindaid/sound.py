@@ -31,9 +31,9 @@ from typing import Protocol
 
 import numpy as np
 
-from edge.errors import HardwareError
+from edge.errors import AudioError
 from edge.fsutil import current_umask
-from edge.modes.blindaid import BEEP, SILENCE, TONE, BlindAidConfig, Cue, pan_gains
+from edge.modes.blindaid.logic import BEEP, SILENCE, TONE, BlindAidConfig, Cue, pan_gains
 
 log = logging.getLogger(__name__)
 
@@ -260,7 +260,7 @@ class WavSink:
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=folder)
             os.fchmod(fd, 0o666 & ~current_umask())  # a WAV to listen to, not a secret
         except OSError as exc:
-            raise HardwareError(f"audio: cannot write {self.path}: {exc.strerror}") from None
+            raise AudioError(f"audio: cannot write {self.path}: {exc.strerror}") from None
         self.tmp_path = Path(tmp)
         self._fh = os.fdopen(fd, "w+b")
         self._wav = wave.open(self._fh, "wb")
@@ -323,7 +323,7 @@ class AplaySink:
         self.sample_rate = int(sample_rate)
         exe = shutil.which(executable)
         if exe is None:
-            raise HardwareError(
+            raise AudioError(
                 f"audio: {executable} not found on PATH; install alsa-utils (apt install alsa-utils) "
                 "or write the sound to a file with --audio-out FILE.wav"
             )
@@ -337,15 +337,15 @@ class AplaySink:
                                           stderr=self._stderr, bufsize=0)
         except OSError as exc:
             self._stderr.close()
-            raise HardwareError(f"audio: cannot start {exe}: {exc.strerror}") from None
+            raise AudioError(f"audio: cannot start {exe}: {exc.strerror}") from None
         self.closed = False
 
-    def _died(self) -> HardwareError:
+    def _died(self) -> AudioError:
         rc = self._proc.wait()
         self._stderr.seek(0)
         lines = self._stderr.read().decode(errors="replace").strip().splitlines()
         why = f": {lines[-1]}" if lines else ""
-        return HardwareError(f"audio: aplay stopped (exit status {rc}){why}")
+        return AudioError(f"audio: aplay stopped (exit status {rc}){why}")
 
     def write(self, frames: np.ndarray) -> None:
         data = _as_frames(frames).tobytes()

@@ -1,0 +1,8 @@
+"""Calibration of the rig's lasers (and camera) from flat-target captures.
+
+- :mod:`edge.calibration.fit`: the least-squares fit itself (pure: spots in, rays out);
+- :mod:`edge.calibration.session`: ``cmd/calibrate``, the interactive session on the device that
+  takes a target's rests in order and fits them;
+- :mod:`edge.calibration.in_use`: which rig ranging believes (the configured rig with its
+  calibration applied).
+"""
