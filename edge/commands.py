@@ -17,8 +17,8 @@ from types import MappingProxyType
 from typing import Any
 
 from edge.errors import CommandError
+from edge.modes import MODES
 
-MODES = ("rangefinder", "blindaid", "guard")
 MAX_REQUEST_ID_CHARS = 128
 CALIBRATION_DISTANCE_M = (0.25, 5.0)
 CALIBRATION_COUNT = (3, 20)

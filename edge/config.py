@@ -8,7 +8,6 @@ simulated rig in a virtual room.
 
 from __future__ import annotations
 
-import math
 import os
 import tomllib
 from dataclasses import dataclass, field, replace
@@ -16,6 +15,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from edge.errors import ConfigError
+from edge.modes import Mode
 from edge.modes.blindaid.logic import BlindAidConfig
 from edge.modes.guard import GuardConfig
 from edge.ranging import RangingConfig
@@ -455,7 +455,7 @@ class Config:
     guard: GuardConfig = field(default_factory=GuardConfig)
     blindaid: BlindAidConfig = field(default_factory=BlindAidConfig)
     audio: AudioConfig = field(default_factory=AudioConfig)
-    mode: Literal["rangefinder", "blindaid", "guard"] = "rangefinder"
+    mode: Mode = "rangefinder"
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
 

@@ -28,7 +28,7 @@ import re
 import threading
 import time
 from collections.abc import Callable
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +41,7 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 from edge.commands import request_id_of
 from edge.config import MqttConfig
 from edge.errors import ConfigError
+from edge.modes import MODES
 from edge.outbox import Outbox
 
 log = logging.getLogger(__name__)
@@ -56,7 +57,6 @@ PAHO_INFLIGHT = 20
 EVENT_KINDS = ("sweep", "alert")  # QoS 1 through the outbox; sweep retained
 LIVE_KINDS = ("range", "cue")  # QoS 0, dropped while disconnected
 COMMAND_QUEUE_SIZE = 256  # commands waiting for the service; more are refused
-MODES = ("rangefinder", "blindaid", "guard")
 _STOP_RESERVE_S = 1.0  # of stop()'s timeout, kept for `offline` after draining the outbox
 
 
@@ -97,7 +97,7 @@ class Topics:
 
 def utc_timestamp(t: float | None = None) -> str:
     """ISO 8601 UTC with milliseconds, e.g. ``2026-11-23T12:00:00.123Z``."""
-    moment = datetime.fromtimestamp(time.time() if t is None else t, tz=timezone.utc)
+    moment = datetime.fromtimestamp(time.time() if t is None else t, tz=UTC)
     return moment.strftime("%Y-%m-%dT%H:%M:%S.") + f"{moment.microsecond // 1000:03d}Z"
 
 

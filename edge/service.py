@@ -28,7 +28,6 @@ from edge.ranging import FAULT, ZoneResult
 
 log = logging.getLogger(__name__)
 
-MODES = ("rangefinder", "blindaid", "guard")
 # Between steps the loop waits at most this long for a command or a stop.
 _IDLE_S = 0.05
 # The camera is restarted after this many zones in a row failed for want of frames.
