@@ -88,19 +88,20 @@ class Capture:
 
     def _check(self, frame: Frame) -> None:
         """A frame of the wrong size or type is a torn or foreign buffer: a camera fault."""
-        want = getattr(self, "frame_size", None)
+        want = self.frame_size
         image = frame.image
         if want is not None and (image.shape[1], image.shape[0]) != want:
             raise CameraError(f"camera: frame {frame.sequence} is {image.shape[1]}x{image.shape[0]}, "
-                                f"expected {want[0]}x{want[1]} (a torn or corrupt frame)")
+                              f"expected {want[0]}x{want[1]} (a torn or corrupt frame)")
         if image.dtype not in (np.uint8, np.uint16):
-            raise CameraError(f"camera: frame {frame.sequence} has pixels of type {image.dtype}, expected uint8 or uint16")
+            raise CameraError(f"camera: frame {frame.sequence} has pixels of type {image.dtype}, "
+                              "expected uint8 or uint16")
 
     def _straddlers(self, frame: Frame, switch_ns: int, effective_ns: int) -> int:
         """How many frames just before `frame` were being exposed while the switch at `switch_ns`
         took effect (so were skipped for it), reckoned back along the frame clock."""
         span = frame.t_end_ns - frame.t_start_ns
-        period = getattr(self.camera, "frame_ns", 0) or span
+        period = self.camera.frame_ns or span
         # Frame j before this one starts at t − j·period; it straddled if it started before the
         # switch took effect and ended after the switch began.
         j_min = max((frame.t_start_ns - effective_ns) // period + 1, 1)

@@ -1,23 +1,48 @@
-"""The configured parts of the rig, opened together and closed together.
+"""The configured parts of the rig, opened together and closed together: the composition root.
 
-``open_parts(config)`` brings up the pan-tilt unit, the lasers and the camera named by the
-configuration — real ones, or the simulated ones wired to each other (the emulated unit's pose and
-the mock laser pins drive the simulated camera) — and closes them, lasers first, however the block
-ends. For a simulated rig it also knows the truth: each zone's true range and the room's floor plan.
+This is the one place that chooses backends, as gpiozero's pin factories and pyserial's URL
+handlers do: the drivers of :mod:`edge.hw` never know whether they drive hardware or the simulator.
+For a simulated rig the simulator's parts are peers of the real ones, wired to each other here —
+the real PTU-D46 driver talks to the emulated unit on a pseudo-terminal, the real laser driver
+switches mock pins, and the simulated camera renders what the unit's pose and those pins say. A
+simulated rig also knows the truth: each zone's true range and the room's floor plan.
+
+``open_parts(config)`` opens the pan-tilt unit, the lasers and the camera, starts the camera, and
+closes everything however the block ends: the lasers first (eye safety), then the camera (released
+once), then the unit.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from edge.capture import Capture
-from edge.config import Config
+from edge.errors import CameraError
 from edge.hw.base import Camera, LaserBank, PanTilt
-from edge.mapping import Segment
+from edge.hw.lasers import Lasers, LasersConfig, default_factory
+from edge.hw.ptu import PanTiltUnit, PtuConfig
+
+if TYPE_CHECKING:  # light at import: `edge lasers off` takes its laser_factory() from here
+    from edge.capture import Capture
+    from edge.config import Config
+    from edge.mapping import Segment
+    from edge.sim.ptu_emulator import Emulator
+    from edge.sim.render import Renderer
+
+
+@dataclass
+class SimWorld:
+    """What ties a simulated rig's parts together: the emulated unit, the mock laser pins, and the
+    scene's clock, which starts with the rig (the scene's movers are timed from it)."""
+
+    emulator: Emulator
+    factory: Any  # edge.sim.gpio.LaserFactory
+    epoch_ns: int
+    renderer: Renderer | None = None  # the simulated camera's, once it is open
 
 
 @dataclass
@@ -27,53 +52,136 @@ class Parts:
     lasers: LaserBank
     camera: Camera
     capture: Capture
-    emulator: Any = None  # the PTU emulator when ptu.port is sim://
+    world: SimWorld | None = None  # a simulated rig's wiring and truth; None on real parts
+    button: Any = None  # the blind aid's "how far?" push button (a gpiozero Button), if wired
     truths: dict[int, dict] = field(default_factory=dict)  # zone index → truth (simulator only)
 
     @property
     def simulated(self) -> bool:
-        return getattr(self.camera, "renderer", None) is not None
+        """A simulated camera sees the scene: the truth of what it sees is known."""
+        return self.world is not None and self.world.renderer is not None
+
+    @property
+    def emulator(self) -> Emulator | None:
+        """The emulated pan-tilt unit of a simulated rig (tests inject its faults)."""
+        return self.world.emulator if self.world is not None else None
 
     def truth(self, index: int, pan_deg: float, tilt_deg: float) -> dict | None:
         """The simulator's truth for a zone seen from (pan, tilt) now; None on real parts."""
-        renderer = getattr(self.camera, "renderer", None)
-        if renderer is None:
+        if self.world is None or self.world.renderer is None:
             return None
         from edge.sim.record import zone_truth
 
-        t_s = (time.monotonic_ns() - self.camera.scene_epoch_ns) / 1e9
+        renderer = self.world.renderer
+        t_s = (time.monotonic_ns() - self.world.epoch_ns) / 1e9
         spots = renderer.spots(pan_deg, tilt_deg, t_s)
         self.truths[index] = zone_truth(renderer.rig, spots, renderer.rig.camera_to_base(pan_deg, tilt_deg))
         return self.truths[index]
 
     def room(self) -> list[Segment]:
         """The simulated room's floor plan in the base frame (empty on real parts)."""
-        renderer = getattr(self.camera, "renderer", None)
-        if renderer is None:
+        if self.world is None or self.world.renderer is None:
             return []
         from edge.mapping import room_in_base_frame
 
+        renderer = self.world.renderer
         return room_in_base_frame(renderer.scene.floor_plan(), renderer.scene.base_to_world())
+
+
+def open_ptu(settings: PtuConfig) -> tuple[PanTiltUnit, Emulator | None]:
+    """An initialised unit; for ``sim://`` the emulator on a pty, opened through the real driver.
+
+    The unit owns the emulator it was opened on: ``unit.close()`` stops it too.
+    """
+    if not settings.port.startswith("sim://"):
+        return PanTiltUnit.open(settings), None
+    from edge.sim.ptu_emulator import Emulator
+
+    # The emulated unit has the wide pan range (±180°) so that the default 64-zone full turn is
+    # reachable; a standard D46-17 stops at ±159° and the sweep marks the zones beyond as faults.
+    emulator = Emulator(pan_limits=(-3500, 3500))
+    try:
+        unit = PanTiltUnit.open(dataclasses.replace(settings, port=emulator.port), on_close=emulator.close)
+    except BaseException:
+        emulator.close()
+        raise
+    return unit, emulator
+
+
+def laser_factory(settings: LasersConfig) -> Any:
+    """The gpiozero pin factory of ``[lasers] backend``: the default one for ``gpio``, the
+    simulator's mock laser pins for ``sim``."""
+    if settings.backend == "sim":
+        from edge.sim.gpio import laser_factory as sim_factory
+
+        return sim_factory(settings.sim_wires or None)
+    return default_factory()
+
+
+def open_lasers(config: Config, factory: Any = None) -> Lasers:
+    """The configured lasers (``[lasers]``, pins and polarity from ``[[rig.lasers]]``), all off."""
+    factory = factory if factory is not None else laser_factory(config.lasers)
+    return Lasers(config.rig.wiring(), config.lasers, factory)
+
+
+# The Pi Camera v2 (IMX219) binned 2 × 2 over its whole field of view: the raw mode that keeps the
+# field of view the `picam-v2*` camera models describe.
+PICAM_V2_BINNED = (1640, 1232)
+
+
+def open_camera(config: Config, factory: Any = None, **sim: Any) -> Camera:
+    """The configured camera (``[camera] backend``), not yet started.
+
+    The simulated camera watches the simulated lasers' pins: give their pin `factory`, and as `sim`
+    what else :class:`edge.sim.camera.SimCamera` takes (``pose_at``, ``heading``, …).
+    """
+    settings = config.camera
+    model = config.rig.build().camera
+    if settings.backend == "picamera2":
+        from edge.hw.camera import Picamera2Camera
+
+        raw = PICAM_V2_BINNED if config.rig.camera.model.startswith("picam-v2") else None
+        return Picamera2Camera(settings, (model.width, model.height), raw_size=raw)
+    if settings.backend == "opencv":
+        from edge.hw.camera import OpenCVCamera
+
+        return OpenCVCamera(settings, (model.width, model.height))
+    if factory is None:
+        raise CameraError("camera: the simulated camera needs the simulated lasers' pin factory")
+    from edge.sim.camera import SimCamera
+
+    return SimCamera.from_config(config, factory, **sim)
 
 
 @contextlib.contextmanager
 def open_parts(config: Config) -> Iterator[Parts]:
     """The configured parts, started; lasers off and everything closed when the block ends."""
-    from edge.hw.camera import open_camera
-    from edge.hw.lasers import open_lasers
-    from edge.hw.ptu import open_ptu
+    from edge.capture import Capture
 
     with contextlib.ExitStack() as stack:
         unit, emulator = open_ptu(config.ptu)
         stack.callback(unit.close)
-        lasers = open_lasers(config)
-        stack.callback(lasers.close)  # runs before the unit's: lasers off first
+        pins = laser_factory(config.lasers)  # the rig's GPIO: real, or the simulator's mock pins
+        lasers = open_lasers(config, pins)
+        stack.callback(lasers.close)
+        button = None
+        if config.blindaid.speak_button_pin:
+            from gpiozero import Button
+
+            button = Button(config.blindaid.speak_button_pin, pull_up=True, bounce_time=0.05, pin_factory=pins)
+            stack.callback(button.close)
         world = None
+        sim: dict[str, Any] = {}
         if emulator is not None:
-            # The simulated scene's clock (its movers) starts with the rig, not with the machine.
-            world = {"factory": lasers.factory, "pose_at": emulator.pose, "heading": emulator.heading,
-                     "pose_step_deg": emulator.resolution_arcsec / 3600.0, "scene_epoch_ns": time.monotonic_ns()}
-        camera = open_camera(config, world)
+            world = SimWorld(emulator, pins, time.monotonic_ns())
+            sim = {"pose_at": emulator.pose, "heading": emulator.heading,
+                   "pose_step_deg": emulator.resolution_arcsec / 3600.0, "scene_epoch_ns": world.epoch_ns}
+        camera = open_camera(config, pins, **sim)
+        stack.callback(camera.close)
+        stack.callback(lasers.close)  # runs first: lasers off before anything else closes
+        if world is not None:
+            from edge.sim.camera import SimCamera
+
+            world.renderer = camera.renderer if isinstance(camera, SimCamera) else None
         camera.start()
-        stack.callback(camera.stop)
-        yield Parts(config, unit, lasers, camera, Capture(camera, lasers, config), emulator)
+        yield Parts(config, unit, lasers, camera, Capture(camera, lasers, config), world, button=button)

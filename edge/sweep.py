@@ -138,8 +138,7 @@ class Sweeper:
         return report
 
     def views(self, pan: float, tilt: float) -> list[tuple[float, float]]:
-        limits = getattr(self.ptu, "limits_deg", None)
-        return zone_views(self.config, pan, tilt, limits[0] if limits else None)
+        return zone_views(self.config, pan, tilt, self.ptu.limits_deg[0])
 
     def zone(self, index: int, pan: float, tilt: float, recorder: RecordingWriter | None = None) -> ZoneResult:
         """Move, capture and range one zone. A part failing makes it a `fault`, not an exception."""

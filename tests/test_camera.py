@@ -10,12 +10,13 @@ import types
 import numpy as np
 import pytest
 
-from edge.config import CameraSettings, load_config
+from edge.config import load_config
 from edge.errors import HardwareError
-from edge.hw.lasers import open_lasers
-from edge.hw.camera import PICAMERA2_MISSING, OpenCVCamera, Picamera2Camera, open_camera
+from edge.hw.camera import PICAMERA2_MISSING, CameraSettings, OpenCVCamera, Picamera2Camera
+from edge.parts import open_camera, open_lasers
 from edge.sim.camera import SimCamera
-from edge.sim.gpio import LaserWiring, laser_factory
+from edge.sim.gpio import laser_factory
+from edge.sim.light import LaserLight
 from edge.sim.record import flat_target_scene, true_rig
 from edge.sim.render import Renderer
 
@@ -26,7 +27,7 @@ from edge.sim.render import Renderer
 def sim_camera():
     config = load_config(None, ["rig.camera.model=\"webcam-cif\""])  # small frames: quick renders
     renderer = Renderer(flat_target_scene(1.5), true_rig(config), config.sim, config.camera)
-    wiring = LaserWiring(config.rig.build().lasers, laser_factory())
+    wiring = LaserLight(config.rig.build().lasers, laser_factory())
     # A queue long enough that a slow render (a busy CI machine) never loses a frame here.
     camera = SimCamera(renderer, wiring, config.camera, queue_frames=10**6)
     camera.start()
@@ -62,7 +63,7 @@ def test_sim_frame_after_takes_a_frame_starting_exactly_then(sim_camera):
 def test_sim_camera_drops_frames_nobody_collected():
     config = load_config(None, ["rig.camera.model=\"webcam-cif\""])
     renderer = Renderer(flat_target_scene(1.5), true_rig(config), config.sim, config.camera)
-    camera = SimCamera(renderer, LaserWiring((), laser_factory()), config.camera, queue_frames=2)
+    camera = SimCamera(renderer, LaserLight((), laser_factory()), config.camera, queue_frames=2)
     camera.start()
     t = time.monotonic_ns()
     time.sleep(8 * camera.frame_ns / 1e9)
@@ -80,7 +81,7 @@ def test_sim_camera_times_out(sim_camera):
 def test_sim_camera_must_be_started():
     config = load_config(None, ["rig.camera.model=\"webcam-cif\""])
     renderer = Renderer(flat_target_scene(1.5), true_rig(config), config.sim, config.camera)
-    camera = SimCamera(renderer, LaserWiring((), laser_factory()), config.camera)
+    camera = SimCamera(renderer, LaserLight((), laser_factory()), config.camera)
     with pytest.raises(HardwareError, match="not started"):
         camera.frame_after(0)
 
@@ -207,7 +208,7 @@ def test_opencv_missing_device_is_an_error_not_a_hang():
 def test_open_camera_sim_sees_the_simulated_lasers():
     config = load_config(None, ["sim.scene=\"office\""])
     with open_lasers(config) as lasers:
-        camera = open_camera(config, {"factory": lasers.factory, "pose_at": lambda t_ns: (10.0, 0.0)})
+        camera = open_camera(config, lasers.factory, pose_at=lambda t_ns: (10.0, 0.0))
         camera.start()
         lasers.set(lasers.names)
         frame = camera.frame_after(lasers.last_switch_ns + 2_000_000, timeout_s=2.0)
@@ -215,12 +216,12 @@ def test_open_camera_sim_sees_the_simulated_lasers():
         assert frame.metadata["laser_fraction_range"]["center"] == (1.0, 1.0)
         dark_from = lasers.off()
         # A pose of now, as the PTU emulator's pose() gives it, will do too.
-        camera = open_camera(config, {"factory": lasers.factory, "pose_at": lambda: (-5.0, 2.0)})
+        camera = open_camera(config, lasers.factory, pose_at=lambda: (-5.0, 2.0))
         camera.start()
         frame = camera.frame_after(dark_from, timeout_s=2.0)
         assert (frame.metadata["pan_deg"], frame.metadata["tilt_deg"]) == (-5.0, 2.0)
         assert frame.metadata["laser_fraction_range"]["center"] == (0.0, 0.0)
-        assert open_camera(config, lasers).frame_ns == config.camera.frame_ns
+        assert open_camera(config, lasers.factory).frame_ns == config.camera.frame_ns
 
 
 def test_sim_backend_needs_the_lasers_factory():

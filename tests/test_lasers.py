@@ -15,11 +15,13 @@ import numpy as np
 import pytest
 from gpiozero.pins.mock import MockFactory
 
-from edge.config import LasersConfig, load_config
+from edge.config import load_config
 from edge.errors import HardwareError
-from edge.hw.lasers import Lasers, force_all_off, open_lasers
+from edge.hw.lasers import Lasers, LasersConfig, LaserWiring, force_all_off
+from edge.parts import open_lasers
 from edge.rig import Laser
-from edge.sim.gpio import LaserPin, LaserWiring, Wires, laser_factory
+from edge.sim.gpio import LaserPin, Wires, laser_factory
+from edge.sim.light import LaserLight
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -29,6 +31,7 @@ LASERS = (
     Laser("parallel", (0.035, -0.04, 0.0), (0.0, 0.0, 1.0), pin=27),
     Laser("sloped", (0.035, 0.0, 0.0), (0.0, 0.0, 1.0), pin=22, active_high=False),
 )
+WIRING = (LaserWiring("center", 17), LaserWiring("parallel", 27), LaserWiring("sloped", 22, active_high=False))
 OFF_LEVEL = {17: False, 27: False, 22: True}
 
 
@@ -55,7 +58,7 @@ def factory():
 
 
 def test_all_off_after_construction_and_outputs(factory):
-    with Lasers(LASERS, LasersConfig(), factory) as lasers:
+    with Lasers(WIRING, LasersConfig(), factory) as lasers:
         _assert_all_off(factory)
         assert all(factory.pin(p).function == "output" for p in OFF_LEVEL)
         assert lasers.lit == frozenset()
@@ -63,7 +66,7 @@ def test_all_off_after_construction_and_outputs(factory):
 
 
 def test_set_switches_exactly_the_named_lasers(factory):
-    with Lasers(LASERS, LasersConfig(settle_ms=2.0), factory) as lasers:
+    with Lasers(WIRING, LasersConfig(settle_ms=2.0), factory) as lasers:
         before = time.monotonic_ns()
         effective = lasers.set(["center", "sloped"])
         assert lasers.lit == {"center", "sloped"}
@@ -80,7 +83,7 @@ def test_set_switches_exactly_the_named_lasers(factory):
 
 
 def test_unknown_laser_is_an_error_and_changes_nothing(factory):
-    with Lasers(LASERS, LasersConfig(), factory) as lasers:
+    with Lasers(WIRING, LasersConfig(), factory) as lasers:
         lasers.set(["center"])
         with pytest.raises(ValueError, match="'nosuch'"):
             lasers.set(["center", "nosuch"])
@@ -88,7 +91,7 @@ def test_unknown_laser_is_an_error_and_changes_nothing(factory):
 
 
 def test_off_after_close_and_close_is_idempotent(factory):
-    lasers = Lasers(LASERS, LasersConfig(), factory)
+    lasers = Lasers(WIRING, LasersConfig(), factory)
     lasers.set(lasers.names)
     lasers.close()
     _assert_all_off(factory)
@@ -97,19 +100,19 @@ def test_off_after_close_and_close_is_idempotent(factory):
     with pytest.raises(HardwareError):
         lasers.set(["center"])
     # The pins are free again for the next owner.
-    Lasers(LASERS, LasersConfig(), factory).close()
+    Lasers(WIRING, LasersConfig(), factory).close()
 
 
 def test_off_after_an_exception_inside_with(factory):
     with pytest.raises(RuntimeError):
-        with Lasers(LASERS, LasersConfig(), factory) as lasers:
+        with Lasers(WIRING, LasersConfig(), factory) as lasers:
             lasers.set(lasers.names)
             raise RuntimeError("sweep failed")
     _assert_all_off(factory)
 
 
 def test_watchdog_switches_off_a_laser_on_too_long(factory, caplog):
-    with Lasers(LASERS, LasersConfig(max_on_s=0.2), factory) as lasers:
+    with Lasers(WIRING, LasersConfig(max_on_s=0.2), factory) as lasers:
         with caplog.at_level(logging.WARNING, logger="edge.hw.lasers"):
             lasers.set(["center"])
             start = time.monotonic()
@@ -135,7 +138,7 @@ def test_force_all_off_drives_every_pin_to_its_off_level(factory):
     config = _config()
     lasers = open_lasers(config, factory)
     lasers.set(lasers.names)
-    driven = force_all_off(config, factory)
+    driven = force_all_off(config.rig.wiring(), factory)
     assert driven == [("center", 17, False), ("parallel", 27, False), ("sloped", 22, True)]
     _assert_all_off(factory)
     lasers.close()
@@ -144,7 +147,7 @@ def test_force_all_off_drives_every_pin_to_its_off_level(factory):
 
 def test_force_all_off_on_pins_nobody_set_up():
     factory = MockFactory()  # a fresh process: pins are floating inputs
-    force_all_off(_config(), factory)
+    force_all_off(_config().rig.wiring(), factory)
     _assert_all_off(factory)  # the active-low laser's pin reads high
     assert all(factory.pin(p).function == "output" for p in OFF_LEVEL)
 
@@ -152,7 +155,7 @@ def test_force_all_off_on_pins_nobody_set_up():
 def test_force_all_off_in_a_fresh_process():
     env = {**os.environ, "GPIOZERO_PIN_FACTORY": "mock"}
     result = subprocess.run(
-        [sys.executable, "-m", "edge.hw.lasers", "off", "--set", "lasers.backend=\"gpio\""],
+        [sys.executable, "-m", "edge", "lasers", "off", "--set", "lasers.backend=\"gpio\""],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=60,
     )
     assert result.returncode == 0, result.stderr
@@ -161,7 +164,7 @@ def test_force_all_off_in_a_fresh_process():
 
 def test_missing_pin_is_a_hardware_error(factory):
     with pytest.raises(HardwareError, match="center"):
-        Lasers((replace(LASERS[0], pin=None),), LasersConfig(), factory)
+        Lasers((replace(WIRING[0], pin=None),), LasersConfig(), factory)
 
 
 # --- the simulated wires ------------------------------------------------------------------------
@@ -169,8 +172,8 @@ def test_missing_pin_is_a_hardware_error(factory):
 
 def test_wiring_reads_what_the_pins_did(factory):
     settle = 1_000_000
-    with Lasers(LASERS, LasersConfig(), factory) as lasers:
-        wiring = LaserWiring(LASERS, factory, settle_ns=settle)
+    with Lasers(WIRING, LasersConfig(), factory) as lasers:
+        wiring = LaserLight(WIRING, factory, settle_ns=settle)
         assert isinstance(factory.pin(17), LaserPin)
         # Claiming an active-low pin as an output drives it low for a few microseconds before
         # gpiozero writes the off level (lgpio's gpio_claim_output does the same on a Pi): let that
@@ -217,16 +220,16 @@ def test_wires_keep_a_killed_process_levels_for_the_next_one(tmp_path):
     fresh one (systemd's ExecStopPost) that finds it so and switches it off."""
     wires = tmp_path / "wires"
     dying = laser_factory(wires)
-    lasers = Lasers(LASERS, LasersConfig(), dying)
+    lasers = Lasers(WIRING, LasersConfig(), dying)
     lasers.set(["center", "sloped"])  # ...and the process is killed here: no close()
     fresh = laser_factory(wires)
-    assert LaserWiring(LASERS, fresh).lit_at(time.monotonic_ns()) == {"center", "sloped"}
+    assert LaserLight(WIRING, fresh).lit_at(time.monotonic_ns()) == {"center", "sloped"}
     assert fresh.pin(17).function == "output" and fresh.pin(17).state  # driven, as the wire was left
     assert fresh.pin(22).function == "output" and not fresh.pin(22).state  # active low: lit while low
-    force_all_off(_config(), fresh)
+    force_all_off(_config().rig.wiring(), fresh)
     _assert_all_off(fresh)
     assert Wires(wires).levels() == OFF_LEVEL
-    assert LaserWiring(LASERS, laser_factory(wires)).lit_at(time.monotonic_ns()) == frozenset()
+    assert LaserLight(WIRING, laser_factory(wires)).lit_at(time.monotonic_ns()) == frozenset()
     lasers.close()  # a closed device leaves its wire undriven: dark, whatever it floats to
     assert Wires(wires).levels() == {}
 
@@ -245,7 +248,7 @@ def test_a_file_that_is_not_a_wires_file_is_a_hardware_error_naming_it(tmp_path)
 
 def test_edge_lasers_off_sets_the_simulated_wires(tmp_path):
     wires = tmp_path / "wires"
-    lasers = Lasers(_config().rig.lasers, LasersConfig(), laser_factory(wires))
+    lasers = Lasers(_config().rig.wiring(), LasersConfig(), laser_factory(wires))
     lasers.set(["center", "parallel", "sloped"])
     result = subprocess.run(
         [sys.executable, "-m", "edge", "lasers", "off", "--set", f"lasers.sim_wires={json.dumps(str(wires))}"],

@@ -19,11 +19,12 @@ from pathlib import Path
 import pytest
 import serial
 
-from edge.config import PtuConfig
+from edge.hw.ptu import PtuConfig
 from edge.errors import HardwareError
 from edge.hw import ptu
-from edge.hw.ptu import PanTiltUnit, open_ptu
-from edge.sim.ptu_emulator import Emulator, trapezoid_s
+from edge.hw.ptu import PanTiltUnit, trapezoid_s
+from edge.parts import open_ptu
+from edge.sim.ptu_emulator import Emulator
 
 RES = 185.1428  # arc-seconds per position of a D46-17
 RES_DEG = RES / 3600.0

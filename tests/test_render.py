@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge.config import Config, RigErrorConfig, load_config
+from edge.config import Config, load_config
 from edge.rig import Laser, Rig, default_rig
 from edge.sim import optics
 from edge.sim.render import Renderer, perturb_rig
 from edge.sim.scene import load_scene
+from edge.sim.settings import RigErrorConfig
 
 
 def _quiet(config: Config, **sim_changes) -> Config:

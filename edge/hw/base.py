@@ -2,15 +2,21 @@
 
 Times are ``time.monotonic_ns()`` everywhere: one clock for frames, laser switches and moves, so
 that a frame's exposure can be compared with the moment the lasers changed.
+
+Life cycle, as picamera2 has it: a part is *opened* by constructing it (the device is claimed and
+configured, or an error says why not), ``start()``/``stop()`` run and halt it and may alternate any
+number of times (a stalled camera is restarted so), and ``close()`` releases the device for good.
+``close()`` is idempotent and safe from any state; nothing may be called after it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-import numpy as np
+if TYPE_CHECKING:  # the eye-safety path (edge lasers off) must not need numpy
+    import numpy as np
 
 
 @dataclass(frozen=True)
@@ -38,14 +44,23 @@ class Frame:
 class Camera(Protocol):
     frame_ns: int  # the frame period
 
-    def start(self) -> None: ...
-
-    def frame_after(self, t_ns: int, timeout_s: float) -> Frame:
-        """The first frame whose exposure starts at or after `t_ns` (frames are picked by their
-        timestamps, never by counting). Raises HardwareError on timeout."""
+    def start(self) -> None:
+        """Deliver frames from now on; again after a stop() (a restart). CameraError if it cannot."""
         ...
 
-    def stop(self) -> None: ...
+    def frame_after(self, t_ns: int, timeout_s: float | None = None) -> Frame:
+        """The first frame whose exposure starts at or after `t_ns` (frames are picked by their
+        timestamps, never by counting); `timeout_s` None: the camera's own. Raises CameraError on
+        timeout."""
+        ...
+
+    def stop(self) -> None:
+        """Stop delivering frames; start() may follow. Never raises."""
+        ...
+
+    def close(self) -> None:
+        """Stop and release the camera for good; idempotent. Never raises."""
+        ...
 
 
 class LaserBank(Protocol):
@@ -72,7 +87,12 @@ class LaserBank(Protocol):
 class PanTilt(Protocol):
     def move(self, pan_deg: float, tilt_deg: float) -> tuple[float, float]:
         """Go there and wait until the move has ended; return the position reached (degrees, after
-        rounding to whole positions). Raises HardwareError when the unit does not deliver."""
+        rounding to whole positions). Raises PtuError when the unit does not deliver."""
+        ...
+
+    @property
+    def limits_deg(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """((pan min, pan max), (tilt min, tilt max)) in degrees, as the unit reports them."""
         ...
 
     def position(self) -> tuple[float, float]: ...

@@ -1,6 +1,7 @@
-"""Cameras: the Pi camera through picamera2, a USB webcam through OpenCV, or the simulator.
+"""Cameras: the Pi camera through picamera2 and a USB webcam through OpenCV (the simulated camera,
+:mod:`edge.sim.camera`, is their peer; :mod:`edge.parts` chooses among them).
 
-All three answer ``frame_after(t_ns)`` with the first frame whose exposure *starts* at or after
+All answer ``frame_after(t_ns)`` with the first frame whose exposure *starts* at or after
 `t_ns` on the monotonic clock — frames are picked by their timestamps, never by counting, because
 a frame that was being exposed while the lasers switched shows them half on.
 
@@ -16,13 +17,14 @@ import sys
 import threading
 import time
 from collections import deque
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
 
-from edge.config import CameraSettings, Config
 from edge.errors import CameraError
-from edge.hw.base import Camera, Frame
+from edge.hw.base import Frame
+from edge.schema import require
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +35,42 @@ PICAMERA2_MISSING = (
 # The Pi Camera v2 (IMX219) binned 2 × 2 over its whole field of view: the raw mode that keeps the
 # field of view the `picam-v2*` camera models describe.
 PICAM_V2_BINNED = (1640, 1232)
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """How the camera is driven (``[camera]``): the same for the real camera and the simulated one.
+
+    A zone's laser-on and laser-off frames must be taken with the same fixed exposure and gain, so
+    that their difference shows the lasers and nothing else.
+    """
+
+    backend: Literal["sim", "picamera2", "opencv"] = "sim"
+    device: str = "0"  # opencv: a device index or path (/dev/video0)
+    exposure_us: float = 10000.0
+    analogue_gain: float = 1.0
+    frame_rate_hz: float = 30.0
+    # Webcams give no exposure timestamps: the time from the end of a frame's exposure to its
+    # delivery, measured once, stands in for them (t_start = delivery − latency − exposure).
+    latency_ms: float = 0.0
+    timeout_s: float = 1.0  # no frame for this long is a camera fault
+
+    def __post_init__(self) -> None:
+        require(self.analogue_gain >= 1.0, "analogue_gain", "must be >= 1")
+        require(self.exposure_us > 0, "exposure_us", "must be positive")
+        require(0.1 <= self.frame_rate_hz <= 1000.0, "frame_rate_hz",
+                f"must be 0.1-1000 frames a second, got {self.frame_rate_hz:g}")
+        require(
+            self.exposure_us <= 1e6 / self.frame_rate_hz,
+            "exposure_us",
+            f"must fit in one frame time ({1e6 / self.frame_rate_hz:.0f} µs)",
+        )
+        require(self.latency_ms >= 0, "latency_ms", "must be >= 0")
+        require(self.timeout_s > 0, "timeout_s", "must be positive")
+
+    @property
+    def frame_ns(self) -> int:
+        return int(round(1e9 / self.frame_rate_hz))
 
 
 class Picamera2Camera:
@@ -55,6 +93,7 @@ class Picamera2Camera:
         self.frame_ns = settings.frame_ns
         self.size = size
         self.skipped = 0  # frames read and discarded by frame_after
+        self.closed = False
         self._first_t: int | None = None
         self._flush = True  # picamera2 picks frames by timestamp itself (capture_request(flush=))
         try:
@@ -91,19 +130,27 @@ class Picamera2Camera:
             self.min_frame_ns = int(limits[0]) * 1000
 
     def start(self) -> None:
+        if self.closed:
+            raise CameraError("camera: the Pi camera was closed; open it again")
         try:
             self._cam.start()
         except Exception as exc:
             raise CameraError(f"camera: cannot start the Pi camera: {exc}") from None
 
     def stop(self) -> None:
+        if self.closed:
+            return
         try:
             self._cam.stop()
         except Exception as exc:
             log.warning("camera: stop failed: %s", exc)
 
     def close(self) -> None:
+        """Stop and release the camera (libcamera keeps it claimed until then); once only."""
+        if self.closed:
+            return
         self.stop()
+        self.closed = True
         self._close_quietly()
 
     def _close_quietly(self) -> None:
@@ -187,6 +234,12 @@ class OpenCVCamera:
     A webcam gives no exposure timestamps. A thread reads frames as they arrive (so that none waits
     in the driver's queue and its delivery time means something) and dates each one back:
     ``t_start = delivery − latency_ms − exposure``; the readout is bounded by the frame period.
+
+    Life cycle: constructing it opens the device (so that a wrong ``[camera] device`` is an error at
+    once); ``start()`` runs a reading thread on it; ``stop()`` ends that thread, which releases the
+    device; a later ``start()`` opens the device again — the usual cure for a webcam that stalled.
+    ``close()`` stops for good. Every open happens in a thread of its own with a deadline, so that a
+    driver that blocks cannot hang the caller.
     """
 
     def __init__(
@@ -195,25 +248,41 @@ class OpenCVCamera:
         self.settings = settings
         self.frame_ns = settings.frame_ns
         self.size = size
+        self.open_timeout_s = open_timeout_s
         self.exposure_ns = int(round(settings.exposure_us * 1000))
         self.latency_ns = int(round(settings.latency_ms * 1e6))
         self.skipped = 0
         self.exposure_fixed = False
+        self.closed = False
         self._frames: deque[tuple[int, int, np.ndarray]] = deque(maxlen=4)  # (t_start, seq, image)
         self._cond = threading.Condition()
-        self._opened = threading.Event()
-        self._go = threading.Event()
         self._stopping = threading.Event()
         self._error: str | None = None
+        self._sequence = 0  # frame counter, kept across restarts so that sequences only grow
         self._taken = -1  # sequence of the last frame handed out
-        # Opened in the reading thread, so that a driver that blocks cannot hang the caller.
-        self._thread = threading.Thread(target=self._run, name="webcam", daemon=True)
-        self._thread.start()
-        if not self._opened.wait(open_timeout_s):
-            self._stopping.set()
-            raise CameraError(f"camera: opening video device {settings.device!r} took over {open_timeout_s:g} s")
-        if self._error:
-            raise CameraError(self._error)
+        self._thread: threading.Thread | None = None
+        self._cap: Any = self._open_in_time()  # opened, not yet read: start() reads it
+
+    def _open_in_time(self) -> Any:
+        outcome: dict[str, Any] = {}
+
+        def open_it() -> None:
+            try:
+                outcome["cap"] = self._open()
+            except CameraError as exc:
+                outcome["error"] = str(exc)
+            except Exception as exc:
+                outcome["error"] = f"camera: cannot open video device {self.settings.device!r}: {exc}"
+
+        opener = threading.Thread(target=open_it, name="webcam open", daemon=True)
+        opener.start()
+        opener.join(self.open_timeout_s)
+        if opener.is_alive():
+            raise CameraError(f"camera: opening video device {self.settings.device!r} took over "
+                              f"{self.open_timeout_s:g} s")
+        if "error" in outcome:
+            raise CameraError(outcome["error"])
+        return outcome["cap"]
 
     def _open(self) -> Any:
         import cv2
@@ -242,21 +311,25 @@ class OpenCVCamera:
         cap.set(cv2.CAP_PROP_AUTO_WB, 0)
         return cap
 
-    def _run(self) -> None:
-        try:
-            cap = self._open()
-        except CameraError as exc:
-            self._error = str(exc)
-            self._opened.set()
+    def start(self) -> None:
+        if self.closed:
+            raise CameraError("camera: the webcam was closed; open it again")
+        if self._thread is not None and self._thread.is_alive():
             return
-        except Exception as exc:
-            self._error = f"camera: cannot open video device {self.settings.device!r}: {exc}"
-            self._opened.set()
-            return
-        self._opened.set()
+        cap, self._cap = self._cap, None
+        if cap is None:  # a restart: the last run released the device
+            cap = self._open_in_time()
+        with self._cond:
+            self._error = None
+            self._frames.clear()
+        self._stopping.clear()
+        self._thread = threading.Thread(target=self._read, args=(cap,), name="webcam", daemon=True)
+        self._thread.start()
+
+    def _read(self, cap: Any) -> None:
+        """The reading thread of one run: owns `cap` and releases it when the run ends."""
         try:
-            self._go.wait()
-            sequence, failures = 0, 0
+            failures = 0
             while not self._stopping.is_set():
                 ok, image = cap.read()
                 delivered = time.monotonic_ns()
@@ -272,21 +345,28 @@ class OpenCVCamera:
                 failures = 0
                 t_start = delivered - self.latency_ns - self.exposure_ns
                 with self._cond:
-                    self._frames.append((t_start, sequence, image))
+                    self._frames.append((t_start, self._sequence, image))
+                    self._sequence += 1
                     self._cond.notify_all()
-                sequence += 1
         finally:
             cap.release()
 
-    def start(self) -> None:
-        self._go.set()
-
     def stop(self) -> None:
         self._stopping.set()
-        self._go.set()
-        self._thread.join(timeout=2.0)
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join(timeout=2.0)
+            if thread.is_alive():  # stuck in the driver: it releases the device when it returns
+                log.warning("camera: the webcam's reading thread did not end within 2 s")
 
-    close = stop
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.stop()
+        self.closed = True
+        cap, self._cap = self._cap, None
+        if cap is not None:  # opened but never started
+            cap.release()
 
     def frame_after(self, t_ns: int, timeout_s: float | None = None) -> Frame:
         """The first frame whose (estimated) exposure start is at or after `t_ns`."""
@@ -311,29 +391,3 @@ class OpenCVCamera:
                 if left <= 0:
                     raise CameraError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
                 self._cond.wait(left)
-
-
-def open_camera(config: Config, sim_world: Any = None) -> Camera:
-    """The configured camera (``[camera] backend``), not yet started.
-
-    For ``sim``, `sim_world` is the simulated :class:`~edge.hw.lasers.Lasers` (or their mock pin
-    factory), or a mapping with ``factory`` and optionally ``pose_at`` (the pan-tilt emulator's pose as a
-    function of monotonic ns) and other :class:`edge.sim.camera.SimCamera` keywords.
-    """
-    settings = config.camera
-    model = config.rig.build().camera
-    if settings.backend == "picamera2":
-        raw = PICAM_V2_BINNED if config.rig.camera.model.startswith("picam-v2") else None
-        return Picamera2Camera(settings, (model.width, model.height), raw_size=raw)
-    if settings.backend == "opencv":
-        return OpenCVCamera(settings, (model.width, model.height))
-    from edge.sim.camera import SimCamera
-
-    if sim_world is None:
-        raise CameraError("camera: the simulated camera needs the simulated lasers' pin factory (sim_world)")
-    if isinstance(sim_world, dict):
-        kwargs = dict(sim_world)
-    else:  # the simulated Lasers, or their factory
-        kwargs = {"factory": getattr(sim_world, "factory", None) or sim_world}
-    factory = kwargs.pop("factory")
-    return SimCamera.from_config(config, factory, **kwargs)

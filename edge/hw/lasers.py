@@ -8,14 +8,15 @@ the service that owns the lasers; for everything that cannot run our ``close()``
 ``kill -9``, systemd's ``ExecStopPost`` — :func:`force_all_off` drives every configured pin to its
 off level from a fresh process, without needing any state (``edge lasers off``).
 
-Backends (``[lasers] backend``): ``gpio`` uses gpiozero's default pin factory (lgpio on a Pi;
-``GPIOZERO_PIN_FACTORY`` chooses another); ``sim`` a ``MockFactory`` of
-:class:`edge.sim.gpio.LaserPin`, whose logs the simulated camera reads to light its spots.
+The driver never knows which backend it switches: it takes a gpiozero pin factory, as every
+gpiozero device does. Without one it uses gpiozero's default (lgpio on a Pi;
+``GPIOZERO_PIN_FACTORY`` chooses another); the composition root (:mod:`edge.parts`) passes the
+simulator's mock factory for ``[lasers] backend = "sim"``. This module imports nothing heavy (no
+numpy, no configuration loader): ``edge lasers off`` runs from it when everything else is broken.
 """
 
 from __future__ import annotations
 
-import argparse
 import atexit
 import functools
 import logging
@@ -23,16 +24,52 @@ import threading
 import time
 import weakref
 from collections.abc import Iterable, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
-from edge.config import Config, LasersConfig
 from edge.errors import LaserError
-from edge.rig import Laser
+from edge.schema import require
 
 log = logging.getLogger(__name__)
 
 
-def _default_factory() -> Any:
+@dataclass(frozen=True)
+class LaserWiring:
+    """How one laser is switched: its BCM GPIO pin and the driver's polarity. Wiring, not geometry:
+    where the beam points is :class:`edge.rig.Laser`'s business."""
+
+    name: str
+    pin: int | None = None  # BCM GPIO number; None: not wired (an error when the lasers open)
+    active_high: bool = True  # False for a driver that lights the laser while its input is low
+
+    def __post_init__(self) -> None:
+        if self.pin is not None:
+            require(0 <= self.pin <= 27, "pin", f"must be a BCM GPIO number 0-27, got {self.pin}")
+
+
+# README's wiring of geometry.md's default rig.
+DEFAULT_WIRING = (LaserWiring("center", 17), LaserWiring("parallel", 27), LaserWiring("sloped", 22))
+
+
+@dataclass(frozen=True)
+class LasersConfig:
+    """How the lasers are switched (``[lasers]``); pins and polarity are in ``[[rig.lasers]]``."""
+
+    backend: Literal["sim", "gpio"] = "sim"  # gpio: gpiozero's default pin factory (lgpio on a Pi)
+    max_on_s: float = 2.0  # eye safety: a laser on longer than this is switched off
+    settle_ms: float = 1.0  # from the GPIO edge to full (or no) light: driver and diode
+    # sim backend only: a file that keeps the simulated pins' levels after the process ends, as
+    # real wires do (for testing `edge lasers off` after a kill); empty: the pins die with the process.
+    sim_wires: str = ""
+
+    def __post_init__(self) -> None:
+        require(0 < self.max_on_s <= 60, "max_on_s", "must be 0-60 s")
+        require(0 <= self.settle_ms <= 100, "settle_ms", "must be 0-100 ms")
+
+
+
+
+def default_factory() -> Any:
     """gpiozero's default pin factory (what ``Device`` would pick), as a HardwareError if none."""
     import warnings
 
@@ -53,16 +90,7 @@ def _default_factory() -> Any:
     return Device.pin_factory
 
 
-def make_factory(settings: LasersConfig) -> Any:
-    """The pin factory of a backend: gpiozero's default for ``gpio``, mock laser pins for ``sim``."""
-    if settings.backend == "sim":
-        from edge.sim.gpio import laser_factory
-
-        return laser_factory(settings.sim_wires or None)
-    return _default_factory()
-
-
-def _wired(lasers: Iterable[Laser]) -> list[Laser]:
+def _wired(lasers: Iterable[LaserWiring]) -> list[LaserWiring]:
     lasers = list(lasers)
     missing = [laser.name for laser in lasers if laser.pin is None]
     if missing:
@@ -80,14 +108,16 @@ class Lasers:
     """A bank of lasers on GPIO pins (implements :class:`edge.hw.base.LaserBank`)."""
 
     def __init__(
-        self, lasers: Sequence[Laser], settings: LasersConfig = LasersConfig(), factory: Any = None
+        self, lasers: Sequence[LaserWiring], settings: LasersConfig | None = None, factory: Any = None
     ) -> None:
         from gpiozero import DigitalOutputDevice
 
         wired = _wired(lasers)
         self.names: tuple[str, ...] = tuple(laser.name for laser in wired)
+        settings = settings if settings is not None else LasersConfig()
         self.settings = settings
-        self.factory = factory if factory is not None else make_factory(settings)
+        # gpiozero's default for real GPIO; the composition root (edge.parts) passes the simulator's.
+        self.factory = factory if factory is not None else default_factory()
         self.settle_ns = int(round(settings.settle_ms * 1e6))
         self.max_on_ns = int(round(settings.max_on_s * 1e9))
         self.watchdog_trips = 0
@@ -229,12 +259,7 @@ class Lasers:
                 self._wake.wait(timeout=max(first + self.max_on_ns - now, 0) / 1e9)
 
 
-def open_lasers(config: Config, factory: Any = None) -> Lasers:
-    """The configured lasers (``[lasers]``, pins and polarity from ``[[rig.lasers]]``), all off."""
-    return Lasers(config.rig.build().lasers, config.lasers, factory)
-
-
-def force_all_off(config: Config, factory: Any = None) -> list[tuple[str, int, bool]]:
+def force_all_off(wiring: Iterable[LaserWiring], factory: Any = None) -> list[tuple[str, int, bool]]:
     """Drive every configured laser pin to its off level and leave it there; returns
     ``(laser, BCM pin, level driven: True = high)`` for each.
 
@@ -247,11 +272,11 @@ def force_all_off(config: Config, factory: Any = None) -> list[tuple[str, int, b
     """
     from gpiozero.pins.mock import MockFactory
 
-    factory = factory if factory is not None else make_factory(config.lasers)
+    factory = factory if factory is not None else default_factory()
     driven: list[tuple[str, int, bool]] = []
     pins = []
     errors = []
-    for laser in config.rig.build().lasers:
+    for laser in wiring:
         if laser.pin is None:
             log.warning("laser %s has no pin configured: cannot switch it off", laser.name)
             continue
@@ -275,54 +300,3 @@ def force_all_off(config: Config, factory: Any = None) -> list[tuple[str, int, b
     if errors:
         raise LaserError(f"lasers off: could not drive {'; '.join(errors)}")
     return driven
-
-
-# --- `edge lasers off` -------------------------------------------------------------------------
-
-
-def add_parser(sub: Any) -> argparse.ArgumentParser:
-    """Register `edge lasers` on an argparse sub-parsers object."""
-    p = sub.add_parser("lasers", help="drive the laser pins: `edge lasers off` switches every laser off")
-    p.add_argument("action", choices=["off"], help="off: drive every configured laser pin to its off level")
-    p.add_argument("--config", metavar="FILE", help="configuration file (default: config/sim.toml)")
-    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
-                   help="change one configuration key, e.g. --set lasers.backend=gpio (repeatable)")
-    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    p.set_defaults(func=run)
-    return p
-
-
-def run(args: argparse.Namespace) -> int:
-    from edge.config import load_config
-
-    config = load_config(args.config, args.set)
-    for name, pin, level in force_all_off(config):
-        print(f"laser {name}: GPIO{pin} driven {'high' if level else 'low'} (off)")
-    if config.lasers.backend == "sim":
-        where = f"the simulated wires in {config.lasers.sim_wires}" if config.lasers.sim_wires else "mock pins"
-        print(f"(lasers.backend is sim: no real pins were touched, only {where})")
-    return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m edge.hw.lasers off …``: the same as ``edge lasers off`` without the rest of the
-    command line (for systemd's ExecStopPost, and tests)."""
-    import sys
-
-    parser = argparse.ArgumentParser(prog="edge")
-    add_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["lasers", *(sys.argv[1:] if argv is None else argv)])
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
-    )
-    from edge.errors import EdgeError
-
-    try:
-        return args.func(args)
-    except EdgeError as exc:
-        print(f"edge: {exc}", file=sys.stderr)
-        return exc.exit_code
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -26,17 +26,17 @@ success or ``!`` for an error) and the traps this driver is built around:
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import logging
+import math
 import re
 import threading
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
-from edge.config import PtuConfig
 from edge.errors import PtuError
-from edge.sim.ptu_emulator import Emulator, trapezoid_s
+from edge.schema import require
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +47,35 @@ _POLL_S = 0.02  # serial read granularity; deadlines are kept by the loops aroun
 _NOTICE = "!notice"  # _classify's answer for a line that held nothing but limit notices
 
 
+@dataclass(frozen=True)
+class PtuConfig:
+    """The pan-tilt unit (``[ptu]``): a PTU-D46 on a serial port, or ``sim://`` for the emulator."""
+
+    port: str = "sim://"
+    baudrate: int = 9600
+    timeout_s: float = 0.5  # for one reply; moves wait as long as their distance needs
+    speed_deg_s: float = 60.0
+    accel_deg_s2: float = 240.0
+    settle_ms: float = 30.0  # let the head stop ringing before a frame is taken
+
+    def __post_init__(self) -> None:
+        require(self.baudrate in (600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
+                "baudrate", f"not a PTU-D46 baud rate: {self.baudrate}")
+        require(self.timeout_s > 0, "timeout_s", "must be positive")
+        require(self.speed_deg_s > 0, "speed_deg_s", "must be positive")
+        require(self.accel_deg_s2 > 0, "accel_deg_s2", "must be positive")
+        require(self.settle_ms >= 0, "settle_ms", "must be >= 0")
+
+
+def trapezoid_s(distance: float, speed: float, accel: float) -> float:
+    """Duration of a rest-to-rest move with a speed cap and a constant acceleration."""
+    if distance <= 0:
+        return 0.0
+    if distance >= speed * speed / accel:
+        return distance / speed + speed / accel
+    return 2.0 * math.sqrt(distance / accel)
+
+
 class _UnitReset(Exception):
     """Internal: the unit answers with echo or verbose words although it was set up otherwise."""
 
@@ -54,7 +83,7 @@ class _UnitReset(Exception):
 class PanTiltUnit:
     """A PTU-D46 behind the ``PanTilt`` interface: degrees in and out, positive pan left, tilt up."""
 
-    def __init__(self, config: PtuConfig, ser: Any) -> None:
+    def __init__(self, config: PtuConfig, ser: Any, on_close: Callable[[], None] | None = None) -> None:
         self.config = config
         self._ser = ser
         self._ser.timeout = _POLL_S  # every read returns within this; our deadlines do the rest
@@ -66,7 +95,7 @@ class PanTiltUnit:
         self._ready = False  # set once initialise() went through: moves are allowed
         self._moving = False  # a move was commanded and not seen to end: close() halts
         self._pos: tuple[int, int] | None = None  # last known position (positions)
-        self._owned: Emulator | None = None
+        self._on_close = on_close  # what lives and dies with the port (the emulator behind a pty)
         self.resets = 0  # how often the unit was found reset and re-initialised
         self.model = ""
         self.res_arcsec = (0.0, 0.0)
@@ -74,23 +103,25 @@ class PanTiltUnit:
         self.speed_bounds = ((0, 0), (0, 0))  # (lower, upper) positions/s of pan and tilt
 
     @classmethod
-    def open(cls, config: PtuConfig, initialise: bool = True) -> PanTiltUnit:
-        """Open ``config.port`` with pyserial (any URL it knows: a device, a pty, ``loop://``)."""
+    def open(cls, config: PtuConfig, initialise: bool = True,
+             on_close: Callable[[], None] | None = None) -> PanTiltUnit:
+        """Open ``config.port`` with pyserial (any URL it knows: a device, a pty, ``loop://``).
+        `on_close` runs when the unit is closed (or fails to open), after the port is closed."""
         import serial
 
         if config.port.startswith("sim://"):
-            raise PtuError("ptu.port sim:// is the emulator: use edge.hw.ptu.open_ptu(config)")
+            raise PtuError("ptu.port sim:// is the emulator: open it with edge.parts.open_ptu(config)")
         try:
             ser = serial.serial_for_url(config.port, config.baudrate, timeout=_POLL_S)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PtuError(f"cannot open the pan-tilt unit's port {config.port}: {exc}; "
                                 "check ptu.port and the cable") from None
-        unit = cls(config, ser)
+        unit = cls(config, ser, on_close)
         if initialise:
             try:
                 unit.initialise()
             except BaseException:
-                ser.close()
+                unit.close()
                 raise
         return unit
 
@@ -238,7 +269,7 @@ class PanTiltUnit:
             return self._pos[0] * rp, self._pos[1] * rt
 
     def close(self) -> None:
-        """Halt a move that was not seen to end, close the port (and an emulator we started)."""
+        """Halt a move that was not seen to end, close the port, then run `on_close`."""
         try:
             if self._moving and self._terse and self._ser.is_open:
                 try:  # one try only: a unit that does not answer must not hold up closing
@@ -247,8 +278,9 @@ class PanTiltUnit:
                     log.warning("%s", exc)
         finally:
             self._ser.close()
-            if self._owned is not None:
-                self._owned.close()
+            on_close, self._on_close = self._on_close, None
+            if on_close is not None:
+                on_close()
 
     def __enter__(self) -> PanTiltUnit:
         return self
@@ -405,68 +437,3 @@ class PanTiltUnit:
         # The pause grows with each try: a unit that is busy or rebooting gets time to come back.
         self._discard_pending(quiet_s=min(0.1, self.config.timeout_s),
                               pause_s=self.config.timeout_s * attempt)
-
-
-def open_ptu(config: PtuConfig) -> tuple[PanTiltUnit, Emulator | None]:
-    """An initialised unit; for ``sim://`` an emulator on a pty, opened through the real driver.
-
-    The unit owns the emulator it started: ``unit.close()`` stops it too.
-    """
-    if not config.port.startswith("sim://"):
-        return PanTiltUnit.open(config), None
-    # The emulated unit has the wide pan range (±180°) so that the default 64-zone full turn is
-    # reachable; a standard D46-17 stops at ±159° and the sweep marks the zones beyond as faults.
-    emulator = Emulator(pan_limits=(-3500, 3500))
-    try:
-        unit = PanTiltUnit.open(dataclasses.replace(config, port=emulator.port))
-    except BaseException:
-        emulator.close()
-        raise
-    unit._owned = emulator
-    return unit, emulator
-
-
-# ---- `edge ptu` ----
-
-def add_parser(sub: Any) -> None:
-    """Register ``edge ptu`` (status, move PAN TILT, home) on an argparse sub-parsers object."""
-    p = sub.add_parser("ptu", help="drive the pan-tilt unit: status, move, home")
-    p.add_argument("--port", help="serial port, or sim:// for the emulator (default: ptu.port)")
-    p.add_argument("--config", metavar="FILE", help="configuration file (default: config/sim.toml)")
-    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
-                   help="change one configuration key, e.g. --set ptu.speed_deg_s=30 (repeatable)")
-    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    actions = p.add_subparsers(dest="ptu_action", required=True, parser_class=type(p))
-    actions.add_parser("status", help="model, resolution, limits and position")
-    m = actions.add_parser("move", help="move to PAN TILT (degrees; positive pan left, tilt up)")
-    m.add_argument("pan", type=float, help="pan, degrees")
-    m.add_argument("tilt", type=float, help="tilt, degrees")
-    actions.add_parser("home", help="move to pan 0, tilt 0")
-    p.set_defaults(func=run)
-
-
-def run(args: argparse.Namespace) -> int:
-    from edge.config import load_config
-
-    config = load_config(args.config, args.set).ptu
-    if args.port:
-        config = dataclasses.replace(config, port=args.port)
-    unit, emulator = open_ptu(config)
-    with unit:
-        if args.ptu_action == "status":
-            (pn, px), (tn, tx) = unit.limits_deg
-            lo, hi = unit.speed_range_deg_s
-            pan, tilt = unit.position()
-            print(f"pan-tilt unit on {unit.port}{' (emulator)' if emulator else ''}: {unit.model}")
-            (ap, at), (dp, dt) = unit.res_arcsec, unit.resolution_deg
-            print(f"resolution: pan {ap:.4f}″, tilt {at:.4f}″ per position ({dp:.6f}°, {dt:.6f}°)")
-            print(f"limits: pan {pn:+.2f}°…{px:+.2f}°, tilt {tn:+.2f}°…{tx:+.2f}°")
-            print(f"speed: {config.speed_deg_s:g} °/s (unit allows {lo:.2f}–{hi:.2f} °/s), "
-                  f"acceleration {config.accel_deg_s2:g} °/s²")
-            print(f"position: pan {pan:+.4f}°, tilt {tilt:+.4f}°")
-        else:
-            target = (args.pan, args.tilt) if args.ptu_action == "move" else (0.0, 0.0)
-            unit.move(*target)
-            pan, tilt = unit.position()  # as the unit reports it
-            print(f"position: pan {pan:+.4f}°, tilt {tilt:+.4f}°")
-    return 0

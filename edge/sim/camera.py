@@ -6,7 +6,7 @@ frame starts its exposure ``r·readout/(H−1)`` after row 0 and is exposed for 
 the frame is delivered when its last row has been read. ``frame_after(t)`` sleeps until the first
 frame starting at or after `t` has been delivered, then renders it: the pose comes from
 ``pose_at(t)`` (the pan-tilt unit's emulator), and each laser's brightness in each row from what
-its GPIO pin actually did during that row's exposure (:class:`edge.sim.gpio.LaserWiring`). So a
+its GPIO pin actually did during that row's exposure (:class:`edge.sim.light.LaserLight`). So a
 laser switched mid-frame lights only some rows of its spot, as on the real sensor.
 
 Rendering takes real time (a new view 50–70 ms, a frame of a known view about 10 ms); frame times
@@ -26,10 +26,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from edge.config import CameraSettings, Config
+from edge.config import Config
 from edge.errors import CameraError, ConfigError
 from edge.hw.base import Frame
-from edge.sim.gpio import LaserWiring
+from edge.hw.camera import CameraSettings
+from edge.sim.light import LaserLight
 from edge.sim.render import Renderer
 
 log = logging.getLogger(__name__)
@@ -47,7 +48,7 @@ class SimCamera:
     def __init__(
         self,
         renderer: Renderer,
-        wiring: LaserWiring,
+        wiring: LaserLight,
         settings: CameraSettings,
         *,
         pose_at: Callable[..., tuple[float, float]] | None = None,
@@ -63,6 +64,7 @@ class SimCamera:
         if not 0.0 <= readout_fraction < 1.0:
             raise ValueError(f"readout_fraction must be in [0, 1), got {readout_fraction}")
         self.renderer = renderer
+        self.closed = False
         self.wiring = wiring
         self.settings = settings
         self.frame_ns = settings.frame_ns
@@ -109,7 +111,7 @@ class SimCamera:
             if fault.laser not in {laser.name for laser in lasers}:
                 raise ConfigError(f"{config.source}: sim.laser_faults[{i}].laser: no laser {fault.laser!r} "
                                   f"(the rig has {', '.join(laser.name for laser in lasers)})")
-        wiring = LaserWiring(lasers, lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6)),
+        wiring = LaserLight(config.rig.wiring(), lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6)),
                              broken={f.laser: f.kind for f in config.sim.laser_faults})
         kwargs.setdefault("seed", config.sim.seed)
         camera = cls(renderer, wiring, config.camera, **kwargs)
@@ -137,6 +139,11 @@ class SimCamera:
             self._stopping.set()
             self._prefetcher.join()
             self._prefetcher = None
+
+    def close(self) -> None:
+        """Nothing to release: a stopped simulated camera holds no device."""
+        self.stop()
+        self.closed = True
 
     def _prefetch(self) -> None:
         last = None

@@ -1,11 +1,11 @@
-"""Simulated laser wiring: gpiozero mock pins that remember when they changed, and what that meant
-for the light.
+"""Simulated laser pins: gpiozero mock pins that remember when they changed.
 
 The real lasers are switched through gpiozero; in the simulator the very same code drives a
 ``gpiozero.pins.mock.MockFactory`` whose pins are :class:`LaserPin`. Each pin logs every change of
 its output with ``time.monotonic_ns()`` (absolute times, unlike ``MockPin.states``, which keeps
-deltas), so that the simulated camera can ask :class:`LaserWiring` how much of each row's exposure
-each laser was lit — a rolling shutter sees a switch mid-frame as a brightness step between rows.
+deltas), so that the simulated camera can ask :class:`edge.sim.light.LaserLight` how much of each
+row's exposure each laser was lit. Light on purpose (no numpy): ``edge lasers off`` on a simulated
+rig loads this and nothing else of the simulator.
 """
 
 from __future__ import annotations
@@ -14,14 +14,11 @@ import mmap
 import os
 import threading
 import time
-from collections.abc import Iterable
 from pathlib import Path
 
-import numpy as np
 from gpiozero.pins.mock import MockFactory, MockPin
 
 from edge.errors import LaserError
-from edge.rig import Laser
 
 # A pin keeps at most this many changes; older ones are dropped (frames only look back a frame or
 # two, and a long simulated run switches the lasers tens of times a second).
@@ -143,78 +140,3 @@ def laser_factory(wires_file: str | os.PathLike | None = None) -> LaserFactory:
     """A mock pin factory for the simulated lasers; with `wires_file`, their levels outlive the
     process (see :class:`Wires`)."""
     return LaserFactory(Wires(wires_file) if wires_file else None)
-
-
-class LaserWiring:
-    """What the simulated lasers did, read from their pins: when and how long each was lit.
-
-    A laser is lit while its pin drives its active level (high, or low for an active-low driver);
-    the light follows the wire `settle_ns` later (driver and diode), and an undriven pin (input
-    mode, e.g. after ``close()``) is dark — the driver's pull resistor holds it off.
-    """
-
-    def __init__(self, lasers: Iterable[Laser], factory: MockFactory, settle_ns: int = 0,
-                 broken: dict[str, str] | None = None) -> None:
-        self.settle_ns = int(settle_ns)
-        self.broken = dict(broken or {})  # laser name → "dead" or "stuck" (simulated faults)
-        self._pins: dict[str, tuple[LaserPin, bool]] = {}
-        for laser in lasers:
-            if laser.pin is None:
-                continue  # no wire: never lit
-            pin = factory.pin(laser.pin)
-            if not isinstance(pin, LaserPin):
-                raise TypeError(
-                    f"laser {laser.name!r}: GPIO{laser.pin} is a {type(pin).__name__}, not a LaserPin; "
-                    "open the simulated lasers on edge.sim.gpio.laser_factory()"
-                )
-            self._pins[laser.name] = (pin, laser.active_high)
-        self.names = tuple(self._pins)
-
-    def _lit_steps(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """Times (ns, int64, already shifted by the settle time) where the light changes, and 0/1
-        lit values from each of those times on; before the first time the laser is dark."""
-        pin, active_high = self._pins[name]
-        log = pin.log
-        times = np.array([t for t, _ in log], dtype=np.int64) + self.settle_ns
-        lit = np.array([lvl is not None and lvl == active_high for _, lvl in log], dtype=np.float64)
-        return times, lit
-
-    def row_fractions(self, row_t0: np.ndarray, exposure_ns: int) -> dict[str, np.ndarray]:
-        """For each laser, the fraction of [t0, t0 + exposure] it was lit, per entry of `row_t0`
-        (monotonic ns; e.g. each row's exposure start under a rolling shutter)."""
-        t0 = np.asarray(row_t0, dtype=np.int64)
-        out: dict[str, np.ndarray] = {}
-        for name in self._pins:
-            times, lit = self._lit_steps(name)
-            if exposure_ns <= 0:
-                k = np.searchsorted(times, t0, side="right") - 1
-                out[name] = np.where(k >= 0, lit[np.maximum(k, 0)], 0.0)
-                continue
-            # Integrate the step function: cumulative lit time at each change, then interpolate.
-            # Times relative to the first change keep the arithmetic exact in float64.
-            origin = int(times[0]) if len(times) else 0
-            rel = (times - origin).astype(np.float64)
-            cum = np.concatenate([[0.0], np.cumsum(lit[:-1] * np.diff(rel))])
-
-            def lit_time_until(t: np.ndarray) -> np.ndarray:
-                tr = (t - origin).astype(np.float64)
-                k = np.searchsorted(rel, tr, side="right") - 1
-                kk = np.maximum(k, 0)
-                return np.where(k >= 0, cum[kk] + lit[kk] * (tr - rel[kk]), 0.0)
-
-            frac = (lit_time_until(t0 + exposure_ns) - lit_time_until(t0)) / float(exposure_ns)
-            out[name] = np.clip(frac, 0.0, 1.0)
-        # A broken laser ignores its wire: a dead diode never lights, a shorted driver never stops.
-        for name, kind in self.broken.items():
-            if name in out:
-                out[name] = np.full(t0.shape, 1.0 if kind == "stuck" else 0.0)
-        return out
-
-    def fractions(self, t0_ns: int, t1_ns: int) -> dict[str, float]:
-        """For each laser, the fraction of [t0, t1] it was lit (its state at t0 when t1 == t0)."""
-        rows = self.row_fractions(np.array([t0_ns], dtype=np.int64), int(t1_ns) - int(t0_ns))
-        return {name: float(v[0]) for name, v in rows.items()}
-
-    def lit_at(self, t_ns: int) -> frozenset[str]:
-        """The lasers whose light was on at `t_ns`."""
-        return frozenset(n for n, f in self.fractions(t_ns, t_ns).items() if f > 0.5)

@@ -45,6 +45,8 @@ import tty
 from collections import deque
 from dataclasses import dataclass
 
+from edge.hw.ptu import trapezoid_s
+
 log = logging.getLogger(__name__)
 
 RESOLUTION_ARCSEC = 185.1428  # PTU-D46-17
@@ -98,15 +100,6 @@ class _Axis:
         p = self.at(t) if where is None else where
         self.start = self.target = p
         self.duration = 0.0
-
-
-def trapezoid_s(distance: float, speed: float, accel: float) -> float:
-    """Duration of a rest-to-rest move with a speed cap and a constant acceleration."""
-    if distance <= 0:
-        return 0.0
-    if distance >= speed * speed / accel:
-        return distance / speed + speed / accel
-    return 2.0 * math.sqrt(distance / accel)
 
 
 class Emulator:

@@ -21,10 +21,11 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from edge.config import CameraSettings, RigErrorConfig, SimConfig
+from edge.hw.camera import CameraSettings
 from edge.rig import Laser, Pose, Rig
 from edge.sim import optics
 from edge.sim.scene import Scene, SceneGeometry
+from edge.sim.settings import RigErrorConfig, SimConfig
 
 # Shade of room light by surface orientation: floors get most of a ceiling light, ceilings least.
 _AMBIENT_BY_NORMAL_Z = (0.8, 0.2)  # factor = a + b · n_z

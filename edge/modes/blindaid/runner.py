@@ -60,14 +60,9 @@ class BlindAidRunner:
                                 lead_s=config.audio.lead_ms / 1000 if live else 0.0)
         self._stop = threading.Event()
         self._asked = threading.Event()  # the button was pressed: say where the nearest thing is
-        self._button = None
-        pin = config.blindaid.speak_button_pin
-        if pin:
-            from gpiozero import Button
-
-            # On the lasers' pin factory: the real GPIO on the device, the mock pins in the simulator.
-            self._button = Button(pin, pull_up=True, bounce_time=0.05, pin_factory=parts.lasers.factory)
-            self._button.when_pressed = lambda: self._asked.set()
+        self._button = parts.button  # opened with the parts (edge.parts), when wired
+        if self._button is not None:
+            self._button.when_pressed = self._asked.set
         self._clock = threading.Thread(target=self._play, name="blind-aid sound", daemon=True)
         self._clock.start()
 
@@ -129,7 +124,7 @@ class BlindAidRunner:
 
     def close(self) -> None:
         if self._button is not None:
-            self._button.close()
+            self._button.when_pressed = None  # the button stays open with the parts; we stop listening
         self._stop.set()
         self._clock.join(timeout=2.0)
         self.player.close(self.now())

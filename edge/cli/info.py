@@ -1,0 +1,48 @@
+"""`edge config` (check a configuration file and summarise it) and `edge bench` (speed figures)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from edge.cli.common import add_config_options, load
+
+
+def add_parsers(sub: Any) -> None:
+    p = sub.add_parser("config", help="check a configuration file and summarise it")
+    add_config_options(p)
+    p.set_defaults(func=cmd_config)
+
+    p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
+    add_config_options(p)
+    p.add_argument("what", choices=["render", "ranging", "blindaid"], help="what to time")
+    p.add_argument("--repeats", type=int, help="runs to take the median of")
+    p.set_defaults(func=cmd_bench)
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    config = load(args)
+    rig = config.rig.build()
+    print(f"{config.source}: ok")
+    print(f"  camera {rig.camera.width}x{rig.camera.height} fx={rig.camera.fx:g}")
+    for laser in rig.lasers:
+        ref = " (reference)" if laser is rig.reference else ""
+        print(f"  laser {laser.name}: pin {laser.pin}{ref}")
+    from edge.calibration.in_use import believed_rig
+
+    print(f"  calibration: {believed_rig(config).health}")
+    if not config.rig.calibration:  # the service also looks in its state folder
+        print(f"  calibration of edge run: {believed_rig(config, service=True).health}")
+    print(f"  sweep {len(config.sweep.poses())} zones, {config.sweep.pairs_per_zone} pairs each")
+    print(f"  sim scene {config.sim.scene}")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from edge import bench
+
+    config = load(args)
+    run = {"render": bench.bench_render, "ranging": bench.bench_ranging, "blindaid": bench.bench_blindaid}[args.what]
+    lines = run(config, **({"repeats": args.repeats} if args.repeats else {}))
+    print("\n".join(lines))
+    return 0

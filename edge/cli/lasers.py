@@ -1,0 +1,63 @@
+"""`edge lasers off`: drive every configured laser pin to its off level — systemd's ExecStopPost.
+
+This is the eye-safety path after a crash or a kill, so it needs nothing but the pins: it reads
+only the laser wiring (``[[rig.lasers]]`` name, pin, active_high) and ``[lasers]`` from the
+configuration file, through the light table reader, and imports neither numpy nor OpenCV nor any
+ranging, mode or simulator module (but the simulator's mock pins when the lasers are simulated).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from edge.cli.common import add_config_options
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser("lasers", help="drive the laser pins: `edge lasers off` switches every laser off")
+    p.add_argument("action", choices=["off"], help="off: drive every configured laser pin to its off level")
+    add_config_options(p, example="lasers.backend=gpio")
+    p.set_defaults(func=run)
+
+
+def wiring_of(args: argparse.Namespace) -> tuple[tuple[Any, ...], Any]:
+    """(the lasers' wiring, the ``[lasers]`` settings) of the configuration the options name."""
+    from edge.config_file import apply_overrides, default_config_path, read_table
+    from edge.errors import ConfigError
+    from edge.hw.lasers import DEFAULT_WIRING, LasersConfig, LaserWiring
+    from edge.schema import build
+
+    file = Path(args.config) if args.config is not None else default_config_path()
+    source = str(file)
+    data = read_table(file)
+    apply_overrides(data, args.set)
+    rig = data.get("rig", {})
+    if not isinstance(rig, dict):
+        raise ConfigError(f"{source}: rig: expected a table")
+    entries = rig.get("lasers")
+    wiring: tuple[LaserWiring, ...]
+    if entries is None:
+        wiring = DEFAULT_WIRING
+    elif not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise ConfigError(f"{source}: rig.lasers: expected a list of tables ([[rig.lasers]])")
+    else:
+        # Only the wiring: a mistake in a laser's geometry must not keep its pin from going off.
+        wiring = tuple(build(LaserWiring, {k: e[k] for k in ("name", "pin", "active_high") if k in e},
+                             source, f"rig.lasers[{i}]") for i, e in enumerate(entries))
+    settings = build(LasersConfig, data.get("lasers", {}), source, "lasers")
+    return wiring, settings
+
+
+def run(args: argparse.Namespace) -> int:
+    from edge.hw.lasers import force_all_off
+    from edge.parts import laser_factory
+
+    wiring, settings = wiring_of(args)
+    for name, pin, level in force_all_off(wiring, laser_factory(settings)):
+        print(f"laser {name}: GPIO{pin} driven {'high' if level else 'low'} (off)")
+    if settings.backend == "sim":
+        where = f"the simulated wires in {settings.sim_wires}" if settings.sim_wires else "mock pins"
+        print(f"(lasers.backend is sim: no real pins were touched, only {where})")
+    return 0

@@ -1,0 +1,80 @@
+"""The configuration file as a plain table: where it is, read as TOML, ``--set`` applied.
+
+Light on purpose (no numpy, no driver, no mode): ``edge lasers off`` reads the laser wiring through
+it when nothing else may work. :mod:`edge.config` turns the table into typed objects.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from edge.errors import ConfigError
+from edge.schema import show
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def config_dir() -> Path:
+    """Where the shipped configuration lives: ``$EDGE_CONFIG_DIR``, else ``<repo>/config``."""
+    return Path(os.environ.get("EDGE_CONFIG_DIR") or REPO_ROOT / "config")
+
+
+def default_config_path() -> Path:
+    return config_dir() / "sim.toml"
+
+
+def read_table(file: Path) -> dict[str, Any]:
+    """The TOML file as a plain table; ConfigError with one line if it cannot be read as TOML."""
+    name = show(str(file))
+    try:
+        with open(file, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{name}: no such configuration file") from None
+    except OSError as exc:
+        raise ConfigError(f"{name}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{name}: not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{name}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{name}: not usable TOML: nested too deeply") from None
+    except ValueError as exc:  # e.g. a whole number of more digits than Python converts
+        raise ConfigError(f"{name}: not usable TOML: {str(exc).splitlines()[0]}") from None
+    return data
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``key.path=value`` → (key path, value); the value is read as TOML, else as a string."""
+    key, sep, raw = text.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ConfigError(f"--set {show(text)}: expected KEY=VALUE, e.g. --set sim.scene=kitchen")
+    if "\n" in text or "\r" in text:
+        raise ConfigError(f"--set {show(text)}: a line break in it; give one KEY=VALUE per --set")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except (tomllib.TOMLDecodeError, ValueError, RecursionError):
+        value = raw.strip()
+    return key, value
+
+
+def apply_override(data: dict[str, Any], key: str, value: Any) -> None:
+    node = data
+    parts = key.split(".")
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"--set {show(key)}: {show(part)} is not a table")
+        node = child
+    node[parts[-1]] = value
+
+
+def apply_overrides(data: dict[str, Any], overrides: list[str] | tuple[str, ...]) -> None:
+    """Apply ``--set key.path=value`` overrides to the table, in order."""
+    for text in overrides:
+        key, value = parse_override(text)
+        apply_override(data, key, value)

@@ -1,0 +1,140 @@
+"""The simulator's settings (``[sim]``): the scene, the virtual sensor, optics, beam and room light,
+how the simulated rig was built, and the faults it plays on demand. The simulated parts own them,
+as each driver of :mod:`edge.hw` owns its own; :mod:`edge.config` only gathers them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from edge.schema import require
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """The simulated sensor: photo-electrons to digital numbers."""
+
+    full_well_e: float = 10000.0
+    read_noise_e: float = 3.0
+    adc_bits: int = 10
+    output_bits: Literal[8, 16] = 8
+    colour: bool = True
+    jpeg_quality: int = 0  # 0: lossless PNG; 1-100: what a webcam's JPEG stream does to frames
+    # Rolling shutter: row 0's exposure start to the last row's. The IMX219's 640×480 mode runs at
+    # up to 206 fps, so it reads out in under 5 ms; a webcam takes most of its frame period.
+    readout_ms: float = 5.0
+
+    def __post_init__(self) -> None:
+        require(self.full_well_e > 0, "full_well_e", "must be positive")
+        require(self.read_noise_e >= 0, "read_noise_e", "must be >= 0")
+        require(8 <= self.adc_bits <= 16, "adc_bits", f"must be 8-16, got {self.adc_bits}")
+        require(0 <= self.jpeg_quality <= 100, "jpeg_quality", "must be 0-100")
+        require(self.readout_ms >= 0, "readout_ms", "must be >= 0")
+        require(
+            not (self.jpeg_quality and self.output_bits == 16),
+            "jpeg_quality",
+            "JPEG frames are 8-bit; set output_bits = 8",
+        )
+
+
+@dataclass(frozen=True)
+class OpticsConfig:
+    focal_length_mm: float = 3.04  # Pi Camera v2
+    f_number: float = 2.0
+    focus_m: float = 1.2  # fixed-focus distance
+    psf_sigma_px: float = 0.5  # lens + pixel blur of a point in focus
+    vignetting: bool = True
+
+    def __post_init__(self) -> None:
+        require(self.focal_length_mm > 0, "focal_length_mm", "must be positive")
+        require(self.f_number > 0, "f_number", "must be positive")
+        require(self.focus_m > 0, "focus_m", "must be positive")
+        require(self.psf_sigma_px >= 0.2, "psf_sigma_px", "must be >= 0.2")
+
+
+@dataclass(frozen=True)
+class BeamConfig:
+    """The laser pointers as the simulator sees them."""
+
+    # Photo-electrons per ms of exposure that a spot on a white (albedo 1) matte wall squarely at 1 m
+    # sends to the sensor, all pixels together, before vignetting.
+    e_per_ms_at_1m: float = 20000.0
+    waist_m: float = 0.0012  # 1/e² beam radius at the aperture
+    divergence_mrad: float = 0.6  # half-angle
+    # Relative response of the B, G, R pixels to 650 nm light (Bayer filters leak a little).
+    response_bgr: tuple[float, float, float] = (0.03, 0.10, 1.0)
+    speckle: float = 1.0  # 0: no speckle; 1: the modelled speckle of a pointer at f/2
+    speckle_cell_m: float = 0.0002  # how far the spot must move on the surface for new speckle
+
+    def __post_init__(self) -> None:
+        require(self.e_per_ms_at_1m >= 0, "e_per_ms_at_1m", "must be >= 0")
+        require(self.waist_m > 0, "waist_m", "must be positive")
+        require(self.divergence_mrad >= 0, "divergence_mrad", "must be >= 0")
+        require(self.speckle >= 0, "speckle", "must be >= 0")
+        require(self.speckle_cell_m > 0, "speckle_cell_m", "must be positive")
+
+
+@dataclass(frozen=True)
+class AmbientConfig:
+    # Photo-electrons per ms that a white (albedo 1) wall sends to one pixel under room light.
+    white_e_per_ms: float = 600.0
+    # Relative amplitude of the light level's change from frame to frame (mains or LED-driver flicker
+    # beating with the frame rate): each frame's ambient level is uniform in 1 ± flicker.
+    flicker: float = 0.03
+
+    def __post_init__(self) -> None:
+        require(self.white_e_per_ms >= 0, "white_e_per_ms", "must be >= 0")
+        require(0 <= self.flicker < 1, "flicker", "must be in [0, 1)")
+
+
+@dataclass(frozen=True)
+class RigErrorConfig:
+    """How the simulated rig differs from the nominal one (seeded): real rigs are never exact."""
+
+    laser_angle_deg: float = 0.0  # 1-σ tilt of each laser's direction
+    laser_offset_m: float = 0.0  # 1-σ offset of each laser's origin, per axis
+    focal_scale: float = 0.0  # 1-σ relative error of the focal length
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for key in ("laser_angle_deg", "laser_offset_m", "focal_scale"):
+            require(getattr(self, key) >= 0, key, "must be >= 0")
+
+
+@dataclass(frozen=True)
+class CameraFault:
+    """A fault the simulated camera plays at a time after it starts (``[[sim.camera_faults]]``):
+    ``stall`` delivers no frames for `seconds`; ``corrupt`` delivers `count` frames of the wrong
+    size; ``hang`` blocks the caller for `seconds` (a driver stuck without a timeout)."""
+
+    kind: Literal["stall", "corrupt", "hang"] = "stall"
+    at_s: float = 0.0
+    seconds: float = 3.0
+    count: int = 2
+
+    def __post_init__(self) -> None:
+        require(self.at_s >= 0, "at_s", "must be >= 0")
+        require(self.seconds > 0, "seconds", "must be positive")
+        require(self.count >= 1, "count", "must be >= 1")
+
+
+@dataclass(frozen=True)
+class LaserFault:
+    """A broken simulated laser (``[[sim.laser_faults]]``): ``dead`` never lights, ``stuck``
+    never goes off (a shorted driver)."""
+
+    laser: str = ""
+    kind: Literal["dead", "stuck"] = "dead"
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    scene: str = "office"
+    seed: int = 1
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    optics: OpticsConfig = field(default_factory=OpticsConfig)
+    beam: BeamConfig = field(default_factory=BeamConfig)
+    ambient: AmbientConfig = field(default_factory=AmbientConfig)
+    rig_error: RigErrorConfig = field(default_factory=RigErrorConfig)
+    camera_faults: tuple[CameraFault, ...] = ()  # for trying the service's fault handling
+    laser_faults: tuple[LaserFault, ...] = ()  # broken lasers, for trying fault reporting
