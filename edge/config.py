@@ -16,7 +16,7 @@ from typing import Any, Literal
 from edge.config_file import apply_overrides, default_config_path, read_table
 from edge.errors import ConfigError
 from edge.hw.camera import CameraSettings
-from edge.hw.lasers import LasersConfig, LaserWiring
+from edge.hw.lasers import DEFAULT_WIRING, LasersConfig, LaserWiring
 from edge.hw.ptu import PtuConfig
 from edge.modes import Mode
 from edge.modes.blindaid.logic import BlindAidConfig
@@ -68,13 +68,40 @@ class CameraConfig:
         return replace(base, **changes)
 
 
+@dataclass(frozen=True)
+class LaserConfig:
+    """One ``[[rig.lasers]]`` table: where the beam is (geometry, for ranging) and how it is
+    switched (wiring, for the laser driver). The two go their own ways from here."""
+
+    name: str
+    origin_m: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    pin: int | None = None  # BCM GPIO number that switches it
+    active_high: bool = True
+    reference: bool = False
+
+    def __post_init__(self) -> None:
+        self.geometry()  # validates the direction
+        self.wiring()  # validates the pin
+
+    def geometry(self) -> Laser:
+        return Laser(self.name, self.origin_m, self.direction, self.reference)
+
+    def wiring(self) -> LaserWiring:
+        return LaserWiring(self.name, self.pin, self.active_high)
+
+
 _DEFAULT_RIG = default_rig()
+# geometry.md's default rig, wired as the README says.
+_DEFAULT_LASERS = tuple(
+    LaserConfig(laser.name, laser.origin_m, laser.direction, wire.pin, wire.active_high, laser.reference)
+    for laser, wire in zip(_DEFAULT_RIG.lasers, DEFAULT_WIRING, strict=True))
 
 
 @dataclass(frozen=True)
 class RigConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
-    lasers: tuple[Laser, ...] = _DEFAULT_RIG.lasers
+    lasers: tuple[LaserConfig, ...] = _DEFAULT_LASERS
     mount: Mount = field(default_factory=Mount)
     range_limits_m: tuple[float, float] = _DEFAULT_RIG.range_limits_m
     # An edge-calibration/1 file (relative to the config file) applied to the lasers and camera
@@ -85,11 +112,12 @@ class RigConfig:
         self.build()  # Rig validates laser names, the reference flag and the limits
 
     def build(self) -> Rig:
-        return Rig(self.camera.build(), self.lasers, self.mount, self.range_limits_m)
+        lasers = tuple(laser.geometry() for laser in self.lasers)
+        return Rig(self.camera.build(), lasers, self.mount, self.range_limits_m)
 
     def wiring(self) -> tuple[LaserWiring, ...]:
         """How each laser is switched (its pin and polarity), for the laser driver."""
-        return tuple(LaserWiring(laser.name, laser.pin, laser.active_high) for laser in self.lasers)
+        return tuple(laser.wiring() for laser in self.lasers)
 
 
 @dataclass(frozen=True)

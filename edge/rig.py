@@ -180,13 +180,12 @@ CAMERA_MODELS: dict[str, CameraModel] = {
 
 @dataclass(frozen=True)
 class Laser:
-    """A laser beam fixed to the camera: a point on it and a unit direction, camera frame."""
+    """A laser beam fixed to the camera: a point on it and a unit direction, camera frame. Geometry
+    only: how it is switched (its GPIO pin) is :class:`edge.hw.lasers.LaserWiring`."""
 
     name: str
     origin_m: Vec3
     direction: Vec3
-    pin: int | None = None  # BCM GPIO number that switches it
-    active_high: bool = True
     reference: bool = False
 
     def __post_init__(self) -> None:
@@ -199,8 +198,6 @@ class Laser:
         )
         # Stored exactly unit so that geometry downstream need not renormalise.
         object.__setattr__(self, "direction", tuple(c / norm for c in self.direction))
-        if self.pin is not None:
-            require(0 <= self.pin <= 27, "pin", f"must be a BCM GPIO number 0-27, got {self.pin}")
 
     @property
     def o(self) -> np.ndarray:
@@ -285,8 +282,8 @@ def default_rig() -> Rig:
     return Rig(
         camera=CAMERA_MODELS["picam-v2"],
         lasers=(
-            Laser("center", (0.035, 0.0, 0.0), (0.0, 0.0, 1.0), pin=17, reference=True),
-            Laser("parallel", (0.035, -0.040, 0.0), (0.0, 0.0, 1.0), pin=27),
-            Laser("sloped", (0.035, 0.0, 0.0), (0.0, math.sin(t), math.cos(t)), pin=22),
+            Laser("center", (0.035, 0.0, 0.0), (0.0, 0.0, 1.0), reference=True),
+            Laser("parallel", (0.035, -0.040, 0.0), (0.0, 0.0, 1.0)),
+            Laser("sloped", (0.035, 0.0, 0.0), (0.0, math.sin(t), math.cos(t))),
         ),
     )

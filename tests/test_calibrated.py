@@ -59,7 +59,7 @@ def test_a_configured_calibration_is_applied_relative_to_the_config_file(tmp_pat
     believed = believed_rig(config)
     assert directions(believed.rig) == directions(cal.apply(config.rig.build()))
     assert directions(believed.rig) != directions(config.rig.build())
-    assert [ln.pin for ln in believed.rig.lasers] == [17, 27, 22]  # the wiring stays the config's
+    assert not hasattr(believed.rig.lasers[0], "pin")  # geometry only: the wiring stays the config's
     assert believed.health.startswith("calibrated 2026-11-23T10:00:00Z at 0.5, 1, 2 m, residuals ≤ 0.20 px")
     assert str(tmp_path / "rig-cal.json") in believed.health
 

@@ -47,13 +47,13 @@ def exec_stop_post(config: Path) -> subprocess.CompletedProcess:
 def lit(wires: Path, config: Path) -> set[str]:
     """The lasers whose wire carries their active level."""
     levels = Wires(wires).levels()
-    return {laser.name for laser in load_config(config).rig.build().lasers
+    return {laser.name for laser in load_config(config).rig.wiring()
             if levels.get(laser.pin) is laser.active_high}
 
 
 def assert_all_off(wires: Path, config: Path) -> None:
     levels = Wires(wires).levels()
-    for laser in load_config(config).rig.build().lasers:
+    for laser in load_config(config).rig.wiring():
         assert levels.get(laser.pin) is (not laser.active_high), f"laser {laser.name}: GPIO{laser.pin} {levels}"
 
 

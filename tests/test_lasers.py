@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from gpiozero.pins.mock import MockFactory
 
-from edge.config import load_config
+from edge.config import LaserConfig, load_config
 from edge.errors import HardwareError
 from edge.hw.lasers import Lasers, LasersConfig, LaserWiring, force_all_off
 from edge.parts import open_lasers
-from edge.rig import Laser
+from edge.schema import FieldError
 from edge.sim.gpio import LaserPin, Wires, laser_factory
 from edge.sim.light import LaserLight
 
@@ -27,9 +27,9 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # Two lasers switched high, one by an active-low driver (its pin is high when it is off).
 LASERS = (
-    Laser("center", (0.035, 0.0, 0.0), (0.0, 0.0, 1.0), pin=17, reference=True),
-    Laser("parallel", (0.035, -0.04, 0.0), (0.0, 0.0, 1.0), pin=27),
-    Laser("sloped", (0.035, 0.0, 0.0), (0.0, 0.0, 1.0), pin=22, active_high=False),
+    LaserConfig("center", (0.035, 0.0, 0.0), (0.0, 0.0, 1.0), pin=17, reference=True),
+    LaserConfig("parallel", (0.035, -0.04, 0.0), (0.0, 0.0, 1.0), pin=27),
+    LaserConfig("sloped", (0.035, 0.0, 0.0), (0.0, 0.0, 1.0), pin=22, active_high=False),
 )
 WIRING = (LaserWiring("center", 17), LaserWiring("parallel", 27), LaserWiring("sloped", 22, active_high=False))
 OFF_LEVEL = {17: False, 27: False, 22: True}
@@ -160,6 +160,11 @@ def test_force_all_off_in_a_fresh_process():
     )
     assert result.returncode == 0, result.stderr
     assert "GPIO17 driven low" in result.stdout and "GPIO22 driven low" in result.stdout
+
+
+def test_a_pin_must_be_a_bcm_number():
+    with pytest.raises(FieldError, match="pin: must be a BCM GPIO number 0-27, got 99"):
+        LaserWiring("center", 99)
 
 
 def test_missing_pin_is_a_hardware_error(factory):

@@ -127,7 +127,6 @@ def test_epipolar_paths_of_the_default_rig() -> None:
     [
         (dict(name="a", origin_m=(0, 0, 0), direction=(0, 0, 1.01)), "direction", "unit vector"),
         (dict(name=" ", origin_m=(0, 0, 0), direction=(0, 0, 1)), "name", "must not be empty"),
-        (dict(name="a", origin_m=(0, 0, 0), direction=(0, 0, 1), pin=99), "pin", "BCM GPIO"),
     ],
 )
 def test_laser_validation(kwargs: dict, key: str, text: str) -> None:

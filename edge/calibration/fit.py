@@ -85,8 +85,8 @@ class Calibration:
     created: str = ""
 
     def apply(self, rig: Rig) -> Rig:
-        """`rig` with its lasers and camera replaced by the calibrated ones (pins, polarity and
-        the reference flag stay `rig`'s)."""
+        """`rig` with its lasers and camera replaced by the calibrated ones (the reference flag
+        stays `rig`'s)."""
         mine = {laser.name: laser for laser in self.lasers}
         for laser in rig.lasers:
             if laser.name not in mine:
@@ -99,7 +99,7 @@ class Calibration:
                 f"the calibration is for a {self.camera.width}x{self.camera.height} camera, the "
                 f"rig's is {cam.width}x{cam.height}: calibrate at this resolution")
         lasers = tuple(
-            replace(mine[ln.name], pin=ln.pin, active_high=ln.active_high, reference=ln.reference)
+            replace(mine[ln.name], reference=ln.reference)
             for ln in rig.lasers)
         return replace(rig, camera=self.camera, lasers=lasers)
 
@@ -445,8 +445,7 @@ def fit_calibration(recording: Recording, distances_m: Sequence[float], fit_foca
     res = _checked_residuals(camera, fitted, data)
     if not fit_focal:
         _check_origins(rig, fitted)
-    lasers = tuple(replace(fitted[ln.name], pin=ln.pin, active_high=ln.active_high,
-                           reference=ln.reference) for ln in rig.lasers)
+    lasers = tuple(replace(fitted[ln.name], reference=ln.reference) for ln in rig.lasers)
     return Calibration(lasers, camera, D, res, _now())
 
 

@@ -25,9 +25,10 @@ def cmd_config(args: argparse.Namespace) -> int:
     rig = config.rig.build()
     print(f"{config.source}: ok")
     print(f"  camera {rig.camera.width}x{rig.camera.height} fx={rig.camera.fx:g}")
-    for laser in rig.lasers:
+    for laser, wire in zip(rig.lasers, config.rig.wiring(), strict=True):
         ref = " (reference)" if laser is rig.reference else ""
-        print(f"  laser {laser.name}: pin {laser.pin}{ref}")
+        low = ", active low" if not wire.active_high else ""
+        print(f"  laser {laser.name}: pin {wire.pin}{low}{ref}")
     from edge.calibration.in_use import believed_rig
 
     print(f"  calibration: {believed_rig(config).health}")
