@@ -1,12 +1,11 @@
 """The headless service (`edge run`): the rig, the mode, MQTT in and out, systemd, signals.
 
-One thread does all the work: it runs the current mode one step at a time (a sweep, a fan pass, a
-burst of ranges, a calibration pair) and between zones it answers commands, feeds systemd's
-watchdog and notices a stop. paho's network thread only moves bytes; commands reach us through the
-link's queue, and what we publish goes out through the on-disk outbox (alerts, sweeps) or straight
-away (ranges, cues). The service is made of parts: `RigHealth` (each part's condition, the camera
-restart), `CalibrationController` (a cmd/calibrate session), `GuardWatch` (the guard across sweeps)
-and a `Link` (MQTT, or nobody).
+One thread does all the work: it runs the current mode one step at a time (`ModeSteps`: a sweep, a
+fan pass, a burst of ranges; or a `CalibrationController` pair) and between zones it answers
+commands (`Dispatcher`), feeds systemd's watchdog and notices a stop. paho's network thread only
+moves bytes; commands reach us through the `Link`'s queue, and what we publish goes out through the
+on-disk outbox (alerts, sweeps) or straight away (ranges, cues). `RigHealth` keeps each part's
+condition and restarts the camera; `GuardWatch` keeps the guard across sweeps.
 
 Stopping: SIGTERM and SIGINT (and ``--for``) set a flag that the sweep checks between zones; the
 lasers go off as the parts close, a last ``state`` goes out, then ``offline``. A crash or a
@@ -50,7 +49,7 @@ _IDLE_S = 0.05
 
 
 class Service:
-    """`edge run`: see the module notes. `link`, when given, is the caller's, already started."""
+    """`edge run`: see the module notes. A `link` given is already started; it stops with the service."""
 
     def __init__(self, config: Config, *, run_for_s: float | None = None, link: Link | None = None,
                  notifier: Notifier | None = None) -> None:
@@ -62,8 +61,8 @@ class Service:
         self.stop_requested = threading.Event()
         self.link: Link = link or NullLink()
         self._given_link = link is not None
-        self._notifier = notifier
-        self._feeder: WatchdogFeeder | None = None
+        self._notifier = notifier or Notifier()
+        self._feeder = WatchdogFeeder(self._notifier) if config.service.watchdog else None
         self._parts: Parts | None = None
         self._next_sweep = 0.0  # monotonic time of the next scheduled sweep
         self._sweep_now = False
@@ -108,11 +107,10 @@ class Service:
         return self._parts
 
     def _adopt(self, believed: BelievedRig) -> None:
-        """A calibration was fitted and saved: range with it from now on."""
+        """A calibration was fitted and saved: range with it from now on. The guard learns its room
+        again: against the new rays every wall would seem to have moved by a percent or two."""
         self.ranger = Ranger(believed.rig, self.config.ranging)
         self.health.recalibrated(believed.health, believed.rig.laser_names)
-        # The guard's background was ranged with the old rays: against the new ones a wall would
-        # seem to have moved by a percent or two. Learn it again rather than raise alarms.
         self.guard.relearn("with the calibrated rig")
 
     # ---- life cycle ----
@@ -121,9 +119,6 @@ class Service:
         from edge.parts import open_parts
 
         self._install_signal_handlers()
-        notifier = self._notifier or Notifier()
-        self._feeder = WatchdogFeeder(notifier) if self.config.service.watchdog else None
-        self._notifier = notifier
         deadline = None if self.run_for_s is None else self.started + self.run_for_s
         with contextlib.ExitStack() as stack:
             if self._given_link:
@@ -131,13 +126,13 @@ class Service:
             else:
                 self.link = stack.enter_context(open_link(self.config, self.device_id))
             stack.callback(setattr, self, "_parts", None)
-            notifier.status("starting the rig")
+            self._notifier.status("starting the rig")
             try:
                 with open_parts(self.config) as parts:
                     self._parts = parts
                     self._publish_state()
-                    notifier.ready()
-                    notifier.status(f"running: {self.mode}")
+                    self._notifier.ready()
+                    self._notifier.status(f"running: {self.mode}")
                     log.info("edge %s running as %s in %s mode", __version__, self.device_id, self.mode)
                     try:
                         self._loop(deadline)
@@ -150,8 +145,8 @@ class Service:
                 self.health.failed(exc)
                 self._publish_state()
                 raise
-            notifier.stopping()
-            notifier.status("stopping")
+            self._notifier.stopping()
+            self._notifier.status("stopping")
             self._publish_state()
         log.info("edge stopped after %d sweeps", self.sweeps)
         return 0
@@ -164,8 +159,8 @@ class Service:
             log.info("%s: stopping", signal.Signals(signum).name)
             self.stop_requested.set()
 
-        signal.signal(signal.SIGTERM, stop)
-        signal.signal(signal.SIGINT, stop)
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(signum, stop)
 
     # ---- the loop ----
 
@@ -193,10 +188,8 @@ class Service:
             elif self.mode == "guard":
                 self._sweep(parts, deadline)
             elif self.mode == "blindaid":
-                self.steps.fan(parts, self.config, self.ranger,
+                self.steps.fan(parts, self.config, self.ranger,  # cmd/mode closes it when leaving the mode
                                self._should_stop(deadline, lambda: self.mode != "blindaid"))
-                if self.mode != "blindaid":
-                    self.steps.close_fan()
             else:
                 self.stop_requested.wait(_IDLE_S)
 
@@ -246,8 +239,7 @@ class Service:
             self.mode = mode
             self._interrupt = True
             self.config = replace(self.config, mode=mode)
-            if self._notifier is not None:
-                self._notifier.status(f"running: {self.mode}")
+            self._notifier.status(f"running: {self.mode}")
         self._publish_state()
         return None
 
@@ -259,10 +251,9 @@ class Service:
 
     def _cmd_point(self, command: Command) -> str | None:
         """Aim and range once; the range finder then keeps ranging there."""
-        if self._parts is None:
-            return "the rig is not running"
-        if self.calibration.running:
-            return self.calibration.refusal()
+        refused = "the rig is not running" if self._parts is None else self.calibration.refusal()
+        if refused or self._parts is None:
+            return refused
         pan, tilt = self._aim = (command.args["pan_deg"], command.args["tilt_deg"])
         self._interrupt = True
         result = self.steps.point(self._parts, self.ranger, pan, tilt)
