@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge.calibration.in_use import NOMINAL, believed_rig
 from edge.calibration.fit import Calibration, write_calibration
+from edge.calibration.in_use import NOMINAL, believed_rig
 from edge.config import load_config
 from edge.errors import ConfigError
 from edge.rig import default_rig
@@ -119,23 +119,18 @@ def test_a_new_calibration_is_saved_used_and_makes_the_guard_learn_again(tmp_pat
     config = load_config(None, [f"service.state_dir={json.dumps(str(tmp_path))}", "mqtt.enabled=false",
                                 'mode="guard"', "guard.learn_sweeps=2"])
     service = Service(config)
-    guard = service._guard_for(8)
     for sweep in (1, 2):
-        guard.update([ZoneResult(i, 45.0 * i, 0.0, OK, range_m=2.0, sigma_m=0.005) for i in range(8)], sweep, sweep)
-    assert not guard.learning
+        service.guard.sweep([ZoneResult(i, 45.0 * i, 0.0, OK, range_m=2.0, sigma_m=0.005) for i in range(8)],
+                            sweep, sweep)
+    assert not service.guard.learning
     cal = turned(config.rig.build())
 
-    class Finished:  # a session whose board has been carried to every distance
-        def finish(self):
-            return Outcome(cal)
-
-    service._calibration = Finished()
-    service._finish_calibration()
+    service.calibration.adopt(Outcome(cal))  # a session whose board was carried to every distance
     assert directions(service.ranger.rig) == directions(cal.apply(config.rig.build()))
-    assert service.calibrated and service._calibration is None
+    assert service.health.calibrated and not service.calibration.running
     assert service.state()["health"]["calibration"].startswith("calibrated 2026-11-23T10:00:00Z")
     assert (tmp_path / "calibration.json").exists()
-    assert service._guard.learning
+    assert service.guard.learning
 
 
 def test_edge_config_also_says_what_the_service_would_use(tmp_path):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge.laserhealth import LaserHealth
-from edge.ranging import OK, NO_SPOT, LaserMeasurement, ZoneResult
+from edge.laserhealth import LaserFault, LaserHealth, LaserVerdict
+from edge.ranging import NO_SPOT, OK, LaserMeasurement, ZoneResult
 
 NAMES = ("center", "parallel", "sloped")
 
@@ -38,3 +38,15 @@ def test_a_laser_lit_in_the_off_frames_does_not_go_off() -> None:
         # Its spot leaks into the difference now and then (flicker), but shows in every off frame.
         health.update(zone(("center", "parallel", "sloped") if k == 1 else ("parallel", "sloped")), {"center"})
     assert "does not go off" in health.faults()["center"]
+
+
+def test_verdicts_are_typed_and_worded_only_on_demand() -> None:
+    health = LaserHealth(NAMES, window=4)
+    for _ in range(4):
+        health.update(zone(("center", "sloped")))
+    verdict = health.verdicts()["parallel"]
+    assert verdict == LaserVerdict("parallel", LaserFault.DARK, 4)
+    assert verdict.words().startswith("laser parallel does not light") and "calibrate it" not in verdict.words()
+    assert verdict.words(calibrated=False).endswith("calibrate it (cmd/calibrate)")
+    stuck = LaserVerdict("center", LaserFault.STUCK_ON, 8, 5)
+    assert "(5 of the last 8 zones)" in stuck.words(calibrated=False) and "calibrate it" not in stuck.words(False)

@@ -23,9 +23,9 @@ def _run_and_stop(service: Service, stop) -> dict[int, list[bool]]:
 
     def watch() -> None:
         deadline = time.monotonic() + 30
-        while service._parts is None and time.monotonic() < deadline:
+        while service.parts is None and time.monotonic() < deadline:
             time.sleep(0.01)
-        factory = service._parts.lasers.factory
+        factory = service.parts.lasers.factory
         pins = {n: factory.pin(n) for n in PINS}
         while time.monotonic() < deadline and not any(sum(v) >= 3 for v in seen.values()):
             for n, pin in pins.items():
@@ -63,30 +63,19 @@ def test_a_signal_stops_the_service_cleanly_with_the_lasers_off(restore_signals,
 
 
 def test_an_exception_in_the_loop_leaves_the_lasers_off(restore_signals):
-    service = _service()
+    """The pan-tilt unit falls silent while the range finder ranges: the sweep that comes due
+    cannot start, and the driver's error ends the service, which leaves the lasers off."""
+    service = _service("service.sweep_interval_s=1.0", "ptu.timeout_s=0.1")
 
-    def end_the_step(s: Service) -> None:
-        s._interrupt = True  # the range finder's step ends; the next one raises
+    def silence_the_unit(s: Service) -> None:
+        s.parts.emulator.inject("silence", seconds=60.0)
 
-    service._range = _raises_after_first(service._range)
-    watcher = _run_and_stop(service, end_the_step)
+    watcher = _run_and_stop(service, silence_the_unit)
     with pytest.raises(HardwareError):
         service.run()
     watcher.join(5)
     assert service.final_pins and all(not pin.state for pin in service.final_pins.values())
-
-
-def _raises_after_first(step):
-    """The range-finder step, then a failure of the kind a driver raises."""
-    calls = []
-
-    def wrapped(deadline):
-        calls.append(1)
-        if len(calls) > 1:
-            raise HardwareError("pan-tilt unit on /dev/pts/x does not answer (test)")
-        return step(deadline)
-
-    return wrapped
+    assert service.state()["health"]["ptu"].startswith("fault: ")
 
 
 @pytest.mark.parametrize("kind, words", [("dead", "does not light"), ("stuck", "does not go off")])
@@ -110,7 +99,7 @@ def test_a_broken_laser_is_reported_and_the_guard_does_not_alarm(restore_signals
     assert service.sweeps >= 4  # two to learn the background, two watching
     reported = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
     assert any(words in m and "center" in m for m in reported), reported
-    assert service._guard is not None and not service._guard.tracks
+    assert service.guard.guard is not None and not service.guard.tracks
     assert not [r for r in caplog.records if "guard: intrusion" in r.getMessage()]
 
 
@@ -125,4 +114,4 @@ def test_working_lasers_raise_no_laser_fault(restore_signals):
 
     threading.Thread(target=stop_after_a_sweep, daemon=True).start()
     assert service.run() == 0 and service.sweeps >= 1
-    assert service.health.parts["lasers"] == "ok" and service.laser_health.faults() == {}
+    assert service.health.parts["lasers"] == "ok" and service.health.lasers.verdicts() == {}

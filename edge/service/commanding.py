@@ -1,0 +1,60 @@
+"""Commands in, results out: each command is checked (`edge.commands`), carried out by its handler
+and answered on ``cmd/<name>/result``, ok or not, with the request id it came with."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping
+
+from edge.commands import Command, parse_command, request_id_of
+from edge.errors import CommandError, EdgeError
+
+log = logging.getLogger(__name__)
+
+Limits = tuple[tuple[float, float], tuple[float, float]]  # (pan, tilt) (min, max) in degrees
+# (name, ok, error, request id)
+PublishResult = Callable[[str, bool, "str | None", "str | None"], None]
+
+
+class Later:
+    """What a handler returns when its result comes later (cmd/calibrate, at the end)."""
+
+
+LATER = Later()
+# A handler returns None when done, why it failed, or LATER.
+Handler = Callable[[Command], "str | Later | None"]
+
+
+class Dispatcher:
+    """Routes each command to its handler in `handlers`; `limits()` gives the unit's reach
+    (which cmd/point is checked against) and `max_bytes` the largest payload taken."""
+
+    def __init__(self, handlers: Mapping[str, Handler], publish_result: PublishResult,
+                 limits: Callable[[], Limits], max_bytes: int) -> None:
+        self.handlers = handlers
+        self._publish_result = publish_result
+        self._limits = limits
+        self._max_bytes = max_bytes
+
+    def handle(self, name: str, payload: bytes) -> None:
+        """Validate and carry out one command; every command gets a result, ok or not (a LATER
+        one when its handler gives it)."""
+        (pan, tilt) = self._limits()
+        try:
+            command = parse_command(name, payload, max_bytes=self._max_bytes, pan_limits=pan, tilt_limits=tilt)
+        except CommandError as exc:
+            log.warning("command %s refused: %s", name, exc)
+            self._publish_result(name, False, str(exc), request_id_of(payload))
+            return
+        try:
+            error = self.handlers[command.name](command)
+        except EdgeError as exc:
+            error = str(exc)
+        if isinstance(error, Later):
+            log.info("command %s started", name)
+            return
+        if error:
+            log.warning("command %s failed: %s", name, error)
+        else:
+            log.info("command %s done", name)
+        self._publish_result(name, error is None, error, command.request_id)

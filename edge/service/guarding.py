@@ -1,0 +1,58 @@
+"""The guard mode across sweeps: the `Guard` for the sweep's zone count, its events out as alerts."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+from edge.modes.guard import Guard, GuardConfig, Track
+from edge.ranging import ZoneResult
+
+log = logging.getLogger(__name__)
+
+
+class GuardWatch:
+    """Keeps one `Guard` while the sweeps keep their zone count (a new one learns afresh when it
+    changes) and hands every event it raises to `publish_alert` (the ``alert`` payload)."""
+
+    def __init__(self, config: GuardConfig, publish_alert: Callable[[dict[str, Any]], object]) -> None:
+        self.config = config
+        self.guard: Guard | None = None  # none before the first complete guard sweep
+        self._publish_alert = publish_alert
+
+    @property
+    def learning(self) -> bool:
+        return self.guard is None or self.guard.learning
+
+    @property
+    def tracks(self) -> list[Track]:
+        return [] if self.guard is None else self.guard.tracks
+
+    def sweep(self, results: Sequence[ZoneResult], sweep: int, t_s: float,
+              zone_t_s: Mapping[int, float] | None = None) -> None:
+        """Take one complete sweep (see `Guard.update`)."""
+        if self.guard is None or self.guard.zone_count != len(results):
+            self.guard = Guard(self.config, len(results))
+        was_learning = self.guard.learning
+        events = self.guard.update(results, sweep, t_s, zone_t_s)
+        if was_learning and not self.guard.learning:
+            log.info("guard: background learnt over %d sweeps; watching", self.config.learn_sweeps)
+        for event in events:
+            log.warning("guard: %s %s in zones %s at %.2f m, bearing %.1f°", event.event, event.id,
+                        list(event.zones), event.range_m, event.bearing_deg)
+            self._publish_alert(event.to_json())
+
+    def relearn(self, why: str | None = None) -> None:
+        """Learn the background again from the next complete sweep; every followed object is
+        cleared (published, so that nobody keeps one no longer followed)."""
+        if self.guard is None:
+            return
+        if why:
+            log.info("guard: learning the background again %s", why)
+        for event in self.guard.relearn():
+            self._publish_alert(event.to_json())
+
+    def state(self) -> dict[str, Any] | None:
+        """The guard's part of `state`, once there is a guard."""
+        return None if self.guard is None else self.guard.state()

@@ -1,0 +1,126 @@
+"""One step of each mode on opened parts: a sweep, a burst of ranges, a pass of the blind aid's fan.
+
+The service's loop chooses the step; a step runs until it is done or `should_stop()` says so
+(checked between zones or frames, where the loop also takes commands). Every zone and frame goes
+out as a live ``range`` and into the rig's health.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Set
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+from edge.config import Config
+from edge.errors import HardwareError
+from edge.ranging import FAULT, Ranger, ZoneResult
+from edge.service.guarding import GuardWatch
+from edge.service.health import RigHealth
+
+if TYPE_CHECKING:
+    from edge.modes.blindaid.runner import BlindAidRunner
+    from edge.parts import Parts
+
+log = logging.getLogger(__name__)
+
+ShouldStop = Callable[[], bool]
+Publish = Callable[[str, dict[str, Any]], object]
+
+
+class ModeSteps:
+    """`publish_live` and `publish_event` are the link's; `pause(s)` waits, ending early on a
+    stop; `started` is the service's monotonic start (the guard's clock)."""
+
+    def __init__(self, health: RigHealth, guard: GuardWatch, *, publish_live: Publish, publish_event: Publish,
+                 pause: Callable[[float], object], started: float) -> None:
+        self.health = health
+        self.guard = guard
+        self.sweeps = 0  # complete sweeps so far
+        self._publish_live = publish_live
+        self._publish_event = publish_event
+        self._pause = pause
+        self._started = started
+        self._blindaid: BlindAidRunner | None = None
+
+    def zone(self, result: ZoneResult, lit_when_off: Set[str] = frozenset()) -> None:
+        """A zone's outcome, out and into the health."""
+        self._publish_live("range", result.to_json())
+        self.health.zone(result, frozenset(lit_when_off))
+
+    def sweep(self, parts: Parts, config: Config, ranger: Ranger, should_stop: ShouldStop) -> bool:
+        """One sweep (a guard's, in guard mode), published when complete; False when it ended early."""
+        from edge.sweep import sweeper_for
+
+        guarding = config.mode == "guard"
+        if guarding:
+            config = replace(config, sweep=replace(config.sweep, pairs_per_zone=config.service.guard_pairs_per_zone))
+        zone_t: dict[int, float] = {}
+
+        def on_zone(result: ZoneResult) -> None:
+            zone_t[result.index] = time.monotonic() - self._started
+            self.zone(result, sweeper.lit_when_off)
+
+        sweeper = sweeper_for(parts, on_zone=on_zone, config=config, ranger=ranger)
+        report = sweeper.run(should_stop=should_stop)
+        if len(report.results) < len(config.sweep.poses()):
+            log.info("sweep ended early after %d zones", len(report.results))
+            return False
+        self.sweeps += 1
+        self._publish_event("sweep", {
+            "sweep": self.sweeps,
+            "duration_s": round(report.duration_s, 3),
+            "zones": [r.to_json() for r in report.results],
+        })
+        ok = sum(r.status == "ok" for r in report.results)
+        log.info("sweep %d: %d of %d zones ok in %.1f s (limit %.1f s), %d faults",
+                 self.sweeps, ok, len(report.results), report.duration_s, report.limit_s, report.faults)
+        if guarding:
+            self.guard.sweep(report.results, self.sweeps, time.monotonic() - self._started, zone_t)
+        return True
+
+    def point(self, parts: Parts, ranger: Ranger, pan: float, tilt: float) -> ZoneResult:
+        """Aim and range one zone there (cmd/point)."""
+        from edge.sweep import sweeper_for
+
+        result = sweeper_for(parts, ranger=ranger).zone(-1, pan, tilt)
+        self.zone(result)
+        return result
+
+    def range(self, parts: Parts, ranger: Ranger, aim: tuple[float, float], should_stop: ShouldStop) -> None:
+        """Aim, then range frame after frame (the range finder)."""
+        from edge.modes.rangefinder import Filtered, Rangefinder, range_payload
+
+        pan, tilt = aim
+        try:
+            parts.ptu.move(pan, tilt)
+        except HardwareError as exc:
+            self.zone(ZoneResult(-1, pan, tilt, FAULT, detail=str(exc), part=exc.part))
+            self._pause(1.0)  # a unit that failed gets a moment before the next try
+            return
+        finder = Rangefinder(parts.capture, ranger, parts.lasers.names)
+
+        def on_range(result: ZoneResult, filtered: Filtered | None, extra: dict[str, Any]) -> None:
+            self._publish_live("range", range_payload(result, filtered, extra))
+            self.health.zone(result)
+
+        finder.run(pan, tilt, on_range, should_stop)
+
+    def fan(self, parts: Parts, config: Config, ranger: Ranger, should_stop: ShouldStop) -> None:
+        """One pass of the blind aid; its runner (and sound) stays open for the next."""
+        if self._blindaid is None:
+            from edge.modes.blindaid.logic import Cue
+            from edge.modes.blindaid.runner import BlindAidRunner
+
+            def on_cue(cue: Cue) -> None:
+                self._publish_live("cue", cue.to_json())
+
+            self._blindaid = BlindAidRunner(config, parts, on_cue, on_zone=self.zone, ranger=ranger)
+        self._blindaid.scan(should_stop)
+
+    def close_fan(self) -> None:
+        """Close the blind aid's runner (its sound, its button), if open."""
+        if self._blindaid is not None:
+            self._blindaid.close()
+            self._blindaid = None
