@@ -12,8 +12,8 @@ import pytest
 
 from edge.config import CameraSettings, load_config
 from edge.errors import HardwareError
-from edge.hw.lasers import open_lasers
 from edge.hw.camera import PICAMERA2_MISSING, OpenCVCamera, Picamera2Camera, open_camera
+from edge.hw.lasers import open_lasers
 from edge.sim.camera import SimCamera
 from edge.sim.gpio import LaserWiring, laser_factory
 from edge.sim.record import flat_target_scene, true_rig

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from edge.laserhealth import LaserHealth
-from edge.ranging import OK, NO_SPOT, LaserMeasurement, ZoneResult
+from edge.ranging import NO_SPOT, OK, LaserMeasurement, ZoneResult
 
 NAMES = ("center", "parallel", "sloped")
 
