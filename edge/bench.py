@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+import functools
+import math
 import statistics
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from edge.config import Config
+
+if TYPE_CHECKING:
+    from edge.thesis import ThesisRig
 
 
 def _median_ms(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
@@ -66,14 +72,8 @@ def bench_ranging(config: Config, repeats: int = 200) -> list[str]:
         ranger = Ranger(rig)
         group = [FrameGroup([on], [off], rig.laser_names, (pan, 0.0))]
         result = ranger.range_zone(0, pan, 0.0, group)
-        ours = _median_ms(lambda: ranger.range_zone(0, pan, 0.0, group), repeats)
-        t = thesis.thesis_rig(rig)
-        boxes = thesis.masks(rig)
-
-        def baseline() -> float:
-            p = thesis.spot_positions(on, off, boxes, 0.08 * 255)
-            return thesis.thesis_range(t, p["center"], p["parallel"], p["sloped"])
-
+        ours = _median_ms(functools.partial(ranger.range_zone, 0, pan, 0.0, group), repeats)
+        baseline = functools.partial(_thesis_range, thesis.thesis_rig(rig), on, off, thesis.masks(rig))
         r_thesis = baseline()
         theirs = _median_ms(baseline, max(20, repeats // 5))
         cam = rig.camera
@@ -86,6 +86,17 @@ def bench_ranging(config: Config, repeats: int = 200) -> list[str]:
     return lines
 
 
+def _thesis_range(t: ThesisRig, on: np.ndarray, off: np.ndarray, boxes: dict[str, np.ndarray]) -> float:
+    """The thesis' pipeline on one 8-bit pair: full-frame spots, then its formula (nan: a spot is missing)."""
+    from edge import thesis
+
+    p = thesis.spot_positions(on, off, boxes, 0.08 * 255)
+    pc, pp, ps = p.get(t.center.name), p.get(t.parallel.name), p.get(t.sloped.name)
+    if pc is None or pp is None or ps is None:
+        return math.nan
+    return thesis.thesis_range(t, pc, pp, ps)
+
+
 def bench_blindaid(config: Config, repeats: int = 3) -> list[str]:
     """Latency of the blind aid on the simulated rig: from the end of the exposure of the frame
     that shows an obstacle to the first sample of its cue's sound. Every zone counts as if it
@@ -93,24 +104,26 @@ def bench_blindaid(config: Config, repeats: int = 3) -> list[str]:
     are reported apart. A live sound card adds the lead and its buffer, reported as such."""
     from dataclasses import replace
 
+    from edge.modes.blindaid.logic import BlindAid, Cue
     from edge.modes.blindaid.runner import BlindAidRunner
     from edge.parts import open_parts
+    from edge.ranging import ZoneResult
 
     config = replace(config, audio=replace(config.audio, out=""))
     chunk = config.audio.chunk_ms / 1000
     per_zone: list[float] = []
     with open_parts(config) as parts:
         runner = BlindAidRunner(config, parts, on_cue=lambda cue: None)
-        update = runner.aid.update
 
-        def timed(result, t_s):
-            cue = update(result, t_s)
-            frame_t = (runner.sweeper.last_frame_end_ns - runner._t0_ns) / 1e9
-            start = -(-runner.now() // chunk) * chunk  # the chunk boundary its sound would start at
-            per_zone.append(start - frame_t)
-            return cue
+        class TimedAid(BlindAid):
+            def update(self, result: ZoneResult, t_s: float) -> Cue | None:
+                cue = super().update(result, t_s)
+                frame_t = (runner.sweeper.last_frame_end_ns - runner._t0_ns) / 1e9
+                start = -(-runner.now() // chunk) * chunk  # the chunk boundary its sound would start at
+                per_zone.append(start - frame_t)
+                return cue
 
-        runner.aid.update = timed
+        runner.aid = TimedAid(config.blindaid)  # as fresh as the runner's own: nothing has run yet
         for _ in range(repeats):
             runner.scan(lambda: False)
         real = runner.sound_latencies_s()

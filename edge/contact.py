@@ -24,7 +24,8 @@ _LABEL_HEIGHT = 18
 def difference_image(recording: Recording, zone: ZoneRecord) -> np.ndarray:
     """Mean of the zone's laser-on frames minus the mean of its laser-off frames, (H, W) float32."""
     def mean(frames) -> np.ndarray:
-        return np.mean([SpotFinder.laser_channel(recording.load_image(zone, f)).astype(np.float32) for f in frames], axis=0)
+        channels = [SpotFinder.laser_channel(recording.load_image(zone, f)).astype(np.float32) for f in frames]
+        return np.mean(channels, axis=0)
 
     return mean(zone.on_frames) - mean(zone.off_frames)
 

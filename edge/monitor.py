@@ -28,7 +28,8 @@ from edge.errors import HardwareError
 def format_range(payload: dict) -> str:
     status = payload.get("status", "?")
     pan, tilt = payload.get("pan_deg"), payload.get("tilt_deg")
-    where = f"pan {pan:+7.2f}° tilt {tilt:+6.2f}°" if isinstance(pan, (int, float)) and isinstance(tilt, (int, float)) else ""
+    known = isinstance(pan, (int, float)) and isinstance(tilt, (int, float))
+    where = f"pan {pan:+7.2f}° tilt {tilt:+6.2f}°" if known else ""
     best = payload.get("filtered_m", payload.get("range_m"))
     sigma = payload.get("filtered_sigma_m", payload.get("sigma_m"))
     if status == "ok" and isinstance(best, (int, float)):
@@ -70,7 +71,8 @@ def _connect(config: Config, topics: list[tuple[str, int]], inbox: queue.Queue) 
     if not subscribed.wait(10.0) or refused:
         _stop(client)
         why = f"refused the connection: {refused[0]}" if refused else "no answer within 10 s"
-        raise HardwareError(f"broker {config.mqtt.host}:{config.mqtt.port}: {why} (as {config.mqtt.username or 'anonymous'})")
+        who = config.mqtt.username or "anonymous"
+        raise HardwareError(f"broker {config.mqtt.host}:{config.mqtt.port}: {why} (as {who})")
     return client
 
 
@@ -181,6 +183,7 @@ def _report_result(result: dict) -> int:
     cal = result.get("calibration") or {}
     for name, laser in (cal.get("lasers") or {}).items():
         print(f"  laser {name}: {laser.get('angle_from_nominal_deg', float('nan')):.3f}° from nominal, "
-              f"residuals rms {laser.get('rms_px', float('nan')):.3f} px, max {laser.get('max_px', float('nan')):.3f} px")
+              f"residuals rms {laser.get('rms_px', float('nan')):.3f} px, "
+              f"max {laser.get('max_px', float('nan')):.3f} px")
     print(f"calibrated; the device keeps it in {cal.get('file', '?')} and ranges with it from now on")
     return 0

@@ -250,7 +250,7 @@ def fuse(
         step = np.zeros(len(params))
         step[k] = 1e-6 * max(1.0, abs(params[k]))
         J[k] = (on_beam(params + step)[2] - point[2]) / step[k]
-    sigma = float(math.sqrt(max(J @ cov @ J, 0.0)))
+    sigma = math.sqrt(max(float(J @ cov @ J), 0.0))
     normal = None
     if use_g and use_h:
         n = np.array([h, g, -1.0])

@@ -21,13 +21,13 @@ import logging
 import math
 import os
 import re
-import sys
 import shutil
 import struct
+import sys
 import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path, PurePosixPath
 from typing import Any, NoReturn
 
@@ -513,7 +513,7 @@ class RecordingWriter:
         self.path = Path(path)
         self.rig = rig
         self.device = device
-        self.created = created or datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+        self.created = created or datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
         absolute = Path(os.path.abspath(self.path))
         self._partial = absolute.with_name(f"{absolute.name}.partial-{os.getpid()}")
         self._old = absolute.with_name(f"{absolute.name}.old-{os.getpid()}")

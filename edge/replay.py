@@ -13,12 +13,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge import thesis
 from edge.ranging import (
-    FAULT, NO_SPOT, OK, OUT_OF_RANGE, STATUSES, FrameGroup, Ranger, RangingConfig, ZoneResult,
+    FAULT,
+    NO_SPOT,
+    OK,
+    OUT_OF_RANGE,
+    STATUSES,
+    FrameGroup,
+    Ranger,
+    RangingConfig,
+    ZoneResult,
 )
 from edge.recording import FrameRecord, Recording, ZoneRecord
 from edge.rig import Rig
-from edge import thesis
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +72,8 @@ def zone_groups(recording: Recording, zone: ZoneRecord) -> tuple[list[FrameGroup
 class Replayer:
     """Ranges the zones of recordings with one estimator and rig."""
 
-    def __init__(self, rig: Rig, estimator: str = "triangulate", config: RangingConfig = RangingConfig()):
+    def __init__(self, rig: Rig, estimator: str = "triangulate",
+                 config: RangingConfig = RangingConfig()) -> None:
         if estimator not in ESTIMATORS:
             raise ValueError(estimator)
         self.rig = rig
@@ -104,7 +113,8 @@ class Replayer:
             return ZoneResult(zone.index, zone.pan_deg, zone.tilt_deg, OUT_OF_RANGE, detail=f"{r:.2f} m")
         point = t.center.point_at_depth(r)
         base = self.rig.camera_to_base(zone.pan_deg, zone.tilt_deg).apply(point)
-        return ZoneResult(zone.index, zone.pan_deg, zone.tilt_deg, OK, r, thesis.thesis_sigma(t, pc, pp, ps), point, base)
+        sigma = thesis.thesis_sigma(t, pc, pp, ps)
+        return ZoneResult(zone.index, zone.pan_deg, zone.tilt_deg, OK, r, sigma, point, base)
 
 
 def replay_document(recording: Recording, results: list[ZoneResult]) -> dict:
@@ -135,8 +145,15 @@ class Score:
         return [z for z in self.zones if z.error_m is not None]
 
     def summary(self) -> dict:
-        rel = np.array([abs(z.relative) for z in self.scored])
-        within = [abs(z.error_m) <= 2 * z.result.sigma_m for z in self.scored]
+        relative: list[float] = []
+        within: list[bool] = []
+        for z in self.scored:
+            # A true range of 0 m, or an ok zone without a sigma, cannot be scored on that count.
+            if z.relative is not None:
+                relative.append(abs(z.relative))
+            if z.error_m is not None and z.result.sigma_m is not None:
+                within.append(abs(z.error_m) <= 2 * z.result.sigma_m)
+        rel = np.array(relative)
         counts = {s: sum(z.result.status == s for z in self.zones) for s in STATUSES}
         lo_hi_missed = sum(
             1 for z in self.zones if z.truth_m is not None and z.result.status == NO_SPOT and z.truth_m < 5.0
@@ -172,7 +189,8 @@ def score_ranges(results: list[ZoneResult], truths_m: list) -> Score:
 
 
 def format_score(s: Score) -> str:
-    lines = [f"{'zone':>4} {'pan':>8} {'status':<12} {'range m':>8} {'truth m':>8} {'err %':>7} {'sigma m':>8} {'err/σ':>6}"]
+    lines = [f"{'zone':>4} {'pan':>8} {'status':<12} {'range m':>8} {'truth m':>8} {'err %':>7} {'sigma m':>8}"
+             f" {'err/σ':>6}"]
     for z in s.zones:
         r = z.result
         rng = f"{r.range_m:8.3f}" if r.range_m is not None else f"{'-':>8}"

@@ -55,7 +55,8 @@ def sweep_limit_s(
     return total
 
 
-def zone_views(config: Config, pan: float, tilt: float, pan_limits: tuple[float, float] | None = None) -> list[tuple[float, float]]:
+def zone_views(config: Config, pan: float, tilt: float,
+               pan_limits: tuple[float, float] | None = None) -> list[tuple[float, float]]:
     """Where the unit points for each of a zone's laser-off/laser-on pairs: the zone's pose, then
     the speckle nudges; a nudge that would pass a pan limit goes the other way instead."""
     views = []

@@ -8,7 +8,8 @@ the laser-off and laser-on frames (flicker). That keeps one on/off pair well und
 
 Per frame group (on frames and off frames taken at one pose), :meth:`SpotFinder.find` returns the
 candidate spots on each laser's path: sub-pixel position (centroid of the background-subtracted,
-thresholded difference in a window that follows and fits the spot), its uncertainty from the pixel noise, and its strength.
+thresholded difference in a window that follows and fits the spot), its uncertainty from the pixel
+noise, and its strength.
 Frames may be 8- or 16-bit, grey or BGR; values are scaled to [0, 1] by their type's range.
 """
 
@@ -139,7 +140,7 @@ class SpotFinder:
         self._bg_slice = slice(start, start + self._bg_v.size)
         # Window half-size for localisation; it grows for big spots.
         self._radius = 4
-        self._flat: dict[int, np.ndarray] = {}
+        self._flat: dict[int, list[tuple[np.ndarray, float]]] = {}
 
     def _band(self, laser: Laser) -> _Band:
         cam = self.rig.camera
@@ -200,7 +201,7 @@ class SpotFinder:
         return index
 
     def _gather(self, frames: Sequence[np.ndarray]) -> np.ndarray:
-        acc = None
+        acc: np.ndarray | None = None
         for image in frames:
             flat = np.ascontiguousarray(image).reshape(-1)
             for index, weight in self._flat_index(image):
@@ -208,6 +209,8 @@ class SpotFinder:
                 if weight != 1.0:
                     values *= np.float32(weight)
                 acc = values if acc is None else acc + values
+        if acc is None:
+            raise ValueError("no frames to gather: a pose needs at least one laser-on and one laser-off frame")
         return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
 
     def _plane(self, image: np.ndarray, rows, cols) -> np.ndarray:

@@ -3,8 +3,9 @@
 Tests talk to a real broker because what matters (retained messages, sessions kept across a
 broker restart, the Last Will, QoS 1 acknowledgements) is the broker's behaviour, not ours.
 
-Use the fixtures from a test module with ``from broker import broker, subscriber  # noqa: F401``
-(pytest puts ``tests/`` on ``sys.path``: the folder is not a package). Without Mosquitto the tests
+The fixtures ``broker`` and ``subscriber`` reach every test module through ``pytest_plugins`` in
+tests/conftest.py; the helpers are imported with ``from broker import Mosquitto, publish`` (pytest
+puts ``tests/`` on ``sys.path``: the folder is not a package). Without Mosquitto the tests
 skip, saying how to install it; with ``CI`` set in the environment they fail instead, so that a CI
 machine without a broker cannot pass by skipping.
 """

@@ -15,6 +15,7 @@ import pytest
 
 from edge.errors import HardwareError
 from edge.modes.blindaid import sound as audio
+from edge.modes.blindaid.logic import BEEP, SILENCE, TONE, BlindAid, BlindAidConfig, Cue
 from edge.modes.blindaid.sound import (
     AplaySink,
     CuePlayer,
@@ -27,7 +28,6 @@ from edge.modes.blindaid.sound import (
     resample_linear,
     speak_to_frames,
 )
-from edge.modes.blindaid.logic import BEEP, SILENCE, TONE, BlindAid, BlindAidConfig, Cue
 from edge.ranging import OK, ZoneResult
 
 SR = 22050
@@ -314,7 +314,8 @@ def test_aplay_sink_pipes_raw_s16le(tmp_path: Path, monkeypatch: pytest.MonkeyPa
 
 
 def test_aplay_that_dies_is_a_hardware_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    _fake(tmp_path, "aplay", "import sys\nsys.stderr.write('aplay: main: audio open error: No such device\\n')\nsys.exit(1)\n")
+    _fake(tmp_path, "aplay",
+          "import sys\nsys.stderr.write('aplay: main: audio open error: No such device\\n')\nsys.exit(1)\n")
     monkeypatch.setenv("PATH", str(tmp_path))
     sink = AplaySink(SR)
     sink._proc.wait()
@@ -360,7 +361,8 @@ def test_speech_engine_gets_text_as_one_argument(tmp_path: Path, monkeypatch: py
         f"open({str(record)!r}, 'w').write('\\x00'.join(sys.argv[1:]))\n"
         "n = 8000\n"
         "data = b''.join(struct.pack('<h', 1000 if (i // 20) % 2 else -1000) for i in range(n))\n"
-        "hdr = b'RIFF' + struct.pack('<I', 0x7ffff024) + b'WAVEfmt ' + struct.pack('<IHHIIHH', 16, 1, 1, 16000, 32000, 2, 16)\n"
+        "hdr = b'RIFF' + struct.pack('<I', 0x7ffff024) + b'WAVEfmt '\n"
+        "hdr += struct.pack('<IHHIIHH', 16, 1, 1, 16000, 32000, 2, 16)\n"
         "sys.stdout.buffer.write(hdr + b'data' + struct.pack('<I', 0x7ffff000) + data)\n"
     ))
     monkeypatch.setenv("PATH", str(tmp_path))

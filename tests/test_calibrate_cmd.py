@@ -11,10 +11,9 @@ import signal
 import statistics
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
-from broker import Mosquitto, broker, publish, subscriber  # noqa: F401  (fixtures)
+from broker import publish
 from test_service import DEVICE, P, finish, payload, start
 
 from edge.calibration.fit import read_calibration

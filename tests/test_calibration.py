@@ -14,7 +14,13 @@ import numpy as np
 import pytest
 
 from edge.calibration.fit import (
-    FORMAT, Blob, Calibration, add_parser, assign_spots, fit_calibration, read_calibration,
+    FORMAT,
+    Blob,
+    Calibration,
+    add_parser,
+    assign_spots,
+    fit_calibration,
+    read_calibration,
     write_calibration,
 )
 from edge.config import load_config

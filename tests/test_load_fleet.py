@@ -9,7 +9,7 @@ import math
 
 import load_fleet
 import pytest
-from broker import Mosquitto, broker  # noqa: F401 (fixtures)
+from broker import Mosquitto
 
 pytestmark = pytest.mark.slow
 

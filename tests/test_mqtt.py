@@ -14,11 +14,11 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
-from broker import Mosquitto, Subscriber, broker, publish, subscriber  # noqa: F401 (fixtures)
+from broker import Mosquitto, Subscriber, publish
 
 from edge.commands import parse_command, request_id_of
 from edge.config import MqttConfig, TlsConfig
@@ -109,7 +109,7 @@ def test_payloads_are_compact_utf8_json_with_a_millisecond_utc_ts():
     assert TS.match(body["ts"]) and body["event"] == "intrusion"
     assert json.loads(encode({"ts": "given", "a": 1})) == {"ts": "given", "a": 1}
     assert json.loads(encode({"range_m": float("nan")}))["range_m"] is None
-    moment = datetime(2026, 11, 23, 12, 0, 0, 123456, tzinfo=timezone.utc).timestamp()
+    moment = datetime(2026, 11, 23, 12, 0, 0, 123456, tzinfo=UTC).timestamp()
     assert utc_timestamp(moment) == "2026-11-23T12:00:00.123Z"
 
 

@@ -19,10 +19,9 @@ from pathlib import Path
 import pytest
 import serial
 
-from edge.hw.ptu import PtuConfig
 from edge.errors import HardwareError
 from edge.hw import ptu
-from edge.hw.ptu import PanTiltUnit, trapezoid_s
+from edge.hw.ptu import PanTiltUnit, PtuConfig, trapezoid_s
 from edge.parts import open_ptu
 from edge.sim.ptu_emulator import Emulator
 

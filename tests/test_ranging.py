@@ -14,8 +14,18 @@ from hypothesis import strategies as st
 
 from edge.config import load_config
 from edge.ranging import (
-    AMBIGUOUS, FAULT, NO_SPOT, OK, OUT_OF_RANGE, FrameGroup, LaserMeasurement, Ranger,
-    RangingConfig, fuse, measure, triangulate,
+    AMBIGUOUS,
+    FAULT,
+    NO_SPOT,
+    OK,
+    OUT_OF_RANGE,
+    FrameGroup,
+    LaserMeasurement,
+    Ranger,
+    RangingConfig,
+    fuse,
+    measure,
+    triangulate,
 )
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Rig, default_rig
 from edge.sim.record import flat_target_scene

@@ -143,8 +143,8 @@ def test_laser_direction_is_stored_exactly_unit() -> None:
 def test_rig_validation() -> None:
     lasers = default_rig().lasers
     with pytest.raises(FieldError, match="only one laser may be the reference"):
-        Rig(CAMERA_MODELS["picam-v2"], tuple(Laser(l.name, l.origin_m, l.direction, reference=True) for l in lasers))
+        Rig(CAMERA_MODELS["picam-v2"], tuple(Laser(x.name, x.origin_m, x.direction, reference=True) for x in lasers))
     with pytest.raises(FieldError, match="at least one laser"):
         Rig(CAMERA_MODELS["picam-v2"], ())
-    unflagged = tuple(Laser(l.name, l.origin_m, l.direction) for l in lasers)
+    unflagged = tuple(Laser(x.name, x.origin_m, x.direction) for x in lasers)
     assert Rig(CAMERA_MODELS["picam-v2"], unflagged).reference.name == "center"  # first one

@@ -16,8 +16,7 @@ from datetime import datetime
 from pathlib import Path
 
 import pytest
-
-from broker import Mosquitto, Subscriber, broker, publish, subscriber  # noqa: F401  (fixtures)
+from broker import Mosquitto, Subscriber, publish
 
 DEVICE = "dev1"
 P = f"edge/{DEVICE}"
@@ -117,7 +116,8 @@ def test_commands_are_validated_and_answered_and_the_service_runs_on(broker, sub
     publish(broker, f"{P}/cmd/mode", b'{"mode": "guard", "request_id": "go"}')
     result = payload(subscriber.wait_for(f"{P}/cmd/mode/result", since=mark, timeout=10))
     assert result == {**result, "ok": True, "request_id": "go"}
-    state = subscriber.wait_for(f"{P}/state", lambda m: json.loads(m.payload)["mode"] == "guard", since=mark, timeout=10)
+    state = subscriber.wait_for(f"{P}/state", lambda m: json.loads(m.payload)["mode"] == "guard",
+                                since=mark, timeout=10)
     assert payload(state)["mode"] == "guard"
     mark = subscriber.mark()
     publish(broker, f"{P}/cmd/lasers_off", b"")
@@ -142,7 +142,8 @@ def test_a_killed_service_leaves_its_last_will(broker, subscriber, tmp_path):
         proc.communicate()
 
 
-def take_the_broker_away(broker: Mosquitto, down_s: Callable[[int], float], times: int = 10) -> list[tuple[float, float]]:
+def take_the_broker_away(broker: Mosquitto, down_s: Callable[[int], float],
+                         times: int = 10) -> list[tuple[float, float]]:
     """Stop and restart the broker `times` times, down for `down_s(k)` seconds and up for 0.8 s
     each; returns the (stopped, restarted) wall-clock times."""
     outages = []

@@ -71,11 +71,12 @@ def test_spots_are_where_the_truth_says(office: Path) -> None:
 
 
 def test_recording_carries_the_nominal_rig_and_truth_the_true_one(tmp_path: Path) -> None:
-    config = load_config(None, ["sim.rig_error.laser_angle_deg=0.5", "sim.rig_error.seed=3", "sweep.pan_start_deg=-90.0"])
+    config = load_config(None, ["sim.rig_error.laser_angle_deg=0.5", "sim.rig_error.seed=3",
+                                "sweep.pan_start_deg=-90.0"])
     out = record_sweep(config, tmp_path / "bent", zones=1, pairs=1)
     rec = read_recording(out)
     nominal, true = config.rig.build(), true_rig(config)
-    assert [l.direction for l in rec.rig.lasers] == pytest.approx([l.direction for l in nominal.lasers])
+    assert [x.direction for x in rec.rig.lasers] == pytest.approx([x.direction for x in nominal.lasers])
     assert true.lasers != nominal.lasers
     sloped_pixel = rec.zones[0].truth["lasers"]["sloped"]["pixel"]
     z = rec.zones[0].truth["lasers"]["sloped"]["range_m"]

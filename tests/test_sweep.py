@@ -14,7 +14,7 @@ from edge.config import load_config
 from edge.errors import HardwareError
 from edge.parts import open_parts
 from edge.recording import read_recording
-from edge.sweep import sweeper_for, run_configured_sweep, visiting_order, zone_views
+from edge.sweep import run_configured_sweep, sweeper_for, visiting_order, zone_views
 
 
 def test_visiting_order_is_one_pass_from_the_nearer_end() -> None:
@@ -100,7 +100,8 @@ def test_a_hung_unit_ends_the_sweep_with_a_clear_error() -> None:
 def test_edge_record_saves_a_live_sweep_as_a_recording(tmp_path: Path) -> None:
     rec = tmp_path / "rec"
     proc = subprocess.run(
-        [sys.executable, "-m", "edge", "record", str(rec), "--out", str(tmp_path / "out"), *sum((["--set", s] for s in _EIGHT[:1] + ["sweep.zones=3"]), [])],
+        [sys.executable, "-m", "edge", "record", str(rec), "--out", str(tmp_path / "out"),
+         *sum((["--set", s] for s in _EIGHT[:1] + ["sweep.zones=3"]), [])],
         capture_output=True, text=True, timeout=120,
     )
     assert proc.returncode == 0, proc.stderr
@@ -112,7 +113,8 @@ def test_edge_record_saves_a_live_sweep_as_a_recording(tmp_path: Path) -> None:
     for frame in zone.frames:
         assert frame.t_start_ns is not None and frame.laser_switch_ns is not None
         assert frame.t_start_ns >= frame.laser_switch_ns
-    replay = subprocess.run([sys.executable, "-m", "edge", "replay", str(rec)], capture_output=True, text=True, timeout=60)
+    replay = subprocess.run([sys.executable, "-m", "edge", "replay", str(rec)],
+                            capture_output=True, text=True, timeout=60)
     assert replay.returncode == 0 and "ok 3" in replay.stdout, replay.stdout + replay.stderr
 
 

@@ -130,6 +130,7 @@ class RestWatcher:
         if not moved:
             return False
         want = self.waiting_for
+        assert want is not None  # checked on entry; nothing since has taken a rest
         cam = self.nominal.camera
         if not self.taken:
             # Where the nominal rig expects the spots, give or take the fit's own first gate.

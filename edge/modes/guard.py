@@ -208,13 +208,16 @@ class _Zone:
 
     def add(self, status: str, range_m: float | None = None, sigma_m: float | None = None) -> None:
         if status == OK:
+            if range_m is None:
+                raise ValueError("an ok reading needs its range")
             self.ranges.append((float(range_m), float(sigma_m or 0.0)))
         self.statuses.append(status)
         self._bg = None
 
     def learn(self, res: ZoneResult) -> None:
-        if _valid_ok(res):
-            self.add(OK, res.range_m, res.sigma_m)
+        r = _ok_range(res)
+        if r is not None:
+            self.add(OK, r, res.sigma_m)
         elif res.status in _KEPT_STATUSES and res.status != OK:
             self.add(res.status)
 
@@ -253,13 +256,10 @@ class _Zone:
         return _Background(_RANGED, med, scale, ok_fraction, usual)
 
 
-def _valid_ok(res: ZoneResult) -> bool:
-    return (
-        res.status == OK
-        and res.range_m is not None
-        and math.isfinite(res.range_m)
-        and res.range_m > 0
-    )
+def _ok_range(res: ZoneResult) -> float | None:
+    """The range of an ok zone, if it is a usable one (finite, positive); else None."""
+    r = res.range_m
+    return float(r) if res.status == OK and r is not None and math.isfinite(r) and r > 0 else None
 
 
 # --- blobs and tracks -------------------------------------------------------------------------
@@ -471,12 +471,12 @@ class Guard:
                 zone.learned = zone.observations >= self._zone_min_observations
                 continue
             bg = zone.background(cfg)
-            if _valid_ok(res):
-                r = float(res.range_m)
+            r = _ok_range(res)
+            if r is not None:
                 sigma = max(bg.scale_m, float(res.sigma_m or 0.0))
                 if r < bg.ref_m - max(cfg.k_sigma * sigma, cfg.min_drop_m):
                     states[k] = _FG
-                    readings[k] = _Reading(k, r, bg.ref_m, _xy(res), float(times.get(k, t_s)))
+                    readings[k] = _Reading(k, r, bg.ref_m, _xy(res, r), float(times.get(k, t_s)))
                     continue
                 states[k] = _BG
                 if adapt:
@@ -565,7 +565,10 @@ class Guard:
                     tr.hits += 1
                     if self._confirms(tr):
                         events.append(self._confirm(tr, sweep))
-                elif _dist(tr.blob.xy, tr.reported_xy) >= cfg.move_min_m:
+                else:
+                    assert tr.reported_xy is not None  # `_confirm` sets it with the id
+                    if _dist(tr.blob.xy, tr.reported_xy) < cfg.move_min_m:
+                        continue
                     tr.reported_xy = tr.blob.xy
                     events.append(tr.event(MOVED, sweep))
                 continue
@@ -591,7 +594,8 @@ class Guard:
         w = [len(b.zones) for b in blobs]
         total = sum(w)
         zones = _sweep_order([z for b in blobs for z in b.zones], self.zone_count)
-        xy = (sum(wi * b.xy[0] for wi, b in zip(w, blobs)) / total, sum(wi * b.xy[1] for wi, b in zip(w, blobs)) / total)
+        xy = (sum(wi * b.xy[0] for wi, b in zip(w, blobs)) / total,
+              sum(wi * b.xy[1] for wi, b in zip(w, blobs)) / total)
         t = sum(wi * b.t_s for wi, b in zip(w, blobs)) / total
         ranges = [b.range_m for b, wi in zip(blobs, w) for _ in range(wi)]
         bases = [b.baseline_m for b, wi in zip(blobs, w) for _ in range(wi)]
@@ -609,12 +613,12 @@ class Guard:
         return tr.event(INTRUSION, sweep)
 
 
-def _xy(res: ZoneResult) -> tuple[float, float]:
-    """Base-frame x, y of a zone's point: `point_base_m`, else from pan, tilt and range (the
-    reference laser's small offset from the pan axis ignored)."""
+def _xy(res: ZoneResult, range_m: float) -> tuple[float, float]:
+    """Base-frame x, y of an ok zone's point: `point_base_m`, else from pan, tilt and its range
+    (the reference laser's small offset from the pan axis ignored)."""
     if res.point_base_m is not None:
         p = np.asarray(res.point_base_m, dtype=np.float64)
         return float(p[0]), float(p[1])
-    d = float(res.range_m) * math.cos(math.radians(res.tilt_deg))
+    d = range_m * math.cos(math.radians(res.tilt_deg))
     pan = math.radians(res.pan_deg)
     return d * math.cos(pan), d * math.sin(pan)

@@ -32,6 +32,7 @@ from edge.hw.base import Frame
 from edge.hw.camera import CameraSettings
 from edge.sim.light import LaserLight
 from edge.sim.render import Renderer
+from edge.sim.settings import CameraFault
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +73,7 @@ class SimCamera:
         # The time from row 0's exposure start to the last row's: a sensor reads its rows out one
         # after another over most of the frame period.
         self.readout_ns = int(round(readout_fraction * self.frame_ns))
-        self.pose_at: PoseAt = _as_pose_at(pose_at) if pose_at is not None else (lambda _t, p=pose_deg: p)
+        self.pose_at: PoseAt = _as_pose_at(pose_at) if pose_at is not None else _standing(pose_deg)
         self.queue_frames = queue_frames
         self.seed = seed
         # Scene time (movers) is (t − epoch)/1e9 s: by default the monotonic clock itself.
@@ -82,7 +83,7 @@ class SimCamera:
         self._row_offsets = (np.arange(height, dtype=np.int64) * self.readout_ns) // max(height - 1, 1)
         self.heading = heading
         self.pose_step_deg = pose_step_deg  # the unit's resolution, to render nudged views ahead
-        self.faults: tuple = ()  # edge.config.CameraFault, played from the first start
+        self.faults: tuple[CameraFault, ...] = ()  # played from the first start
         self.nudges_deg: tuple[float, ...] = ()  # pan offsets worth rendering ahead with a heading
         self._epoch: int | None = None
         self._corrupted = 0
@@ -130,7 +131,8 @@ class SimCamera:
             log.debug("simulated camera started: %d ns frames, readout %d ns", self.frame_ns, self.readout_ns)
         if self.heading is not None and self._prefetcher is None:
             self._stopping.clear()
-            self._prefetcher = threading.Thread(target=self._prefetch, name="sim-camera prefetch", daemon=True)
+            self._prefetcher = threading.Thread(target=self._prefetch, args=(self.heading,),
+                                                name="sim-camera prefetch", daemon=True)
             self._prefetcher.start()
 
     def stop(self) -> None:
@@ -145,22 +147,23 @@ class SimCamera:
         self.stop()
         self.closed = True
 
-    def _prefetch(self) -> None:
+    def _prefetch(self, heading: Callable[[], tuple[float, float]]) -> None:
         last = None
         while not self._stopping.wait(0.004):
             try:
-                pose = self.heading()
+                pose = heading()
                 if pose != last:
                     self.renderer.prefetch(*pose)
                     # A nudge is not a new zone: its own nudges would be views nobody takes.
-                    nudge = last is not None and abs(pose[0] - last[0]) <= max(map(abs, self.nudges_deg), default=0) * 1.5
+                    widest = max(map(abs, self.nudges_deg), default=0)
+                    nudge = last is not None and abs(pose[0] - last[0]) <= widest * 1.5
                     last = pose
-                    if nudge:
+                    step = self.pose_step_deg
+                    if nudge or not step:
                         continue
                     # The sweep's speckle nudges come right after, too quickly to render then.
-                    step = self.pose_step_deg
-                    for offset in self.nudges_deg if step else ():
-                        if self.heading() != pose:
+                    for offset in self.nudges_deg:
+                        if heading() != pose:
                             break
                         # As the unit will report it: whole positions times its resolution.
                         pan = float(round(pose[0] / step) + round(offset / step)) * step
@@ -209,9 +212,9 @@ class SimCamera:
                           frame.readout_ns, frame.sequence, frame.metadata)
         return frame
 
-    def _fault_now(self):
+    def _fault_now(self) -> CameraFault | None:
         """The configured fault under way now, if any (times from when the camera started)."""
-        if not self.faults or self._t0 is None:
+        if not self.faults or self._t0 is None or self._epoch is None:  # _epoch: set with _t0
             return None
         since = (time.monotonic_ns() - self._epoch) / 1e9
         for fault in self.faults:
@@ -222,7 +225,8 @@ class SimCamera:
                 return fault
         return None
 
-    def _fault_end_ns(self, fault) -> int:
+    def _fault_end_ns(self, fault: CameraFault) -> int:
+        assert self._epoch is not None  # a fault is under way only once the camera has started
         return self._epoch + int((fault.at_s + fault.seconds) * 1e9)
 
     # --- internals -----------------------------------------------------------------------------
@@ -244,6 +248,11 @@ class SimCamera:
             "laser_fraction_range": {n: (float(f.min()), float(f.max())) for n, f in fractions.items()},
         }
         return Frame(image, t_start, self.settings.exposure_us, self.readout_ns, k, metadata)
+
+
+def _standing(pose_deg: tuple[float, float]) -> PoseAt:
+    """A unit that never moves."""
+    return lambda _t: pose_deg
 
 
 def _as_pose_at(pose: Callable[..., tuple[float, float]]) -> PoseAt:

@@ -112,12 +112,12 @@ class LaserPin(MockPin):
             if len(self._log) > _MAX_LOG:
                 del self._log[: _MAX_LOG // 2]
 
-    def _change_state(self, value):  # type: ignore[override]
+    def _change_state(self, value):
         changed = super()._change_state(value)
         self._record()
         return changed
 
-    def _set_function(self, value) -> None:  # type: ignore[override]
+    def _set_function(self, value) -> None:
         super()._set_function(value)
         self._record()
 

@@ -63,14 +63,8 @@ class LaserLight:
             origin = int(times[0]) if len(times) else 0
             rel = (times - origin).astype(np.float64)
             cum = np.concatenate([[0.0], np.cumsum(lit[:-1] * np.diff(rel))])
-
-            def lit_time_until(t: np.ndarray) -> np.ndarray:
-                tr = (t - origin).astype(np.float64)
-                k = np.searchsorted(rel, tr, side="right") - 1
-                kk = np.maximum(k, 0)
-                return np.where(k >= 0, cum[kk] + lit[kk] * (tr - rel[kk]), 0.0)
-
-            frac = (lit_time_until(t0 + exposure_ns) - lit_time_until(t0)) / float(exposure_ns)
+            until_end = _lit_time_until(t0 + exposure_ns, origin, rel, cum, lit)
+            frac = (until_end - _lit_time_until(t0, origin, rel, cum, lit)) / float(exposure_ns)
             out[name] = np.clip(frac, 0.0, 1.0)
         # A broken laser ignores its wire: a dead diode never lights, a shorted driver never stops.
         for name, kind in self.broken.items():
@@ -86,3 +80,12 @@ class LaserLight:
     def lit_at(self, t_ns: int) -> frozenset[str]:
         """The lasers whose light was on at `t_ns`."""
         return frozenset(n for n, f in self.fractions(t_ns, t_ns).items() if f > 0.5)
+
+
+def _lit_time_until(t: np.ndarray, origin: int, rel: np.ndarray, cum: np.ndarray, lit: np.ndarray) -> np.ndarray:
+    """Lit time from the first change to each of `t`: `cum` (the cumulative lit time at each change,
+    at times `rel` after `origin`) plus the lit part since the last change before it."""
+    tr = (t - origin).astype(np.float64)
+    k = np.searchsorted(rel, tr, side="right") - 1
+    kk = np.maximum(k, 0)
+    return np.where(k >= 0, cum[kk] + lit[kk] * (tr - rel[kk]), 0.0)

@@ -121,7 +121,7 @@ def _record(
     with RecordingWriter(out, config.rig.build(), device=device) as writer:
         for index, (renderer, pan, tilt) in enumerate(views):
             names = list(renderer.rig.laser_names)
-            frames = []
+            frames: list[tuple[np.ndarray, list[str], dict]] = []
             zone_t_s = clock_ns / 1e9
             for nudge in config.sweep.nudges_deg(pairs):
                 frame_pan = pan + nudge

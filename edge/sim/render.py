@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from edge.errors import CameraError
 from edge.hw.camera import CameraSettings
 from edge.rig import Laser, Pose, Rig
 from edge.sim import optics
@@ -81,18 +82,21 @@ def perturb_rig(rig: Rig, error: RigErrorConfig) -> Rig:
         # Rodrigues: rotate d about an axis ⟂ d.
         d_new = d * math.cos(angle) + np.cross(axis, d) * math.sin(angle)
         o_new = laser.o + rng.normal(size=3) * error.laser_offset_m
-        lasers.append(
-            replace(laser, origin_m=tuple(float(v) for v in o_new), direction=tuple(float(v) for v in d_new))
-        )
+        lasers.append(replace(laser, origin_m=_vec3(o_new), direction=_vec3(d_new)))
     scale = 1.0 + rng.normal() * error.focal_scale
     camera = replace(rig.camera, fx=rig.camera.fx * scale, fy=rig.camera.fy * scale)
     return replace(rig, camera=camera, lasers=tuple(lasers))
 
 
+def _vec3(v: np.ndarray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
+
+
 class Renderer:
     """Renders frames of `rig`'s camera in `scene` with the optics and sensor of `sim`."""
 
-    def __init__(self, scene: Scene, rig: Rig, sim: SimConfig, camera: CameraSettings = CameraSettings()):
+    def __init__(self, scene: Scene, rig: Rig, sim: SimConfig,
+                 camera: CameraSettings = CameraSettings()) -> None:
         self.scene = scene
         self.rig = rig
         self.sim = sim
@@ -148,7 +152,7 @@ class Renderer:
         with self._views_lock:
             pending = cache.get(key)
             mine = pending is None
-            if mine:
+            if pending is None:
                 if len(cache) >= _CACHE_VIEWS:
                     cache.pop(next(iter(cache)))
                 pending = cache[key] = Future()
@@ -215,6 +219,8 @@ class Renderer:
             u0, v0, u1, v1 = box
             index = (np.arange(v0, v1)[:, None] * cam.width + np.arange(u0, u1)[None, :]).ravel()
             movers = self.scene.movers_at(t_s)
+            # `box` bounds the movers present at `t_s`; static views are rendered with their depth.
+            assert movers is not None and static.depth is not None
             rays = self._pixel_rays[index]
             hits = movers.cast(pose.t, pose.rotate(rays))
             nearer = hits.hit & (hits.distance < static.depth.reshape(-1)[index])
@@ -285,6 +291,9 @@ class Renderer:
     # --- photometry ---------------------------------------------------------------------------
 
     def _spot_image(self, view: _View, truth: SpotTruth) -> optics.SpotImage | None:
+        # Only visible spots are imaged, and `_spot` gives a visible one all of its geometry.
+        assert (truth.point_world is not None and truth.point_camera is not None and truth.pixel is not None
+                and truth.surface_uv is not None and truth.normal_world is not None)
         cam, sim = self.rig.camera, self.sim
         pose = view.camera_to_world
         laser = self.rig.laser(truth.laser)
@@ -299,7 +308,8 @@ class Renderer:
             float(albedo[0, 0]) * texture, float(gloss[0]), float(shininess[0]), beam, normal, to_camera / dist
         )
         u, v = truth.pixel
-        vig = float(self._vignette[min(max(int(round(v)), 0), cam.height - 1), min(max(int(round(u)), 0), cam.width - 1)])
+        row, col = min(max(int(round(v)), 0), cam.height - 1), min(max(int(round(u)), 0), cam.width - 1)
+        vig = float(self._vignette[row, col])
         total = self._spot_e_at_1m * fraction * vig / dist**2
         sigma = 0.5 * optics.beam_radius(sim.beam.waist_m, sim.beam.divergence_mrad * 1e-3, travelled)
         axis1, axis2, sigmas = optics.surface_footprint(beam, normal, sigma)
@@ -316,7 +326,8 @@ class Renderer:
         if sim.beam.speckle > 0:
             cell = sim.beam.speckle_cell_m
             q = np.floor(truth.surface_uv / cell).astype(np.int64)
-            rng = np.random.default_rng([sim.seed & 0xFFFFFFFF, truth.face_key & 0xFFFFFFFF, int(q[0]) & 0xFFFFFFFF, int(q[1]) & 0xFFFFFFFF])
+            words = (sim.seed, truth.face_key, int(q[0]), int(q[1]))
+            rng = np.random.default_rng([w & 0xFFFFFFFF for w in words])
         return optics.render_spot(
             truth.pixel,
             cov,
@@ -404,10 +415,14 @@ class Renderer:
         full = 255.0 if sensor.output_bits == 8 else 65535.0
         e *= np.float32(full / top)
         np.rint(e, out=e)
-        out = e.astype(np.uint8 if sensor.output_bits == 8 else np.uint16)
+        out: np.ndarray = e.astype(np.uint8 if sensor.output_bits == 8 else np.uint16)
         if out.shape[-1] == 1:
             out = out[..., 0]
         if sensor.jpeg_quality:
+            # 8-bit only: the config refuses jpeg_quality with 16-bit output.
             ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, sensor.jpeg_quality])
-            out = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+            decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if ok else None
+            if decoded is None:
+                raise CameraError(f"simulated camera: OpenCV could not round-trip a {out.shape} frame through JPEG")
+            out = decoded
         return out

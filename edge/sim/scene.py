@@ -75,7 +75,14 @@ from edge.rig import Pose, rot_z
 from edge.schema import build, require, show
 from edge.sim.materials import BUILTIN_MATERIALS, Material
 from edge.sim.raycast import (
-    Face, FaceSet, Hits, SceneGeometry, box_faces, footprint, points_in_polygon, polygon_area,
+    Face,
+    FaceSet,
+    Hits,
+    SceneGeometry,
+    box_faces,
+    footprint,
+    points_in_polygon,
+    polygon_area,
     polygon_self_intersects,
 )
 
@@ -422,7 +429,8 @@ class Scene:
     def movers_at(self, t_s: float) -> SceneGeometry | None:
         """Only the movers present at `t_s` (None when none is): what a cached view of the static
         scene needs casting again."""
-        placed = [fs.moved(pose) for fs, m in zip(self._mover_sets, self.movers) if (pose := m.pose_at(t_s)) is not None]
+        placed = [fs.moved(pose) for fs, m in zip(self._mover_sets, self.movers)
+                  if (pose := m.pose_at(t_s)) is not None]
         return SceneGeometry(FaceSet.concat(placed)) if placed else None
 
     def at(self, t_s: float = 0.0) -> SceneGeometry:
@@ -483,21 +491,21 @@ class Scene:
             gaps = [(d.offset_m, d.offset_m + d.width_m) for d in doors]
             # Every part of a wall shares the wall's plane coordinates: u from the start vertex.
             for j, (s0, s1) in enumerate(_solid_intervals(length, gaps)):
-                poly = [[s0, 0.0], [s1, 0.0], [s1, height], [s0, height]]
+                poly = np.array([[s0, 0.0], [s1, 0.0], [s1, height], [s0, height]])
                 name = f"wall {wall} part {j}"
                 faces.append(Face(name, next(keys), wall_mat, corner, u, up, poly))
             for d in doors:
                 if d.height_m < height - _EPS_M:
                     s0, s1 = d.offset_m, d.offset_m + d.width_m
-                    poly = [[s0, d.height_m], [s1, d.height_m], [s1, height], [s0, height]]
+                    poly = np.array([[s0, d.height_m], [s1, d.height_m], [s1, height], [s0, height]])
                     name = f"wall {wall} lintel"
                     faces.append(Face(name, next(keys), wall_mat, corner, u, up, poly))
         x, y = np.eye(3)[:2]
-        faces.append(Face("floor", next(keys), mat[spec.floor_material], (0, 0, 0), x, y, outline))
+        faces.append(Face("floor", next(keys), mat[spec.floor_material], np.zeros(3), x, y, outline))
         faces.append(
             # Axes x, -y: the normal u × v points down, into the room.
             Face(
-                "ceiling", next(keys), mat[spec.ceiling_material], (0, 0, height), x, -y,
+                "ceiling", next(keys), mat[spec.ceiling_material], np.array([0.0, 0.0, height]), x, -y,
                 outline * [1, -1],
             )
         )

@@ -348,12 +348,12 @@ class BlindAid:
         else:
             d = reading.range_m
             in_danger = d <= c.danger_m or (self._cue.sound == TONE and d <= c.danger_m + c.hysteresis_m)
-            common = dict(bearing_deg=reading.bearing_deg, range_m=d, zone=reading.zone,
-                          pan=c.stereo_pan(reading.bearing_deg))
+            near = Cue(bearing_deg=reading.bearing_deg, range_m=d, zone=reading.zone,
+                       pan=c.stereo_pan(reading.bearing_deg))
             if in_danger:
-                cue = Cue(TONE, pitch_hz=c.pitch_high_hz, **common)
+                cue = replace(near, sound=TONE, pitch_hz=c.pitch_high_hz)
             else:
-                cue = Cue(BEEP, interval_s=c.interval_s(d), pitch_hz=c.pitch_hz(d), **common)
+                cue = replace(near, sound=BEEP, interval_s=c.interval_s(d), pitch_hz=c.pitch_hz(d))
         speech = self._announcement(reading, t_s)
         if speech is not None:
             return replace(cue, speech=speech)

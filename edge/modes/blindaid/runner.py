@@ -20,8 +20,8 @@ from collections.abc import Callable
 from dataclasses import replace
 
 from edge.config import Config
-from edge.modes.blindaid.sound import AplaySink, CuePlayer, NullSink, Synth, WavSink, speak_to_frames
 from edge.modes.blindaid.logic import BlindAid, Cue, fan_poses, scan_order
+from edge.modes.blindaid.sound import AplaySink, CuePlayer, NullSink, Synth, WavSink, speak_to_frames
 from edge.ranging import Ranger, ZoneResult
 
 log = logging.getLogger(__name__)
