@@ -27,7 +27,7 @@ from edge.sim.render import Renderer
 def sim_camera():
     config = load_config(None, ["rig.camera.model=\"webcam-cif\""])  # small frames: quick renders
     renderer = Renderer(flat_target_scene(1.5), true_rig(config), config.sim, config.camera)
-    wiring = LaserLight(config.rig.build().lasers, laser_factory())
+    wiring = LaserLight(config.rig.wiring(), laser_factory())
     # A queue long enough that a slow render (a busy CI machine) never loses a frame here.
     camera = SimCamera(renderer, wiring, config.camera, queue_frames=10**6)
     camera.start()

@@ -36,7 +36,7 @@ class Rig:
         rig = true_rig(self.config)
         self.renderer = Renderer(flat_target_scene(1.5), rig, self.config.sim, self.config.camera)
         self.settle_ns = int(self.config.lasers.settle_ms * 1e6)
-        wiring = LaserLight(self.config.rig.build().lasers, self.lasers.factory, self.settle_ns)
+        wiring = LaserLight(self.config.rig.wiring(), self.lasers.factory, self.settle_ns)
         self.camera = SimCamera(self.renderer, wiring, self.config.camera)
         self.capture = Capture(self.camera, self.lasers, self.config)
         self.names = self.lasers.names

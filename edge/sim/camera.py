@@ -49,7 +49,7 @@ class SimCamera:
     def __init__(
         self,
         renderer: Renderer,
-        wiring: LaserLight,
+        light: LaserLight,
         settings: CameraSettings,
         *,
         pose_at: Callable[..., tuple[float, float]] | None = None,
@@ -66,7 +66,7 @@ class SimCamera:
             raise ValueError(f"readout_fraction must be in [0, 1), got {readout_fraction}")
         self.renderer = renderer
         self.closed = False
-        self.wiring = wiring
+        self.light = light
         self.settings = settings
         self.frame_ns = settings.frame_ns
         self.exposure_ns = int(round(settings.exposure_us * 1000))
@@ -112,10 +112,10 @@ class SimCamera:
             if fault.laser not in {laser.name for laser in lasers}:
                 raise ConfigError(f"{config.source}: sim.laser_faults[{i}].laser: no laser {fault.laser!r} "
                                   f"(the rig has {', '.join(laser.name for laser in lasers)})")
-        wiring = LaserLight(config.rig.wiring(), lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6)),
-                             broken={f.laser: f.kind for f in config.sim.laser_faults})
+        light = LaserLight(config.rig.wiring(), lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6)),
+                           broken={f.laser: f.kind for f in config.sim.laser_faults})
         kwargs.setdefault("seed", config.sim.seed)
-        camera = cls(renderer, wiring, config.camera, **kwargs)
+        camera = cls(renderer, light, config.camera, **kwargs)
         camera.faults = config.sim.camera_faults
         camera.nudges_deg = tuple(n for n in config.sweep.nudges_deg() if n)
         return camera
@@ -233,7 +233,7 @@ class SimCamera:
 
     def _render(self, k: int) -> Frame:
         t_start = self.frame_start_ns(k)
-        fractions = self.wiring.row_fractions(t_start + self._row_offsets, self.exposure_ns)
+        fractions = self.light.row_fractions(t_start + self._row_offsets, self.exposure_ns)
         lasers_on = {name: f for name, f in fractions.items() if f.any()}
         pan, tilt = self.pose_at(t_start + (self.readout_ns + self.exposure_ns) // 2)
         rng = np.random.default_rng([self.seed & 0xFFFFFFFF, k])
