@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from edge.errors import StorageError
+from edge.fsutil import fsync_dir
 
 log = logging.getLogger(__name__)
 
@@ -93,15 +94,6 @@ def _code(exc: sqlite3.Error) -> int:
     """The primary SQLite result code of an error (Python 3.11+), -1 if unknown."""
     code = getattr(exc, "sqlite_errorcode", None)
     return code & 0xFF if isinstance(code, int) else -1
-
-
-def _fsync_dir(folder: Path) -> None:
-    """Make a file's creation or rename in `folder` survive a power cut."""
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 class _BadFile(Exception):
@@ -258,7 +250,7 @@ class Outbox:
                 raise self._classify(exc, existed) from None
             raise
         if not existed:
-            _fsync_dir(self.path.parent)  # the new file's name must survive a power cut too
+            fsync_dir(self.path.parent)  # the new file's name must survive a power cut too
         log.debug("%s: outbox open, %d message(s) pending", self.path, count)
         return conn, count
 
@@ -288,7 +280,7 @@ class Outbox:
                 if side.exists():
                     os.replace(side, target.with_name(target.name + suffix))
             os.replace(self.path, target)
-            _fsync_dir(self.path.parent)
+            fsync_dir(self.path.parent)
         except OSError as exc:
             raise StorageError(f"{self.path}: corrupt, and cannot be moved aside: "
                                f"{exc.strerror or exc}") from None
