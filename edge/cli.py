@@ -250,7 +250,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     recording = read_recording(args.recording)
     rig = recording.rig
     if args.calibration:
-        from edge.calibration.fit import read_calibration
+        from edge.calibration.file import read_calibration
 
         rig = read_calibration(args.calibration).apply(rig)
     replayer = Replayer(rig, args.estimator, _config(args).ranging)
@@ -327,7 +327,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.set_defaults(func=cmd_replay)
 
-    from edge.calibration import fit as calibration
+    from edge.calibration import command as calibration
     from edge.hw import lasers, ptu
 
     calibration.add_parser(sub)

@@ -16,12 +16,13 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
+from edge.calibration.limits import MIN_POINTS, MIN_SPAN
 from edge.errors import CommandError
 from edge.modes import MODES
 
 MAX_REQUEST_ID_CHARS = 128
 CALIBRATION_DISTANCE_M = (0.25, 5.0)
-CALIBRATION_COUNT = (3, 20)
+CALIBRATION_COUNT = (MIN_POINTS, 20)
 CALIBRATION_MIN_STEP = 1.1  # from one distance to the next
 # request_id_of reads at most this much: a best-effort helper must not parse a huge payload.
 _REQUEST_ID_SCAN_BYTES = 1 << 20
@@ -203,8 +204,6 @@ def _calibrate(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: 
             raise CommandError(f"{where}: distances_m[{i}] = {d:g} m is outside {lo:g}-{hi:g} m")
         distances.append(d)
     # What a session can take (edge.calibration.session): a span the fit can use, and steps it can see.
-    from edge.calibration.fit import MIN_SPAN
-
     span = max(distances) / min(distances)
     if span < MIN_SPAN:
         raise CommandError(f"{where}: distances_m spans only a factor {span:.2f} ({min(distances):g} to "

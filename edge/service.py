@@ -519,7 +519,8 @@ class Service:
 
     def _finish_calibration(self) -> None:
         from edge.calibration.in_use import apply, calibration_file
-        from edge.calibration.fit import report, write_calibration
+        from edge.calibration.file import write_calibration
+        from edge.calibration.report import report
         from edge.calibration.session import summary
 
         session = self._calibration

@@ -17,7 +17,7 @@ import pytest
 from broker import Mosquitto, broker, publish, subscriber  # noqa: F401  (fixtures)
 from test_service import DEVICE, P, finish, payload, start
 
-from edge.calibration.fit import read_calibration
+from edge.calibration.file import read_calibration
 from edge.config import load_config
 from edge.sim.record import true_rig
 

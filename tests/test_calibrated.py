@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from edge.calibration.in_use import NOMINAL, believed_rig
-from edge.calibration.fit import Calibration, write_calibration
+from edge.calibration.file import Calibration, write_calibration
 from edge.config import load_config
 from edge.errors import ConfigError
 from edge.rig import default_rig
