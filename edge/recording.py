@@ -559,17 +559,16 @@ class RecordingWriter:
         with open(path, "rb") as f:  # the frame must be on disk before sweep.json points at it
             os.fsync(f.fileno())
 
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> bool:
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         self._open = False
         if exc_type is not None:
             shutil.rmtree(self._partial, ignore_errors=True)
-            return False
+            return
         try:
             self._finish()
         except BaseException:
             shutil.rmtree(self._partial, ignore_errors=True)
             raise
-        return False
 
     def _finish(self) -> None:
         doc: dict[str, Any] = {"format": FORMAT, "created": self.created}

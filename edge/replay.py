@@ -13,12 +13,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge import thesis
 from edge.ranging import (
-    FAULT, NO_SPOT, OK, OUT_OF_RANGE, STATUSES, FrameGroup, Ranger, RangingConfig, ZoneResult,
+    FAULT,
+    NO_SPOT,
+    OK,
+    OUT_OF_RANGE,
+    STATUSES,
+    FrameGroup,
+    Ranger,
+    RangingConfig,
+    ZoneResult,
 )
 from edge.recording import FrameRecord, Recording, ZoneRecord
 from edge.rig import Rig
-from edge import thesis
 
 log = logging.getLogger(__name__)
 

@@ -111,11 +111,13 @@ def read_json(path: str | Path, error: type[EdgeError], missing: str = "no such 
         fail(error, source, "", f"not usable JSON ({str(exc).splitlines()[0]})")
 
 
-def show(text: str) -> str:
-    """`text` (a file, a key, a name: anything quoted in a message) fit for a one-line message:
-    as it is when every character is printable, else as a literal with escapes, so that a line
-    break or a control character in it can neither break the message in two nor hide."""
-    return text if text.isprintable() else repr(text)
+def show(text: str, limit: int | None = None) -> str:
+    """`text` (a file, a key, a name, a value as it was sent: anything quoted in a message) fit for
+    a one-line message: as it is when every character is printable, else as a literal with escapes,
+    so that a line break or a control character in it can neither break the message in two nor
+    hide; cut to `limit` characters (ending in …) when given, for text from untrusted senders."""
+    shown = text if text.isprintable() else repr(text)
+    return shown if limit is None or len(shown) <= limit else shown[: limit - 1] + "…"
 
 
 # A path into a document: keys (already shown), list indices, and the names of labelled tables.

@@ -177,7 +177,7 @@ def test_put_from_one_thread_and_ack_from_another(box: Outbox) -> None:
 def test_over_the_bound_the_oldest_sweeps_go_first_never_alerts(tmp_path: Path, caplog) -> None:
     with Outbox(tmp_path / "o.sqlite3", max_messages=5) as outbox:
         a1 = outbox.put(ALERT, b"a1")
-        s1 = outbox.put(SWEEP, b"s1", retain=True)
+        outbox.put(SWEEP, b"s1", retain=True)
         s2 = outbox.put(SWEEP, b"s2", retain=True)
         a2 = outbox.put(ALERT, b"a2")
         x1 = outbox.put(STATE, b"x1", retain=True)

@@ -44,7 +44,7 @@ CHILD = textwrap.dedent('''
 def test_killed_writers_leave_whole_files_or_none(tmp_path: Path) -> None:
     rng = random.Random(5)
     last = 0
-    for attempt in range(8):
+    for _ in range(8):
         proc = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path)], stdout=subprocess.PIPE, text=True)
         time.sleep(1.0 + rng.random() * 1.0)
         os.kill(proc.pid, signal.SIGKILL)

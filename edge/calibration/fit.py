@@ -106,7 +106,7 @@ class Blob:
 
 def _mean(frames: Sequence[np.ndarray]) -> np.ndarray:
     acc = sum(SpotFinder.laser_channel(f).astype(np.float32) for f in frames)
-    return acc * np.float32(1.0 / (len(frames) * SpotFinder.full_scale(frames[0])))
+    return np.asarray(acc * np.float32(1.0 / (len(frames) * SpotFinder.full_scale(frames[0]))))
 
 
 def _difference(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
