@@ -183,6 +183,11 @@ class SweepFile:
         return rig_of(self.camera, self.lasers, self.mount, self.range_limits_m)
 
 
+def timestamp() -> str:
+    """Now, as the `created` key of edge's files says it (UTC, to the second)."""
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
 def load(cls: type[Any], data: Any, source: str, path: str = "",
          error: type[EdgeError] = RecordingError) -> Any:
     """`data`, a JSON object of an edge file format, as the dataclass `cls` (see edge.schema):
@@ -398,7 +403,7 @@ class RecordingWriter:
         self.path = Path(path)
         self.rig = rig
         self.device = device
-        self.created = created or datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        self.created = created or timestamp()
         absolute = Path(os.path.abspath(self.path))
         self._partial = absolute.with_name(f"{absolute.name}.partial-{os.getpid()}")
         self._old = absolute.with_name(f"{absolute.name}.old-{os.getpid()}")

@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field, replace
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated
 
 from edge.errors import CalibrationError
 from edge.fsutil import atomic_write_bytes
-from edge.recording import LaserKeys, format_is, load, rig_of, rig_to_json
+from edge.recording import LaserKeys, format_is, load, rig_of, rig_to_json, timestamp
 from edge.rig import CameraModel, Laser, Rig
 from edge.schema import read_json
 
@@ -59,11 +58,6 @@ class Calibration:
     def from_rig(rig: Rig) -> Calibration:
         """A calibration that is exactly `rig` (e.g. a simulator's true rig)."""
         return Calibration(rig.lasers, rig.camera, created=timestamp())
-
-
-def timestamp() -> str:
-    """Now, as a calibration's `created` says it (UTC, to the second)."""
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 # --- the file -----------------------------------------------------------------------------------

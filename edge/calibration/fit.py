@@ -47,10 +47,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from edge.calibration.file import Calibration, timestamp
+from edge.calibration.file import Calibration
 from edge.calibration.limits import MIN_POINTS, MIN_SPAN
 from edge.errors import CalibrationError
-from edge.recording import Recording
+from edge.recording import Recording, timestamp
 from edge.replay import zone_groups
 from edge.rig import CameraModel, Laser, Rig
 from edge.vision import SpotFinder
