@@ -2,8 +2,10 @@
 
 A recording is a folder holding ``sweep.json`` (the rig and, per zone, the frames with and without
 the lasers) and the frames as PNG files. Other tools write recordings too, so reading is strict:
-every broken rule is a :class:`RecordingError` with one line naming the file, the zone, the frame,
-the key and the problem. Unknown keys are ignored at every level so that the format can grow.
+sweep.json is described by dataclasses (:class:`SweepFile`, :class:`ZoneRecord`, ...) read by the
+loader of :mod:`edge.schema`, and every broken rule is a :class:`RecordingError` with one line
+naming the file, the zone, the frame, the key and the problem. Unknown keys are ignored at every
+level so that the format can grow.
 
 Writing is atomic: :class:`RecordingWriter` builds the recording in a sibling folder
 ``<path>.partial-<pid>`` and renames it into place only once ``sweep.json`` is on disk, so that a
@@ -35,7 +37,7 @@ import numpy as np
 from edge.errors import EdgeError, RecordingError
 from edge.fsutil import fsync_dir, process_alive
 from edge.rig import CameraModel, Laser, Mount, Rig, Vec3
-from edge.schema import FieldError, Label, build, describe, fail, read_json, require, show
+from edge.schema import Check, FieldError, Label, build, describe, fail, read_json, require, show
 
 FORMAT = "edge-sweep/1"
 SWEEP_JSON = "sweep.json"
@@ -50,7 +52,7 @@ Fail = Callable[[str], NoReturn]  # raises a RecordingError about one place in a
 # Checks of single values (run by the loader as it reads them, see edge.schema)
 
 
-def format_is(expected: str) -> Callable[[str], str | None]:
+def format_is(expected: str) -> Check:
     """A check that a document's `format` is `expected`."""
     return lambda got: None if got == expected else f"expected {expected!r}, got {got!r}"
 
