@@ -16,12 +16,14 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
+from edge.calibration.limits import MIN_POINTS, MIN_SPAN
 from edge.errors import CommandError
 from edge.modes import MODES
+from edge.schema import show
 
 MAX_REQUEST_ID_CHARS = 128
 CALIBRATION_DISTANCE_M = (0.25, 5.0)
-CALIBRATION_COUNT = (3, 20)
+CALIBRATION_COUNT = (MIN_POINTS, 20)
 CALIBRATION_MIN_STEP = 1.1  # from one distance to the next
 # request_id_of reads at most this much: a best-effort helper must not parse a huge payload.
 _REQUEST_ID_SCAN_BYTES = 1 << 20
@@ -75,7 +77,7 @@ def parse_command(
     allowed = (*required, *optional, "request_id")
     unknown = sorted(k for k in obj if k not in allowed)
     if unknown:
-        keys = ", ".join(_show(k) for k in unknown[:5]) + (", …" if len(unknown) > 5 else "")
+        keys = ", ".join(_sent(k) for k in unknown[:5]) + (", …" if len(unknown) > 5 else "")
         raise CommandError(f"{where}: unknown key{'s' if len(unknown) > 1 else ''} {keys} "
                            f"(allowed: {', '.join(allowed)})")
     for key in required:
@@ -138,7 +140,7 @@ def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     obj: dict[str, Any] = {}
     for key, value in pairs:
         if key in obj:
-            raise _Refused(f"duplicate key {_show(key)}")
+            raise _Refused(f"duplicate key {_sent(key)}")
         obj[key] = value
     return obj
 
@@ -174,7 +176,7 @@ def _no_args(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: tu
 def _mode(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: tuple[float, float]) -> dict[str, Any]:
     mode = obj["mode"]
     if not isinstance(mode, str) or mode not in MODES:
-        raise CommandError(f"{where}: mode must be one of {', '.join(MODES)}, got {_show(mode)}")
+        raise CommandError(f"{where}: mode must be one of {', '.join(MODES)}, got {_sent(mode)}")
     return {"mode": mode}
 
 
@@ -203,8 +205,6 @@ def _calibrate(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: 
             raise CommandError(f"{where}: distances_m[{i}] = {d:g} m is outside {lo:g}-{hi:g} m")
         distances.append(d)
     # What a session can take (edge.calibration.session): a span the fit can use, and steps it can see.
-    from edge.calibration.fit import MIN_SPAN
-
     span = max(distances) / min(distances)
     if span < MIN_SPAN:
         raise CommandError(f"{where}: distances_m spans only a factor {span:.2f} ({min(distances):g} to "
@@ -229,13 +229,13 @@ _VALIDATORS: dict[str, _Validator] = {
 def _number(where: str, key: str, value: Any) -> float:
     # bool is an int in Python, but `true` is not a number in JSON.
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise CommandError(f"{where}: {key} must be a number, got {_show(value)}")
+        raise CommandError(f"{where}: {key} must be a number, got {_sent(value)}")
     try:
         number = float(value)
     except OverflowError:  # an integer too large for a float
         number = math.inf
     if not math.isfinite(number):
-        raise CommandError(f"{where}: {key} must be a finite number, got {_show(value)}")
+        raise CommandError(f"{where}: {key} must be a finite number, got {_sent(value)}")
     return number
 
 
@@ -247,16 +247,17 @@ def _label(name: str) -> str:
     if isinstance(name, str) and 0 < len(name) <= 32 and name.replace("_", "a").isascii() \
             and name.replace("_", "a").isalnum():
         return name
-    return _show(name)
+    return _sent(name)
 
 
-def _show(value: Any) -> str:
-    """A short, one-line, ASCII excerpt of a value as JSON (so `true`, `"text"`, `[1, 2]`)."""
+def _sent(value: Any) -> str:
+    """A value as the sender wrote it, JSON (so `true`, `"text"`, `[1, 2]`: a string "2" reads
+    apart from the number 2), ASCII, shown as every message shows text (:func:`edge.schema.show`)."""
     try:
         text = json.dumps(value, ensure_ascii=True)
     except (ValueError, TypeError, RecursionError):
         text = _json_type(value)
-    return text if len(text) <= _SHOW_CHARS else text[: _SHOW_CHARS - 1] + "…"
+    return show(text, _SHOW_CHARS)
 
 
 def _one_line(text: str) -> str:

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import re
 import tempfile
 from pathlib import Path
-
-import cv2
-import numpy as np
+from typing import TYPE_CHECKING
 
 from edge.errors import EdgeError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 log = logging.getLogger(__name__)
 
@@ -33,11 +35,31 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    dir_fd = os.open(folder, os.O_RDONLY)
+    fsync_dir(folder)
+
+
+# What fsync of a folder fails with on file systems that cannot sync one (some network and FUSE
+# file systems): not a lost write, only a promise they do not make.
+_CANNOT_SYNC_A_FOLDER = frozenset({errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EBADF})
+
+
+def fsync_dir(path: str | Path) -> None:
+    """Make the creations, renames and removals of entries in folder `path` survive a power cut.
+
+    On a file system that cannot sync a folder (fsync fails with EINVAL, ENOTSUP or EBADF) this
+    does nothing and says so at debug level: the files themselves are synced by their writers, and
+    that is as durable as such a file system gets. Any other failure raises OSError — the folder
+    cannot be opened (gone, not readable) or the disk reported an error (EIO) — because the
+    caller can then not promise that what it wrote will still be there after a power cut."""
+    fd = os.open(path, os.O_RDONLY)
     try:
-        os.fsync(dir_fd)
+        os.fsync(fd)
+    except OSError as exc:
+        if exc.errno not in _CANNOT_SYNC_A_FOLDER:
+            raise
+        log.debug("%s: this file system cannot sync a folder (%s)", path, exc.strerror)
     finally:
-        os.close(dir_fd)
+        os.close(fd)
 
 
 def remove_dead_temporaries(path: Path) -> None:
@@ -82,6 +104,8 @@ def process_alive(pid: int) -> bool:
 
 def write_png(path: str | Path, image: np.ndarray) -> None:
     """Encode `image` (uint8/uint16, grey or BGR) as PNG and write it atomically."""
+    import cv2  # here, not at the top: the atomic writes serve light modules (the outbox) too
+
     ok, buf = cv2.imencode(".png", image)
     if not ok:
         raise EdgeError(f"{path}: could not encode the image as PNG")

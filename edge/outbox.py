@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from edge.errors import StorageError
+from edge.fsutil import fsync_dir
 
 log = logging.getLogger(__name__)
 
@@ -95,15 +96,6 @@ def _code(exc: sqlite3.Error) -> int:
     return code & 0xFF if isinstance(code, int) else -1
 
 
-def _fsync_dir(folder: Path) -> None:
-    """Make a file's creation or rename in `folder` survive a power cut."""
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 class _BadFile(Exception):
     """Internal: the database file is corrupt, unreadable or not ours (it is moved aside)."""
 
@@ -153,6 +145,7 @@ class Outbox:
                     "INSERT INTO outbox (topic, payload, qos, retain, created, rank) VALUES (?, ?, ?, ?, ?, ?)",
                     row,
                 ).lastrowid
+                assert seq is not None  # an INSERT into a rowid table always has one
                 dropped = self._drop_over_bound(seq)
                 conn.execute("COMMIT")
             except sqlite3.Error as exc:
@@ -160,7 +153,6 @@ class Outbox:
                 raise self._storage_error("cannot queue a message", exc) from None
             self._count += 1 - dropped
             self._warn_over_bound(dropped)
-            assert seq is not None
             return seq
 
     def pending(self, limit: int = 100, after: int = 0) -> list[OutboxMessage]:
@@ -258,7 +250,7 @@ class Outbox:
                 raise self._classify(exc, existed) from None
             raise
         if not existed:
-            _fsync_dir(self.path.parent)  # the new file's name must survive a power cut too
+            fsync_dir(self.path.parent)  # the new file's name must survive a power cut too
         log.debug("%s: outbox open, %d message(s) pending", self.path, count)
         return conn, count
 
@@ -288,7 +280,7 @@ class Outbox:
                 if side.exists():
                     os.replace(side, target.with_name(target.name + suffix))
             os.replace(self.path, target)
-            _fsync_dir(self.path.parent)
+            fsync_dir(self.path.parent)
         except OSError as exc:
             raise StorageError(f"{self.path}: corrupt, and cannot be moved aside: "
                                f"{exc.strerror or exc}") from None

@@ -2,8 +2,10 @@
 
 A recording is a folder holding ``sweep.json`` (the rig and, per zone, the frames with and without
 the lasers) and the frames as PNG files. Other tools write recordings too, so reading is strict:
-every broken rule is a :class:`RecordingError` with one line naming the file, the zone, the frame,
-the key and the problem. Unknown keys are ignored at every level so that the format can grow.
+sweep.json is described by dataclasses (:class:`SweepFile`, :class:`ZoneRecord`, ...) read by the
+loader of :mod:`edge.schema`, and every broken rule is a :class:`RecordingError` with one line
+naming the file, the zone, the frame, the key and the problem. Unknown keys are ignored at every
+level so that the format can grow.
 
 Writing is atomic: :class:`RecordingWriter` builds the recording in a sibling folder
 ``<path>.partial-<pid>`` and renames it into place only once ``sweep.json`` is on disk, so that a
@@ -18,44 +20,73 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import re
 import shutil
 import struct
-import sys
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path, PurePosixPath
-from typing import Any, NoReturn
+from typing import Annotated, Any, ClassVar, NoReturn
 
 import cv2
 import numpy as np
 
 from edge.errors import EdgeError, RecordingError
-from edge.fsutil import process_alive
-from edge.rig import CameraModel, Laser, Mount, Rig
-from edge.schema import FieldError, describe
+from edge.fsutil import fsync_dir, process_alive
+from edge.rig import CameraModel, Laser, Mount, Rig, Vec3
+from edge.schema import Check, FieldError, Label, build, describe, fail, read_json, require, show
 
 FORMAT = "edge-sweep/1"
 SWEEP_JSON = "sweep.json"
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_MISSING = object()
 
 log = logging.getLogger(__name__)
 
+Fail = Callable[[str], NoReturn]  # raises a RecordingError about one place in a recording
+
 
 # --------------------------------------------------------------------------------------------------
-# Data model
+# Checks of single values (run by the loader as it reads them, see edge.schema)
+
+
+def format_is(expected: str) -> Check:
+    """A check that a document's `format` is `expected`."""
+    return lambda got: None if got == expected else f"expected {expected!r}, got {got!r}"
+
+
+def _not_negative(index: int) -> str | None:
+    return f"must not be negative, got {index}" if index < 0 else None
+
+
+def _relative_problem(file: str) -> str | None:
+    """Why `file` may not name a frame inside the recording, or None if it may."""
+    if not file:
+        return "must not be empty"
+    # Windows forms too (\\server, C:): a recording may come from another system.
+    if PurePosixPath(file).is_absolute() or file.startswith("\\") or file[1:2] == ":":
+        return f"{show(file)} is absolute; frames must lie inside the recording folder"
+    depth = 0
+    for part in PurePosixPath(file).parts:
+        depth += -1 if part == ".." else 0 if part == "." else 1
+        if depth < 0:
+            return f"{show(file)} leaves the recording folder; frames must lie inside it"
+    return None
+
+
+# --------------------------------------------------------------------------------------------------
+# Data model: the values of sweep.json, read by edge.schema
 
 
 @dataclass(frozen=True)
 class FrameRecord:
     """One camera frame of a zone, as listed in sweep.json."""
 
-    file: str  # relative path inside the recording, exactly as in sweep.json
+    LABEL: ClassVar[Label] = Label("file", "frame {}")
+
+    file: Annotated[str, _relative_problem]  # relative path inside the recording, as in sweep.json
     lasers_on: tuple[str, ...]  # empty: the background frame
     pan_deg: float | None = None  # set when the unit was nudged off the zone's pose for this frame
     tilt_deg: float | None = None
@@ -63,16 +94,28 @@ class FrameRecord:
     exposure_us: float | None = None
     laser_switch_ns: int | None = None  # when the lasers last changed state
 
+    def __post_init__(self) -> None:
+        for i, name in enumerate(self.lasers_on):
+            require(name not in self.lasers_on[:i], "lasers_on", f"names laser {name!r} twice")
+
 
 @dataclass(frozen=True)
 class ZoneRecord:
     """One view direction and its frames."""
 
-    index: int
+    LABEL: ClassVar[Label] = Label("index", "zone {}")
+
+    index: Annotated[int, _not_negative]
     pan_deg: float
     tilt_deg: float
     frames: tuple[FrameRecord, ...]
     truth: dict[str, Any] | None = None  # raw JSON object, for scoring only; ranging never reads it
+
+    def __post_init__(self) -> None:
+        has_off, has_on = bool(self.off_frames), bool(self.on_frames)
+        lacking = "with no laser on" if has_on else "with lasers on" if has_off else "at all"
+        require(has_off and has_on, "frames", "needs a frame with no laser on and one with lasers "
+                f"on (has no frame {lacking})")
 
     @property
     def off_frames(self) -> tuple[FrameRecord, ...]:
@@ -83,6 +126,75 @@ class ZoneRecord:
     def on_frames(self) -> tuple[FrameRecord, ...]:
         """Frames taken with at least one laser on."""
         return tuple(f for f in self.frames if f.lasers_on)
+
+    def check_lasers(self, names: Sequence[str]) -> None:
+        """Raise FieldError unless every laser a frame switches on is one of `names`."""
+        for frame in self.frames:
+            for name in frame.lasers_on:
+                require(name in names, _frame_where(self.index, frame.file),
+                        f"lasers_on names unknown laser {name!r} (lasers: {', '.join(map(show, names))})")
+
+
+@dataclass(frozen=True)
+class LaserKeys:
+    """A laser as sweep.json and calibration files write it: its ray, no wiring."""
+
+    name: str
+    origin_m: Vec3
+    direction: Vec3
+    reference: bool = False
+
+    def __post_init__(self) -> None:
+        self.laser()  # Laser checks the name and the direction
+
+    def laser(self) -> Laser:
+        return Laser(name=self.name, origin_m=self.origin_m, direction=self.direction,
+                     reference=self.reference)
+
+
+def rig_of(camera: CameraModel, lasers: Sequence[LaserKeys], mount: Mount | None = None,
+           range_limits_m: tuple[float, float] | None = None) -> Rig:
+    """The Rig of a document's keys (raises FieldError: the laser names, the reference, the limits)."""
+    extra: dict[str, Any] = {} if range_limits_m is None else {"range_limits_m": range_limits_m}
+    return Rig(camera, tuple(k.laser() for k in lasers), mount or Mount(), **extra)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SweepFile:
+    """sweep.json as it is on disk (``shared/spec/recording.md``)."""
+
+    format: Annotated[str, format_is(FORMAT)]
+    created: str | None = None
+    device: str | None = None
+    camera: CameraModel
+    lasers: tuple[LaserKeys, ...]
+    mount: Mount | None = None
+    range_limits_m: tuple[float, float] | None = None
+    zones: tuple[ZoneRecord, ...]
+
+    def __post_init__(self) -> None:
+        names = self.rig().laser_names
+        seen: dict[int, int] = {}
+        for position, zone in enumerate(self.zones):
+            zone.check_lasers(names)
+            require(zone.index not in seen, f"{_zone_where(zone.index)}: index",
+                    f"duplicate zone index (zones[{seen.get(zone.index)}] and zones[{position}])")
+            seen[zone.index] = position
+
+    def rig(self) -> Rig:
+        return rig_of(self.camera, self.lasers, self.mount, self.range_limits_m)
+
+
+def timestamp() -> str:
+    """Now, as the `created` key of edge's files says it (UTC, to the second)."""
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def load(cls: type[Any], data: Any, source: str, path: str = "",
+         error: type[EdgeError] = RecordingError) -> Any:
+    """`data`, a JSON object of an edge file format, as the dataclass `cls` (see edge.schema):
+    unknown keys are ignored so that the formats can grow."""
+    return build(cls, data, source, path, error, unknown_keys="ignore", table="an object")
 
 
 @dataclass(frozen=True)
@@ -101,7 +213,7 @@ class Recording:
         Alpha is dropped. Raises RecordingError naming the zone and frame when the file is missing,
         cannot be decoded, is not 8/16-bit or its size differs from the camera's.
         """
-        fail = _Checker(str(self.path / SWEEP_JSON)).at(_frame_where(zone.index, frame.file))
+        fail = _at(str(self.path / SWEEP_JSON), _frame_where(zone.index, frame.file))
         file = _frame_path(self.path, frame.file, fail)
         image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
         if image is None:
@@ -120,91 +232,23 @@ class Recording:
         return np.ascontiguousarray(image)
 
 
-# --------------------------------------------------------------------------------------------------
-# Strict JSON checking
-
-
-def _show(text: str) -> str:
-    """A user string fit for a one-line message."""
-    return text if text.isprintable() else repr(text)
+def _zone_where(index: int) -> str:
+    return ZoneRecord.LABEL.name(index)
 
 
 def _frame_where(index: int, file: str) -> str:
-    return f"zone {index}, frame {_show(file)}"
+    return f"{_zone_where(index)}, {FrameRecord.LABEL.name(file)}"
 
 
-class _Checker:
-    """Typed access to parsed JSON; every failure names `source` and the key path."""
-
-    def __init__(self, source: str, error: type[EdgeError] = RecordingError):
-        self.source = source
-        self.error = error
-
-    def fail(self, where: str, message: str) -> NoReturn:
-        raise self.error(f"{self.source}: {where}: {message}" if where
-                         else f"{self.source}: {message}")
-
-    def at(self, where: str) -> Any:
-        """A one-argument fail bound to `where`."""
-        return lambda message: self.fail(where, message)
-
-    def get(self, obj: Mapping[str, Any], key: str, where: str, required: bool = True) -> Any:
-        """obj[key]; _MISSING when absent (or null) and optional."""
-        value = obj.get(key)
-        if value is None:
-            if required:
-                self.fail(where, "missing required key" if key not in obj else "must not be null")
-            return _MISSING
-        return value
-
-    def table(self, value: Any, where: str) -> Mapping[str, Any]:
-        if not isinstance(value, Mapping):
-            self.fail(where, f"expected an object, got {describe(value, 'an object')}")
-        return value
-
-    def array(self, value: Any, where: str) -> list[Any]:
-        if not isinstance(value, list):
-            self.fail(where, f"expected a list, got {describe(value, 'an object')}")
-        return value
-
-    def number(self, value: Any, where: str) -> float:
-        # bool is an int in Python but never a number in JSON.
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(where, f"expected a number, got {describe(value, 'an object')}")
-        if isinstance(value, int) and abs(value) > sys.float_info.max:
-            self.fail(where, "expected a finite number, got a whole number too large for one")
-        if not math.isfinite(value):
-            self.fail(where, f"expected a finite number, got {value}")
-        return float(value)
-
-    def integer(self, value: Any, where: str) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            self.fail(where, f"expected a whole number, got {describe(value, 'an object')}")
-        return value
-
-    def string(self, value: Any, where: str) -> str:
-        if not isinstance(value, str):
-            self.fail(where, f"expected a string, got {describe(value, 'an object')}")
-        return value
-
-    def boolean(self, value: Any, where: str) -> bool:
-        if not isinstance(value, bool):
-            self.fail(where, f"expected true or false, got {describe(value, 'an object')}")
-        return value
-
-    def numbers(self, value: Any, where: str, n: int) -> tuple[float, ...]:
-        items = self.array(value, where)
-        if len(items) != n:
-            self.fail(where, f"expected {n} numbers, got {len(items)}")
-        return tuple(self.number(v, f"{where}[{i}]") for i, v in enumerate(items))
-
-    def optional(self, obj: Mapping[str, Any], key: str, where: str, kind: str) -> Any:
-        value = self.get(obj, key, where, required=False)
-        return None if value is _MISSING else getattr(self, kind)(value, where)
+def _at(source: str, where: str) -> Fail:
+    """A one-argument fail about `where` in `source`."""
+    def fail_here(message: str) -> NoReturn:
+        fail(RecordingError, source, where, message)
+    return fail_here
 
 
 # --------------------------------------------------------------------------------------------------
-# Rig <-> JSON
+# Rig -> JSON
 
 
 def rig_to_json(rig: Rig) -> dict[str, Any]:
@@ -230,102 +274,31 @@ def rig_to_json(rig: Rig) -> dict[str, Any]:
     }
 
 
-def rig_from_json(
-    obj: Mapping[str, Any], source: str, error: type[EdgeError] = RecordingError
-) -> Rig:
-    """Build a Rig from a JSON object holding `camera`, `lasers` and optionally `mount` and
-    `range_limits_m`; raise `error` with a one-line message naming `source` and the key."""
-    chk = _Checker(source, error)
-    obj = chk.table(obj, "")
-    cam = chk.table(chk.get(obj, "camera", "camera"), "camera")
-    kw: dict[str, Any] = {k: chk.integer(chk.get(cam, k, f"camera.{k}"), f"camera.{k}")
-                          for k in ("width", "height")}
-    kw |= {k: chk.number(chk.get(cam, k, f"camera.{k}"), f"camera.{k}")
-           for k in ("fx", "fy", "cx", "cy")}
-    dist = chk.get(cam, "dist", "camera.dist", required=False)
-    if dist is not _MISSING:
-        kw["dist"] = chk.numbers(dist, "camera.dist", 5)
-    try:
-        camera = CameraModel(**kw)
-    except FieldError as exc:
-        chk.fail(f"camera.{exc.key}", exc.message)
-
-    lasers = []
-    for i, raw in enumerate(chk.array(chk.get(obj, "lasers", "lasers"), "lasers")):
-        where = f"lasers[{i}]"
-        entry = chk.table(raw, where)
-        name = chk.string(chk.get(entry, "name", f"{where}.name"), f"{where}.name")
-        origin = chk.numbers(
-            chk.get(entry, "origin_m", f"{where}.origin_m"), f"{where}.origin_m", 3
-        )
-        direction = chk.numbers(
-            chk.get(entry, "direction", f"{where}.direction"), f"{where}.direction", 3
-        )
-        reference = chk.optional(entry, "reference", f"{where}.reference", "boolean") or False
-        try:
-            lasers.append(Laser(name, origin, direction, reference=reference))  # type: ignore
-        except FieldError as exc:
-            chk.fail(f"{where}.{exc.key}", exc.message)
-
-    mount = Mount()
-    raw_mount = chk.get(obj, "mount", "mount", required=False)
-    if raw_mount is not _MISSING:
-        m = chk.table(raw_mount, "mount")
-        parts = {k: chk.numbers(v, f"mount.{k}", 3) for k in ("origin_m", "rpy_deg")
-                 if (v := chk.get(m, k, f"mount.{k}", required=False)) is not _MISSING}
-        mount = Mount(**parts)  # type: ignore[arg-type]
-    extra: dict[str, Any] = {}
-    limits = chk.get(obj, "range_limits_m", "range_limits_m", required=False)
-    if limits is not _MISSING:
-        extra["range_limits_m"] = chk.numbers(limits, "range_limits_m", 2)
-    try:
-        return Rig(camera, tuple(lasers), mount, **extra)
-    except FieldError as exc:
-        chk.fail(exc.key, exc.message)
-
-
 # --------------------------------------------------------------------------------------------------
 # Reading
 
 
-def _relative_problem(file: str) -> str | None:
-    """Why `file` may not name a frame inside the recording, or None if it may."""
-    if not file:
-        return "must not be empty"
-    if "\0" in file:
-        return "must not contain a NUL character"
-    # Windows forms too (\\server, C:): a recording may come from another system.
-    if PurePosixPath(file).is_absolute() or file.startswith("\\") or file[1:2] == ":":
-        return f"{_show(file)} is absolute; frames must lie inside the recording folder"
-    depth = 0
-    for part in PurePosixPath(file).parts:
-        depth += -1 if part == ".." else 0 if part == "." else 1
-        if depth < 0:
-            return f"{_show(file)} leaves the recording folder; frames must lie inside it"
-    return None
-
-
-def _frame_path(folder: Path, file: str, fail: Any) -> Path:
+def _frame_path(folder: Path, file: str, fail: Fail) -> Path:
     """The frame's file, checked to exist and to stay inside `folder` even through symlinks."""
     path = folder / file
     try:
         exists = path.is_file()
         inside = exists and path.resolve().is_relative_to(folder.resolve())
     except (OSError, RuntimeError) as exc:  # a name too long, a symlink loop
-        fail(f"image is unreadable ({_show(str(getattr(exc, 'strerror', None) or exc))})")
+        fail(f"image is unreadable ({show(str(getattr(exc, 'strerror', None) or exc))})")
     if not exists:
-        fail(f"image is missing (no file {_show(str(path))})")
+        fail(f"image is missing (no file {show(str(path))})")
     if not inside:
         fail("file: resolves outside the recording folder (through a symbolic link)")
     return path
 
 
-def _check_size(width: int, height: int, camera: CameraModel, fail: Any) -> None:
+def _check_size(width: int, height: int, camera: CameraModel, fail: Fail) -> None:
     if (width, height) != (camera.width, camera.height):
         fail(f"image is {width}x{height} but the camera is {camera.width}x{camera.height}")
 
 
-def _check_png_header(path: Path, camera: CameraModel, fail: Any) -> None:
+def _check_png_header(path: Path, camera: CameraModel, fail: Fail) -> None:
     """Check a PNG's size and bit depth from its IHDR chunk, without decoding the pixels."""
     try:
         with open(path, "rb") as f:
@@ -342,47 +315,6 @@ def _check_png_header(path: Path, camera: CameraModel, fail: Any) -> None:
     _check_size(width, height, camera, fail)
 
 
-def _parse_frame(chk: _Checker, raw: Any, index: int, k: int, names: Sequence[str]) -> FrameRecord:
-    where = f"zone {index}, frames[{k}]"  # until the frame has a name
-    entry = chk.table(raw, where)
-    file = chk.string(chk.get(entry, "file", f"{where}: file"), f"{where}: file")
-    if (problem := _relative_problem(file)) is not None:
-        chk.fail(f"{where}: file", problem)
-    where = _frame_where(index, file)
-    lasers_on = chk.array(chk.get(entry, "lasers_on", f"{where}: lasers_on"), f"{where}: lasers_on")
-    for i, name in enumerate(lasers_on):
-        chk.string(name, f"{where}: lasers_on[{i}]")
-        if name not in names:
-            chk.fail(where, f"lasers_on names unknown laser {name!r} (lasers: {', '.join(map(_show, names))})")
-        if name in lasers_on[:i]:
-            chk.fail(where, f"lasers_on names laser {name!r} twice")
-    kinds = {"pan_deg": "number", "tilt_deg": "number", "t_start_ns": "integer",
-             "exposure_us": "number", "laser_switch_ns": "integer"}
-    extra = {k: chk.optional(entry, k, f"{where}: {k}", kind) for k, kind in kinds.items()}
-    return FrameRecord(file, tuple(lasers_on), **extra)
-
-
-def _parse_zone(chk: _Checker, raw: Any, position: int, names: Sequence[str]) -> ZoneRecord:
-    where = f"zones[{position}]"
-    entry = chk.table(raw, where)
-    index = chk.integer(chk.get(entry, "index", f"{where}: index"), f"{where}: index")
-    if index < 0:
-        chk.fail(f"{where}: index", f"must not be negative, got {index}")
-    where = f"zone {index}"
-    pan = chk.number(chk.get(entry, "pan_deg", f"{where}: pan_deg"), f"{where}: pan_deg")
-    tilt = chk.number(chk.get(entry, "tilt_deg", f"{where}: tilt_deg"), f"{where}: tilt_deg")
-    raw_frames = chk.array(chk.get(entry, "frames", f"{where}: frames"), f"{where}: frames")
-    frames = tuple(_parse_frame(chk, f, index, k, names) for k, f in enumerate(raw_frames))
-    has_off = any(not f.lasers_on for f in frames)
-    has_on = any(f.lasers_on for f in frames)
-    if not (has_off and has_on):
-        lacking = "with no laser on" if has_on else "with lasers on" if has_off else "at all"
-        chk.fail(f"{where}: frames", f"needs a frame with no laser on and one with lasers on "
-                 f"(has no frame {lacking})")
-    truth = chk.optional(entry, "truth", f"{where}: truth", "table")
-    return ZoneRecord(index, pan, tilt, frames, dict(truth) if truth is not None else None)
-
-
 def read_recording(path: str | Path, check_images: bool = True) -> Recording:
     """Read and check the recording in folder `path` (a path to its sweep.json works too).
 
@@ -393,51 +325,24 @@ def read_recording(path: str | Path, check_images: bool = True) -> Recording:
     if folder.name == SWEEP_JSON and folder.is_file():
         folder = folder.parent
     if not folder.is_dir():
-        raise RecordingError(
-            f"{folder}: no such folder" if not folder.exists()
-            else f"{folder}: not a folder (a recording is a folder holding {SWEEP_JSON})"
-        )
+        fail(RecordingError, str(folder), "", "no such folder" if not folder.exists()
+             else f"not a folder (a recording is a folder holding {SWEEP_JSON})")
     sweep = folder / SWEEP_JSON
     if not sweep.is_file():
-        raise RecordingError(f"{folder}: no {SWEEP_JSON} in this folder")
-    chk = _Checker(str(sweep))
-    try:
-        doc = json.loads(sweep.read_bytes())
-    except OSError as exc:
-        chk.fail("", f"cannot be read ({exc.strerror})")
-    except json.JSONDecodeError as exc:
-        chk.fail("", f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})")
-    except UnicodeDecodeError:
-        chk.fail("", "not valid JSON (not UTF-8 text)")
-    except RecursionError:
-        chk.fail("", "not usable JSON (nested too deeply)")
-    except ValueError as exc:  # a whole number of more digits than Python converts
-        chk.fail("", f"not usable JSON ({str(exc).splitlines()[0]})")
-    if not isinstance(doc, dict):
-        chk.fail("", f"expected a JSON object, got {describe(doc, 'an object')}")
-    fmt = chk.string(chk.get(doc, "format", "format"), "format")
-    if fmt != FORMAT:
-        chk.fail("format", f"expected {FORMAT!r}, got {fmt!r}")
-    created = chk.optional(doc, "created", "created", "string")
-    device = chk.optional(doc, "device", "device", "string")
-    rig = rig_from_json(doc, str(sweep))
-
-    zones: list[ZoneRecord] = []
-    seen: dict[int, int] = {}
-    for position, raw in enumerate(chk.array(chk.get(doc, "zones", "zones"), "zones")):
-        zone = _parse_zone(chk, raw, position, rig.laser_names)
-        if zone.index in seen:
-            chk.fail(f"zone {zone.index}: index",
-                     f"duplicate zone index (zones[{seen[zone.index]}] and zones[{position}])")
-        seen[zone.index] = position
-        zones.append(zone)
+        fail(RecordingError, str(folder), "", f"no {SWEEP_JSON} in this folder")
+    raw = read_json(sweep, RecordingError)
+    if not isinstance(raw, dict):
+        fail(RecordingError, str(sweep), "", f"expected a JSON object, got {describe(raw, 'an object')}")
+    doc: SweepFile = load(SweepFile, raw, str(sweep))
+    rig = doc.rig()
+    for zone in doc.zones:
         for frame in zone.frames:
             # Even without check_images a frame may not point outside the folder or be missing.
-            fail = chk.at(_frame_where(zone.index, frame.file))
-            file = _frame_path(folder, frame.file, fail)
+            fail_here = _at(str(sweep), _frame_where(zone.index, frame.file))
+            file = _frame_path(folder, frame.file, fail_here)
             if check_images:
-                _check_png_header(file, rig.camera, fail)
-    return Recording(folder, rig, tuple(zones), created, device)
+                _check_png_header(file, rig.camera, fail_here)
+    return Recording(folder, rig, doc.zones, doc.created, doc.device)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -449,19 +354,6 @@ def _is_recording(path: Path) -> bool:
         return json.loads((path / SWEEP_JSON).read_bytes()).get("format") == FORMAT
     except (OSError, ValueError, AttributeError):
         return False
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass  # some file systems cannot sync a directory; the data files are synced regardless
-    finally:
-        os.close(fd)
 
 
 def _jsonable(value: Any) -> Any:
@@ -513,11 +405,11 @@ class RecordingWriter:
         self.path = Path(path)
         self.rig = rig
         self.device = device
-        self.created = created or datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        self.created = created or timestamp()
         absolute = Path(os.path.abspath(self.path))
         self._partial = absolute.with_name(f"{absolute.name}.partial-{os.getpid()}")
         self._old = absolute.with_name(f"{absolute.name}.old-{os.getpid()}")
-        self._chk = _Checker(str(self.path / SWEEP_JSON))
+        self._source = str(self.path / SWEEP_JSON)
         self._zones: list[dict[str, Any]] = []
         self._indices: set[int] = set()
         self._open = False
@@ -588,7 +480,10 @@ class RecordingWriter:
                     log.info("%s: restored the recording left by a killed writer to %s",
                              newest, target)
                     (olds if newest in olds else partials).remove(newest)
-                    _fsync_dir(target.parent)
+                    try:
+                        fsync_dir(target.parent)
+                    except OSError as exc:
+                        log.warning("%s: cannot sync the folder: %s", target.parent, exc)
             if _no_recording_at(target):  # never delete the only copies
                 olds = [p for p in olds if p not in whole]
                 partials = [p for p in partials if p not in whole]
@@ -616,22 +511,23 @@ class RecordingWriter:
         laser_switch_ns). Raises RecordingError when the zone would break the format."""
         if not self._open:
             raise RecordingError(f"{self.path}: add_zone outside the writer's with block")
-        if isinstance(index, np.integer):
-            index = int(index)
-        index = self._chk.integer(index, f"zones[{len(self._zones)}]: index")
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)):
+            fail(RecordingError, self._source, f"zones[{len(self._zones)}]: index",
+                 f"expected a whole number, got {describe(index, 'an object')}")
+        index = int(index)
         entries, images = [], []
         for k, (image, lasers_on, *rest) in enumerate(frames):
             extras = dict(rest[0]) if rest else {}
-            fail = self._chk.at(f"zone {index}, frames[{k}]")
+            fail_here = _at(self._source, f"{_zone_where(index)}, frames[{k}]")
             if {"file", "lasers_on"} & extras.keys():
-                fail("extra keys may not set 'file' or 'lasers_on'")
+                fail_here("extra keys may not set 'file' or 'lasers_on'")
             image = np.asarray(image)
             if image.dtype not in (np.uint8, np.uint16) or not (
                 image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)
             ):
-                fail(f"image must be uint8/uint16 (H, W) or (H, W, 3), got {image.dtype} "
-                     f"{image.shape}")
-            _check_size(image.shape[1], image.shape[0], self.rig.camera, fail)
+                fail_here(f"image must be uint8/uint16 (H, W) or (H, W, 3), got {image.dtype} "
+                          f"{image.shape}")
+            _check_size(image.shape[1], image.shape[0], self.rig.camera, fail_here)
             lasers_on = [str(name) for name in lasers_on]
             name = f"frames/z{index:03d}-{k}-{'on' if lasers_on else 'off'}.png"
             entries.append({"file": name, "lasers_on": lasers_on,
@@ -644,39 +540,42 @@ class RecordingWriter:
         try:  # through JSON and back, so that what we return is exactly what a reader will see
             raw = json.loads(json.dumps(raw, default=_jsonable, allow_nan=False))
         except (TypeError, ValueError) as exc:
-            self._chk.fail(f"zone {index}", f"cannot be written as JSON ({exc})")
-        zone = _parse_zone(self._chk, raw, len(self._zones), self.rig.laser_names)
+            fail(RecordingError, self._source, _zone_where(index), f"cannot be written as JSON ({exc})")
+        zone: ZoneRecord = load(ZoneRecord, raw, self._source, f"zones[{len(self._zones)}]")
+        try:
+            zone.check_lasers(self.rig.laser_names)
+        except FieldError as exc:
+            fail(RecordingError, self._source, exc.key, exc.message)
         if index in self._indices:
-            self._chk.fail(f"zone {index}: index", "duplicate zone index")
+            fail(RecordingError, self._source, f"{_zone_where(index)}: index", "duplicate zone index")
         for frame, image in zip(zone.frames, images):
-            self._write_png(self._partial / frame.file, image, self._chk.at(
-                _frame_where(index, frame.file)))
+            self._write_png(self._partial / frame.file, image,
+                            _at(self._source, _frame_where(index, frame.file)))
         self._indices.add(index)
         self._zones.append(raw)
         return zone
 
     @staticmethod
-    def _write_png(path: Path, image: np.ndarray, fail: Any) -> None:
+    def _write_png(path: Path, image: np.ndarray, fail_here: Fail) -> None:
         try:
             ok = cv2.imwrite(str(path), image)
         except cv2.error as exc:
-            fail(f"cannot write image ({str(exc).strip().splitlines()[-1]})")
+            fail_here(f"cannot write image ({str(exc).strip().splitlines()[-1]})")
         if not ok:
-            fail("cannot write image")
+            fail_here("cannot write image")
         with open(path, "rb") as f:  # the frame must be on disk before sweep.json points at it
             os.fsync(f.fileno())
 
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> bool:
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         self._open = False
         if exc_type is not None:
             shutil.rmtree(self._partial, ignore_errors=True)
-            return False
+            return
         try:
             self._finish()
         except BaseException:
             shutil.rmtree(self._partial, ignore_errors=True)
             raise
-        return False
 
     def _finish(self) -> None:
         doc: dict[str, Any] = {"format": FORMAT, "created": self.created}
@@ -689,8 +588,8 @@ class RecordingWriter:
             f.write("\n")
             f.flush()
             os.fsync(f.fileno())
-        _fsync_dir(self._partial / "frames")
-        _fsync_dir(self._partial)
+        fsync_dir(self._partial / "frames")
+        fsync_dir(self._partial)
         self._check_target()  # the target may have changed while we were recording
         if os.path.lexists(self.path) and any(self.path.iterdir()):
             # An earlier recording: move it aside, so that at every instant `path` is either the
@@ -708,4 +607,4 @@ class RecordingWriter:
             if os.path.lexists(self.path):
                 os.rmdir(self.path)
             os.rename(self._partial, self.path)
-        _fsync_dir(self._partial.parent)
+        fsync_dir(self._partial.parent)

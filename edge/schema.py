@@ -1,30 +1,42 @@
-"""Typed loading of TOML/JSON tables into frozen dataclasses.
+"""Typed, strict loading of TOML/JSON tables into frozen dataclasses: the one reader of documents.
 
-Configuration, scenes and recordings are plain tables on disk; inside the program they are frozen
-dataclasses. This module walks a dataclass's fields and type hints, converts and checks each value,
-and reports the first problem as one line that names the file and the dotted key, e.g.::
+Configuration, scenes, recordings (``sweep.json``) and calibration files are plain tables on disk;
+inside the program they are frozen dataclasses. This module walks a dataclass's fields and type
+hints, converts and checks each value, and reports the first problem as one line that names the
+file and the key, e.g.::
 
-    config/sim.toml: rig.lasers[1].direction: expected 3 numbers, got 2
+    config/sim.toml: rig.lasers[1].direction: expected 3 values, got 2
+    rec/sweep.json: zone 3, frame frames/z003-1-on.png: t_start_ns: expected a whole number, got number 1.5
 
 Dataclasses validate their own values in ``__post_init__`` by raising :class:`FieldError`; the
 loader adds the file and the key path. Supported field types: bool, int, float, str, ``Literal``,
-nested dataclasses, ``tuple[float, ...]``/fixed-length tuples, ``tuple[Dataclass, ...]`` and
-``X | None`` (``None`` only as a default: TOML has no null).
+nested dataclasses, ``tuple[float, ...]``/fixed-length tuples, ``tuple[Dataclass, ...]``,
+``dict[str, X]``, ``X | None``, ``Any`` and ``Annotated[X, check, ...]`` where each `check` takes the
+converted value and returns its problem (or None). A null (JSON; TOML has none) on a key with a
+default stands for the absent key.
+
+A dataclass kept in a list may say how messages name it by one of its keys instead of by its place
+(``zone 3`` rather than ``zones[2]``) with a ``LABEL: ClassVar[Label]``; its keys then follow a
+colon (``zone 3: pan_deg``) and its own tables' items a comma (``zone 3, frames[1]``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import sys
 import types
 import typing
-from collections.abc import Mapping
-from typing import Any, Literal, TypeVar
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal, NoReturn, TypeVar
 
 from edge.errors import ConfigError, EdgeError
 
 T = TypeVar("T")
+
+Check = Callable[[Any], "str | None"]  # a converted value's problem, or None
 
 
 class FieldError(ValueError):
@@ -42,34 +54,102 @@ def require(condition: bool, key: str, message: str) -> None:
         raise FieldError(key, message)
 
 
+@dataclasses.dataclass(frozen=True)
+class Label:
+    """How messages name a table by one of its keys: ``Label("index", "zone {}")``."""
+
+    key: str
+    text: str
+
+    def name(self, value: Any) -> str:
+        return self.text.format(show(str(value)))
+
+
 def build(
     cls: type[T],
     data: Any,
     source: str,
     path: str = "",
     error: type[EdgeError] = ConfigError,
+    *,
+    unknown_keys: Literal["refuse", "ignore"] = "refuse",
+    table: str = "a table",
 ) -> T:
     """Convert the table `data` into an instance of the dataclass `cls`.
 
-    `source` names the file for messages; `path` is the dotted key of `data` within it.
-    Raises `error` (a :class:`EdgeError` subclass) with a one-line message on the first problem.
-    """
-    return _Loader(source, error).table(cls, data, path)
+    `source` names the file for messages; `path` is the key of `data` within it. Raises `error`
+    (an :class:`EdgeError` subclass) with a one-line message on the first problem. Unknown keys
+    are refused, or ignored (formats that may grow); `table` is how messages call a mapping
+    (TOML says a table, JSON an object)."""
+    start: tuple[_Segment, ...] = (_Key(path),) if path else ()
+    return _Loader(source, error, unknown_keys == "ignore", table).table(cls, data, start)
 
 
-def _join(path: str, key: str) -> str:
-    key = show(key)
-    return f"{path}.{key}" if path else key
+def fail(error: type[EdgeError], source: str, where: str, message: str) -> NoReturn:
+    """Raise `error` with the one-line message ``source: where: message`` (`where` may be empty)."""
+    head = f"{show(source)}: {where}" if where else show(source)
+    raise error(f"{head}: {message}")
 
 
-def show(text: str) -> str:
-    """`text` fit for a one-line message: as it is when printable, else quoted with escapes (a
-    key or a path with a line break in it must not break the message in two)."""
-    return repr(text) if any(c in text for c in _LINE_BREAKS) else text
+def read_json(path: str | Path, error: type[EdgeError], missing: str = "no such file") -> Any:
+    """The JSON document in file `path`; `error` naming the file when it cannot be read or parsed
+    (`missing`: what to say when there is no such file)."""
+    source = str(path)
+    try:
+        return json.loads(Path(path).read_bytes())
+    except FileNotFoundError:
+        fail(error, source, "", missing)
+    except OSError as exc:
+        fail(error, source, "", f"cannot be read ({exc.strerror or exc})")
+    except json.JSONDecodeError as exc:
+        fail(error, source, "", f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})")
+    except UnicodeDecodeError:
+        fail(error, source, "", "not valid JSON (not UTF-8 text)")
+    except RecursionError:
+        fail(error, source, "", "not usable JSON (nested too deeply)")
+    except ValueError as exc:  # a whole number of more digits than Python converts
+        fail(error, source, "", f"not usable JSON ({str(exc).splitlines()[0]})")
 
 
-# What str.splitlines breaks at: a message must stay one line.
-_LINE_BREAKS = "\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"
+def show(text: str, limit: int | None = None) -> str:
+    """`text` (a file, a key, a name, a value as it was sent: anything quoted in a message) fit for
+    a one-line message: as it is when every character is printable, else as a literal with escapes,
+    so that a line break or a control character in it can neither break the message in two nor
+    hide; cut to `limit` characters (ending in …) when given, for text from untrusted senders."""
+    shown = text if text.isprintable() else repr(text)
+    return shown if limit is None or len(shown) <= limit else shown[: limit - 1] + "…"
+
+
+# A path into a document: keys (already shown), list indices, and the names of labelled tables.
+@dataclasses.dataclass(frozen=True)
+class _Key:
+    text: str
+
+
+@dataclasses.dataclass(frozen=True)
+class _Name:
+    text: str
+
+
+_Segment = _Key | _Name | int
+
+
+def _render(path: tuple[_Segment, ...]) -> str:
+    out, after_name = "", False
+    for seg in path:
+        if isinstance(seg, int):
+            out += f"[{seg}]"
+        else:
+            out += (": " if isinstance(seg, _Key) else ", ") if after_name else ("." if out else "")
+            out += seg.text
+        after_name = isinstance(seg, _Name)
+    return out
+
+
+def _named(path: tuple[_Segment, ...]) -> tuple[_Segment, ...]:
+    """`path` with everything after its last name turned into one name, as it reads."""
+    cut = max((i + 1 for i, seg in enumerate(path) if isinstance(seg, _Name)), default=0)
+    return (*path[:cut], _Name(_render(path[cut:])))
 
 
 def _type_name(tp: Any) -> str:
@@ -87,43 +167,58 @@ def _type_name(tp: Any) -> str:
 
 
 class _Loader:
-    def __init__(self, source: str, error: type[EdgeError]):
+    def __init__(self, source: str, error: type[EdgeError], ignore_unknown: bool, table: str):
         self.source = source
         self.error = error
+        self.ignore_unknown = ignore_unknown
+        self.table_word = table
 
-    def fail(self, path: str, message: str) -> typing.NoReturn:
-        where = f"{show(self.source)}: {path}" if path else show(self.source)
-        raise self.error(f"{where}: {message}")
+    def fail(self, path: tuple[_Segment, ...], message: str) -> NoReturn:
+        fail(self.error, self.source, _render(path), message)
 
-    def table(self, cls: type[T], data: Any, path: str) -> T:
+    def describe(self, value: Any) -> str:
+        return describe(value, self.table_word)
+
+    def table(self, cls: type[T], data: Any, path: tuple[_Segment, ...]) -> T:
         if not isinstance(data, Mapping):
-            self.fail(path, f"expected a table, got {describe(data)}")
-        hints = typing.get_type_hints(cls)
-        fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+            self.fail(path, f"expected {self.table_word}, got {self.describe(data)}")
+        label: Label | None = getattr(cls, "LABEL", None)
+        if label is not None:
+            path = _named(path)
+        hints = typing.get_type_hints(cls, include_extras=True)
+        fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
         unknown = [k for k in data if k not in fields]
-        if unknown:
+        if unknown and not self.ignore_unknown:
             self.fail(
-                _join(path, str(unknown[0])),
+                (*path, _Key(show(str(unknown[0])))),
                 f"unknown key (expected one of: {', '.join(sorted(fields))})",
             )
         values: dict[str, Any] = {}
         for name, field in fields.items():
-            key = _join(path, name)
-            if name in data:
+            key = (*path, _Key(name))
+            has_default = (field.default is not dataclasses.MISSING
+                           or field.default_factory is not dataclasses.MISSING)
+            if name in data and not (data[name] is None and has_default):
                 values[name] = self.value(hints[name], data[name], key)
-            elif (
-                field.default is dataclasses.MISSING
-                and field.default_factory is dataclasses.MISSING
-            ):
+                if label is not None and name == label.key:
+                    path = (*path[:-1], _Name(label.name(values[name])))
+            elif not has_default:
                 self.fail(key, "missing required key")
         try:
             return cls(**values)
         except FieldError as exc:
-            self.fail(_join(path, exc.key), exc.message)
+            self.fail((*path, _Key(exc.key)), exc.message)
 
-    def value(self, tp: Any, value: Any, path: str) -> Any:
+    def value(self, tp: Any, value: Any, path: tuple[_Segment, ...]) -> Any:
         origin = typing.get_origin(tp)
         args = typing.get_args(tp)
+        if origin is Annotated:
+            converted = self.value(args[0], value, path)
+            for check in tp.__metadata__:
+                problem = check(converted)
+                if problem is not None:
+                    self.fail(path, problem)
+            return converted
         if origin in (typing.Union, types.UnionType):
             inner = [a for a in args if a is not type(None)]
             if value is None and len(inner) < len(args):
@@ -140,31 +235,34 @@ class _Loader:
             # 8.0 == 8 and True == 1: a choice must also have the type it is written with.
             if not any(value == a and type(value) is type(a) for a in args):
                 choices = ", ".join(repr(a) for a in args)
-                self.fail(path, f"expected one of {choices}, got {value!r}")
+                expected = choices if len(args) == 1 else f"one of {choices}"
+                self.fail(path, f"expected {expected}, got {value!r}")
             return value
         if origin is tuple:
             if not isinstance(value, (list, tuple)):
-                self.fail(path, f"expected a list, got {describe(value)}")
+                self.fail(path, f"expected a list, got {self.describe(value)}")
             if len(args) == 2 and args[1] is Ellipsis:
-                return tuple(
-                    self.value(args[0], item, f"{path}[{i}]") for i, item in enumerate(value)
-                )
+                return tuple(self.value(args[0], item, (*path, i)) for i, item in enumerate(value))
             if len(value) != len(args):
                 self.fail(path, f"expected {len(args)} values, got {len(value)}")
-            return tuple(self.value(a, item, f"{path}[{i}]") for i, (a, item) in enumerate(zip(args, value)))
+            return tuple(self.value(a, item, (*path, i)) for i, (a, item) in enumerate(zip(args, value)))
+        if origin is dict:
+            if not isinstance(value, Mapping):
+                self.fail(path, f"expected {self.table_word}, got {self.describe(value)}")
+            return {k: self.value(args[1], v, (*path, _Key(show(str(k))))) for k, v in value.items()}
         if dataclasses.is_dataclass(tp):
-            return self.table(tp, value, path)
+            return self.table(tp, value, path)  # type: ignore[arg-type]
         if tp is bool:
             if not isinstance(value, bool):
-                self.fail(path, f"expected true or false, got {describe(value)}")
+                self.fail(path, f"expected true or false, got {self.describe(value)}")
             return value
         if tp is int:
             if isinstance(value, bool) or not isinstance(value, int):
-                self.fail(path, f"expected a whole number, got {describe(value)}")
+                self.fail(path, f"expected a whole number, got {self.describe(value)}")
             return value
         if tp is float:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                self.fail(path, f"expected a number, got {describe(value)}")
+                self.fail(path, f"expected a number, got {self.describe(value)}")
             if isinstance(value, int) and abs(value) > sys.float_info.max:
                 self.fail(path, "expected a finite number, got a whole number too large for one")
             if not math.isfinite(value):
@@ -172,13 +270,13 @@ class _Loader:
             return float(value)
         if tp is str:
             if not isinstance(value, str):
-                self.fail(path, f"expected a string, got {describe(value)}")
+                self.fail(path, f"expected a string, got {self.describe(value)}")
             if "\0" in value:  # no path, host, name or text of ours can hold one; the OS refuses it
                 self.fail(path, "must not contain a NUL character")
             return value
         if tp is Any:
             return value
-        raise TypeError(f"schema: unsupported field type {tp!r} at {path}")  # a bug, not input
+        raise TypeError(f"schema: unsupported field type {tp!r} at {_render(path)}")  # a bug, not input
 
 
 def describe(value: Any, table: str = "a table") -> str:

@@ -16,7 +16,7 @@ import pytest
 from broker import publish
 from test_service import DEVICE, P, finish, payload, start
 
-from edge.calibration.fit import read_calibration
+from edge.calibration.file import read_calibration
 from edge.config import load_config
 from edge.sim.record import true_rig
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge.calibration.fit import Calibration, write_calibration
+from edge.calibration.file import Calibration, write_calibration
 from edge.calibration.in_use import NOMINAL, believed_rig
 from edge.config import load_config
 from edge.errors import ConfigError

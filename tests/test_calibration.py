@@ -13,16 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge.calibration.fit import (
-    FORMAT,
-    Blob,
-    Calibration,
-    add_parser,
-    assign_spots,
-    fit_calibration,
-    read_calibration,
-    write_calibration,
-)
+from edge.calibration.file import FORMAT, Calibration, read_calibration, write_calibration
+from edge.calibration.fit import Blob, assign_spots, fit_calibration
+from edge.cli.calibrate import add_parser
 from edge.config import load_config
 from edge.errors import CalibrationError, UsageError
 from edge.recording import RecordingWriter, read_recording

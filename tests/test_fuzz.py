@@ -102,11 +102,17 @@ def get(doc: Any, path: Key) -> Any:
     return doc
 
 
+def show(text: str) -> str:
+    """A name as messages quote it: as it is when printable, else escaped."""
+    return text if text.isprintable() else repr(text)
+
+
 def dotted(path: Key) -> str:
-    """The key as messages write it: ``rig.lasers[1].direction[2]``."""
+    """The key as messages write it: ``rig.lasers[1].direction[2]`` (a key that is not printable
+    escaped, as :func:`show` does)."""
     out = ""
     for part in path:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+        out += f"[{part}]" if isinstance(part, int) else (f".{show(part)}" if out else show(part))
     return out
 
 
@@ -656,10 +662,6 @@ def recording(tmp_path_factory) -> tuple[Path, dict]:
         for frame in zone.frames:
             rec.load_image(zone, frame)
     return base, json.loads((base / "sweep.json").read_text(encoding="utf-8"))
-
-
-def show(text: str) -> str:
-    return text if text.isprintable() else repr(text)
 
 
 def recording_fragments(doc: Any, path: Key) -> list[set[str]]:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.calibration.fit import Calibration, read_calibration, write_calibration
+from edge.calibration.file import Calibration, read_calibration, write_calibration
 from edge.fsutil import atomic_write_bytes
 from edge.recording import RecordingWriter, read_recording
 from edge.rig import default_rig
@@ -23,7 +23,7 @@ from edge.rig import default_rig
 CHILD = textwrap.dedent('''
     import sys, numpy as np
     from dataclasses import replace
-    from edge.calibration.fit import Calibration, write_calibration
+    from edge.calibration.file import Calibration, write_calibration
     from edge.recording import RecordingWriter
     from edge.rig import default_rig
     rig = default_rig()

@@ -23,12 +23,14 @@ from hypothesis import strategies as st
 
 from edge.errors import RecordingError
 from edge.recording import (
+    FORMAT,
     FrameRecord,
     Recording,
     RecordingWriter,
+    SweepFile,
     ZoneRecord,
+    load,
     read_recording,
-    rig_from_json,
     rig_to_json,
 )
 from edge.rig import CameraModel, Mount, Rig, default_rig
@@ -195,7 +197,8 @@ def test_written_sweep_json_follows_the_spec(tmp_path: Path) -> None:
 def test_rig_json_helpers_round_trip() -> None:
     rig = Rig(CameraModel(352, 288, 400.0, 401.0, 175.5, 143.5, (-0.12, 0.05, 0.001, 0.0, 0.01)),
               default_rig().lasers, Mount((0.01, 0.0, 0.05), (0.0, -3.0, 1.5)), (0.3, 4.0))
-    assert_rig_equal(rig_from_json(json.loads(json.dumps(rig_to_json(rig))), "x.json"), rig)
+    doc = json.loads(json.dumps({"format": FORMAT, **rig_to_json(rig), "zones": []}))
+    assert_rig_equal(load(SweepFile, doc, "x.json").rig(), rig)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -314,7 +317,7 @@ CASES: list[tuple[str, Mutation, list[str]]] = [
     ("NaN", lambda d, p: d.update(range_limits_m=[0.25, float("nan")]),
      ["range_limits_m[1]", "finite"]),
     ("dist of 4", lambda d, p: d["camera"].update(dist=[0, 0, 0, 0]),
-     ["camera.dist", "expected 5 numbers, got 4"]),
+     ["camera.dist", "expected 5 values, got 4"]),
     ("truth not an object", lambda d, p: zone0(d).update(truth=[1.0]),
      ["zone 0: truth", "expected an object"]),
     ("duplicate zone index", lambda d, p: d["zones"].append(copy.deepcopy(zone0(d))),

@@ -38,79 +38,34 @@ something else (a distance, the config) is then wrong.
 
 from __future__ import annotations
 
-import argparse
-import json
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
-from datetime import UTC, datetime
-from pathlib import Path
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
 import numpy as np
 
-from edge.errors import CalibrationError, CommandError, UsageError
-from edge.fsutil import atomic_write_bytes
-from edge.recording import Recording, read_recording, rig_from_json, rig_to_json
+from edge.calibration.file import Calibration
+from edge.calibration.limits import MIN_POINTS, MIN_SPAN
+from edge.errors import CalibrationError
+from edge.recording import Recording, timestamp
 from edge.replay import zone_groups
 from edge.rig import CameraModel, Laser, Rig
 from edge.vision import SpotFinder
 
 log = logging.getLogger(__name__)
 
-FORMAT = "edge-calibration/1"
 THRESHOLD_SIGMAS = 8.0  # blob threshold over the difference image's robust noise
 WINDOW_SIGMA_PX = 1.5  # the Gaussian centroid (mean-shift) window
 MAX_SPOT_PX = 6.0  # RMS radius (per axis) above which a blob is a lamp or a screen, not a spot
 FIRST_GATE_PX = 25.0  # how far from the nominal prediction a spot may be (about 2.5° of error)
 OFFSET_GATE_PX = 10.0  # ... once its offset at one nearer distance is known
 GATE_PX = 6.0  # ... once its line through two or more nearer distances is known
-MIN_POINTS = 3
-MIN_SPAN = 1.5  # max/min distance
 MAX_RMS_PX = 0.5
 MAX_ORIGIN_SHIFT_M = 0.008  # a mounting error of a laser beyond this is a wrong distance or config
 MAX_FOCAL_CHANGE = 0.10
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """Fitted laser rays (origin at z = 0 of each line) and the camera they go with."""
-
-    lasers: tuple[Laser, ...]
-    camera: CameraModel
-    distances_m: tuple[float, ...] = ()
-    residuals_px: dict[str, dict] = field(default_factory=dict)
-    created: str = ""
-
-    def apply(self, rig: Rig) -> Rig:
-        """`rig` with its lasers and camera replaced by the calibrated ones (the reference flag
-        stays `rig`'s)."""
-        mine = {laser.name: laser for laser in self.lasers}
-        for laser in rig.lasers:
-            if laser.name not in mine:
-                raise CalibrationError(
-                    f"the calibration has no laser {laser.name!r} (it has {', '.join(mine)}): "
-                    "calibrate this rig again")
-        cam = rig.camera
-        if (self.camera.width, self.camera.height) != (cam.width, cam.height):
-            raise CalibrationError(
-                f"the calibration is for a {self.camera.width}x{self.camera.height} camera, the "
-                f"rig's is {cam.width}x{cam.height}: calibrate at this resolution")
-        lasers = tuple(
-            replace(mine[ln.name], reference=ln.reference)
-            for ln in rig.lasers)
-        return replace(rig, camera=self.camera, lasers=lasers)
-
-    @staticmethod
-    def from_rig(rig: Rig) -> Calibration:
-        """A calibration that is exactly `rig` (e.g. a simulator's true rig)."""
-        return Calibration(rig.lasers, rig.camera, created=_now())
-
-
-def _now() -> str:
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 # --- checks -------------------------------------------------------------------------------------
@@ -126,10 +81,10 @@ def _check_distances(zones: int, distances: Sequence[float]) -> tuple[float, ...
     if bad:
         raise CalibrationError(f"distances must be positive metres, got {bad[0]:g}")
     distinct = sorted(set(d))
-    if len(distinct) < 3:
+    if len(distinct) < MIN_POINTS:
         raise CalibrationError(
             f"only {len(distinct)} distinct distances ({', '.join(f'{x:g}' for x in distinct)} m); "
-            "a fit needs at least 3: record the target at more distances")
+            f"a fit needs at least {MIN_POINTS}: record the target at more distances")
     if distinct[-1] / distinct[0] < MIN_SPAN:
         raise CalibrationError(
             f"the distances span only a factor {distinct[-1] / distinct[0]:.2f} "
@@ -151,7 +106,7 @@ class Blob:
 
 def _mean(frames: Sequence[np.ndarray]) -> np.ndarray:
     acc = sum(SpotFinder.laser_channel(f).astype(np.float32) for f in frames)
-    return acc * np.float32(1.0 / (len(frames) * SpotFinder.full_scale(frames[0])))
+    return np.asarray(acc * np.float32(1.0 / (len(frames) * SpotFinder.full_scale(frames[0]))))
 
 
 def _difference(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
@@ -446,149 +401,4 @@ def fit_calibration(recording: Recording, distances_m: Sequence[float], fit_foca
     if not fit_focal:
         _check_origins(rig, fitted)
     lasers = tuple(replace(fitted[ln.name], reference=ln.reference) for ln in rig.lasers)
-    return Calibration(lasers, camera, D, res, _now())
-
-
-# --- files --------------------------------------------------------------------------------------
-
-
-def write_calibration(path: str | Path, cal: Calibration) -> None:
-    """Write `cal` as JSON, atomically (temporary file, fsync, rename)."""
-    rig = rig_to_json(Rig(cal.camera, cal.lasers))
-    doc = {"format": FORMAT, "created": cal.created, "distances_m": list(cal.distances_m),
-           "camera": rig["camera"], "lasers": rig["lasers"], "residuals_px": cal.residuals_px}
-    try:
-        atomic_write_bytes(path, (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot write the calibration: {exc.strerror or exc}") from None
-
-
-def _number(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
-def _integer(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def read_calibration(path: str | Path) -> Calibration:
-    """Read a calibration file strictly: every problem is one line naming the file and the key."""
-    src = str(path)
-
-    def fail(key: str, message: str) -> CalibrationError:
-        return CalibrationError(f"{src}: {key}: {message}" if key else f"{src}: {message}")
-
-    try:
-        obj = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise fail("", "no such calibration file (make one with edge calibrate)") from None
-    except json.JSONDecodeError as exc:
-        raise fail("", f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise fail("", f"cannot read: {getattr(exc, 'strerror', None) or exc}") from None
-    if not isinstance(obj, dict):
-        raise fail("", "expected a JSON object")
-    for key in ("format", "created", "distances_m", "camera", "lasers", "residuals_px"):
-        if key not in obj:
-            raise fail(key, "missing required key")
-    if obj["format"] != FORMAT:
-        raise fail("format", f"expected {FORMAT!r}, got {obj['format']!r}")
-    if not isinstance(obj["created"], str):
-        raise fail("created", "must be a string")
-    dist = obj["distances_m"]
-    if not isinstance(dist, list) or not all(_number(d) and d > 0 for d in dist):
-        raise fail("distances_m", "must be a list of positive numbers")
-    if not isinstance(obj["residuals_px"], dict):
-        raise fail("residuals_px", "must be an object")
-    for name, entry in obj["residuals_px"].items():
-        for k, ok, what in (("rms", _number, "a number"), ("max", _number, "a number"),
-                            ("n", _integer, "an integer")):
-            if not isinstance(entry, dict) or not ok(entry.get(k)):
-                raise fail(f"residuals_px.{name}.{k}", f"must be {what}")
-    rig = rig_from_json({"camera": obj["camera"], "lasers": obj["lasers"]}, src, error=CalibrationError)
-    res = {n: {"rms": float(e["rms"]), "max": float(e["max"]), "n": e["n"]}
-           for n, e in obj["residuals_px"].items()}
-    return Calibration(rig.lasers, rig.camera, tuple(float(d) for d in dist), res, obj["created"])
-
-
-# --- command line -------------------------------------------------------------------------------
-
-
-def add_parser(sub: Any) -> None:
-    """Register `edge calibrate` on an argparse sub-parsers object."""
-    p = sub.add_parser(
-        "calibrate", help="fit the laser rays from a flat target at known distances",
-        description="Either fit a recording offline (--recording, --out), or have a running device "
-                    "calibrate itself through the broker while you carry the target (--device).")
-    p.add_argument("--recording", metavar="DIR",
-                   help="recording whose zone i shows a flat target squarely at distance i")
-    p.add_argument("--distances", metavar="D1,D2,...", required=True,
-                   help="target distances in metres from the optical centre, one per zone, e.g. 0.5,1,2")
-    p.add_argument("--out", metavar="FILE", help="calibration file to write (JSON)")
-    p.add_argument("--fit-focal", action="store_true",
-                   help="also fit the focal length (laser origins then held at their nominal values)")
-    p.add_argument("--device", metavar="ID",
-                   help="instead: send cmd/calibrate to this running device and follow it (broker from --config)")
-    p.add_argument("--config", metavar="FILE", help="configuration file, for --device's broker (default: config/sim.toml)")
-    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
-                   help="change one configuration key, e.g. --set mqtt.host=\"broker\" (repeatable)")
-    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    p.set_defaults(func=run)
-
-
-def parse_distances(text: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        values = []
-    if not values:
-        raise UsageError(f"--distances: expected metres separated by commas, e.g. 0.5,1,2; got {text!r}")
-    return values
-
-
-def report(cal: Calibration, nominal: Rig) -> list[str]:
-    """Lines for people: per laser the fitted ray, its change from nominal and its residuals."""
-    lines = [f"{'laser':<10} {'origin mm':<22} {'direction':<27} {'change':>8} {'rms px':>7} "
-             f"{'max px':>7} {'points':>6}"]
-    for laser in cal.lasers:
-        nom = {ln.name: ln for ln in nominal.lasers}.get(laser.name)
-        angle = math.degrees(math.acos(min(1.0, float(laser.d @ nom.d)))) if nom else math.nan
-        o = "(" + ", ".join(f"{1000 * c:.1f}" for c in laser.origin_m) + ")"
-        d = "(" + ", ".join(f"{c:.5f}" for c in laser.direction) + ")"
-        r = cal.residuals_px.get(laser.name, {})
-        lines.append(f"{laser.name:<10} {o:<22} {d:<27} {angle:7.3f}° {r.get('rms', math.nan):7.3f} "
-                     f"{r.get('max', math.nan):7.3f} {r.get('n', 0):>3}/{len(cal.distances_m)}")
-    if (cal.camera.fx, cal.camera.fy) != (nominal.camera.fx, nominal.camera.fy):
-        lines.append(f"focal length: fx {cal.camera.fx:.2f} px, fy {cal.camera.fy:.2f} px (nominal fx "
-                     f"{nominal.camera.fx:g}: {100 * (cal.camera.fx / nominal.camera.fx - 1):+.2f} %)")
-    return lines
-
-
-def run(args: argparse.Namespace) -> int:
-    """`edge calibrate`: read, fit, write, report; or, with --device, over the broker."""
-    distances = parse_distances(args.distances)
-    if args.device is not None:
-        if args.recording or args.out or args.fit_focal:
-            raise UsageError("--device calibrates a running device: --recording, --out and --fit-focal "
-                             "are for a recording")
-        from edge.commands import parse_command
-        from edge.config import load_config
-        from edge.monitor import calibrate_device
-
-        config = load_config(args.config, args.set)
-        # The device would refuse what the command check refuses: say it here, before any wait.
-        try:
-            parse_command("calibrate", json.dumps({"distances_m": distances}).encode(),
-                          max_bytes=config.mqtt.max_payload_bytes, pan_limits=(-180.0, 180.0),
-                          tilt_limits=(-90.0, 90.0))
-        except CommandError as exc:
-            raise UsageError(f"--distances: {str(exc).removeprefix('cmd/calibrate: ')}") from None
-        return calibrate_device(config, args.device, distances)
-    if not args.recording or not args.out:
-        raise UsageError("give --recording and --out (a fit of a recording), or --device (a running device)")
-    recording = read_recording(args.recording)
-    cal = fit_calibration(recording, distances, fit_focal=args.fit_focal)
-    write_calibration(args.out, cal)
-    print("\n".join(report(cal, recording.rig)))
-    print(f"wrote {args.out}")
-    return 0
+    return Calibration(lasers, camera, D, res, timestamp())

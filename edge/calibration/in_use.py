@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from edge.calibration.fit import Calibration, read_calibration
+from edge.calibration.file import Calibration, read_calibration
 from edge.config import Config, resolve_path
 from edge.errors import CalibrationError, ConfigError
 from edge.rig import Rig

@@ -39,7 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.calibration.fit import FIRST_GATE_PX, Calibration, find_spots, fit_calibration
+from edge.calibration.file import Calibration
+from edge.calibration.fit import FIRST_GATE_PX, find_spots, fit_calibration
 from edge.capture import Capture
 from edge.errors import CalibrationError, HardwareError
 from edge.ranging import FAULT, FrameGroup, Ranger, ZoneResult

@@ -1,13 +1,16 @@
 """`edge calibrate`: fit the laser rays from a recording of a flat target, or have a running device
-calibrate itself over MQTT. The work is in :mod:`edge.calibration`; it is imported only when the
-command runs (the fit needs OpenCV, which the other commands must not wait for)."""
+calibrate itself over MQTT. The work is in :mod:`edge.calibration` and :mod:`edge.monitor`; it is
+imported only when the command runs (the fit needs OpenCV, which the other commands must not wait
+for)."""
 
 from __future__ import annotations
 
 import argparse
+import json
 from typing import Any
 
-from edge.cli.common import add_config_options
+from edge.cli.common import add_config_options, distances, load
+from edge.errors import CommandError, UsageError
 
 
 def add_parser(sub: Any) -> None:
@@ -29,6 +32,34 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from edge.calibration.fit import run as calibrate
+    """`edge calibrate`: read, fit, write, report; or, with --device, over the broker."""
+    targets = distances(args.distances, "--distances")
+    if args.device is not None:
+        if args.recording or args.out or args.fit_focal:
+            raise UsageError("--device calibrates a running device: --recording, --out and --fit-focal "
+                             "are for a recording")
+        from edge.commands import parse_command
+        from edge.monitor import calibrate_device
 
-    return calibrate(args)
+        config = load(args)
+        # The device would refuse what the command check refuses: say it here, before any wait.
+        try:
+            parse_command("calibrate", json.dumps({"distances_m": targets}).encode(),
+                          max_bytes=config.mqtt.max_payload_bytes, pan_limits=(-180.0, 180.0),
+                          tilt_limits=(-90.0, 90.0))
+        except CommandError as exc:
+            raise UsageError(f"--distances: {str(exc).removeprefix('cmd/calibrate: ')}") from None
+        return calibrate_device(config, args.device, targets)
+    if not args.recording or not args.out:
+        raise UsageError("give --recording and --out (a fit of a recording), or --device (a running device)")
+    from edge.calibration.file import write_calibration
+    from edge.calibration.fit import fit_calibration
+    from edge.calibration.report import report
+    from edge.recording import read_recording
+
+    recording = read_recording(args.recording)
+    cal = fit_calibration(recording, targets, fit_focal=args.fit_focal)
+    write_calibration(args.out, cal)
+    print("\n".join(report(cal, recording.rig)))
+    print(f"wrote {args.out}")
+    return 0

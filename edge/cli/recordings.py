@@ -55,7 +55,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     recording = read_recording(args.recording)
     rig = recording.rig
     if args.calibration:
-        from edge.calibration.fit import read_calibration
+        from edge.calibration.file import read_calibration
 
         rig = read_calibration(args.calibration).apply(rig)
     replayer = Replayer(rig, args.estimator, load(args).ranging)

@@ -15,8 +15,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from edge.calibration.fit import report, write_calibration
+from edge.calibration.file import write_calibration
 from edge.calibration.in_use import BelievedRig, apply, calibration_file
+from edge.calibration.report import report
 from edge.calibration.session import Outcome, TargetCalibration, summary
 from edge.config import Config
 from edge.errors import EdgeError, HardwareError
