@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 from edge.config_file import apply_overrides, default_config_path, read_table
 from edge.errors import ConfigError
+from edge.fsutil import output_problem
 from edge.hw.camera import CameraSettings
 from edge.hw.lasers import DEFAULT_WIRING, LasersConfig, LaserWiring
 from edge.hw.ptu import PtuConfig
@@ -137,6 +138,13 @@ class SweepConfig:
 
     def __post_init__(self) -> None:
         require(1 <= self.zones <= 4096, "zones", f"must be 1-4096, got {self.zones}")
+        for key in ("pan_start_deg", "pan_step_deg"):
+            require(abs(getattr(self, key)) <= 360.0, key, "must be within ±360°")
+        require(abs(self.tilt_deg) <= 90.0, "tilt_deg", "must be within ±90°")
+        require(len(self.poses_deg) <= 4096, "poses_deg", "at most 4096 poses")
+        for i, (pan, tilt) in enumerate(self.poses_deg):
+            require(abs(pan) <= 360.0 and abs(tilt) <= 90.0, f"poses_deg[{i}]",
+                    f"pan must be within ±360° and tilt within ±90°, got [{pan:g}, {tilt:g}]")
         require(1 <= self.pairs_per_zone <= 32, "pairs_per_zone", "must be 1-32")
         require(abs(self.nudge_deg) <= 1.0, "nudge_deg", "must be within ±1°")
 
@@ -175,6 +183,20 @@ class TlsConfig:
                 "give both cert_file and key_file, or neither")
 
 
+MAX_SESSION_EXPIRY_S = 0xFFFFFFFF
+
+
+def _identifier_problem(client_id: str) -> str | None:
+    """Why `client_id` cannot name us to a broker, or None (empty: the default)."""
+    if len(client_id.encode()) > 65535:
+        return "longer than MQTT allows (65535 bytes)"
+    bad = next((c for c in client_id if c in "+#/" or not c.isprintable() or c.isspace()), None)
+    if bad is not None:
+        return (f"must not contain {bad!r} (Mosquitto denies every publish of a client whose id has "
+                "+ or #; / and control characters break ACL patterns and logs)")
+    return None
+
+
 @dataclass(frozen=True)
 class MqttConfig:
     """The broker link (``[mqtt]``), per ../spec/mqtt.md."""
@@ -203,10 +225,21 @@ class MqttConfig:
             require(bool(value) and not any(c in value for c in "#+\0") and not value.startswith("/")
                     and not value.endswith("/"), key, f"not a usable topic prefix: {value!r}")
         require(not (self.password and self.password_file), "password", "give password or password_file, not both")
+        require(self.host.isprintable() and 0 < len(self.host) <= 253 and not self.host.isspace(),
+                "host", "must be a host name or address")
+        # What the broker would refuse or deny (every publish, for a client id with + or #): say so
+        # now, not after a start that seems fine. MQTT strings are at most 65535 bytes.
+        problem = _identifier_problem(self.client_id)
+        require(problem is None, "client_id", f"{problem}")
+        require(len(self.username.encode()) <= 65535, "username", "longer than MQTT allows (65535 bytes)")
         require(5 <= self.keepalive_s <= 3600, "keepalive_s", "must be 5-3600 s")
-        require(self.session_expiry_s >= 0, "session_expiry_s", "must be >= 0")
+        # A four-byte integer in MQTT 5: paho refuses anything larger, killing the link's thread.
+        require(0 <= self.session_expiry_s <= MAX_SESSION_EXPIRY_S, "session_expiry_s",
+                f"must be 0-{MAX_SESSION_EXPIRY_S} s (MQTT's limit; {MAX_SESSION_EXPIRY_S} never expires)")
         require(0 < self.reconnect_min_s <= self.reconnect_max_s, "reconnect_min_s",
                 "must be positive and at most reconnect_max_s")
+        require(self.reconnect_min_s >= 0.01, "reconnect_min_s", "must be at least 0.01 s")
+        require(self.reconnect_max_s <= 3600, "reconnect_max_s", "must be at most 3600 s")
         require(256 <= self.max_payload_bytes <= 1 << 20, "max_payload_bytes", "must be 256 B - 1 MiB")
 
 
@@ -235,6 +268,9 @@ class AudioConfig:
     def __post_init__(self) -> None:
         require(5.0 <= self.chunk_ms <= 100.0, "chunk_ms", "must be 5-100 ms")
         require(0.0 <= self.lead_ms <= 500.0, "lead_ms", "must be 0-500 ms")
+        if self.out and self.out not in ("alsa", "aplay", "null") and not self.out.startswith("alsa:"):
+            problem = output_problem(self.out)  # a WAV file is renamed over what is there
+            require(problem is None, "out", f"{problem}; give a WAV file's path, or alsa")
 
 
 @dataclass(frozen=True)
@@ -254,9 +290,12 @@ class ServiceConfig:
     calibrate_timeout_s: float = 600.0
 
     def __post_init__(self) -> None:
-        require(self.sweep_interval_s >= 0, "sweep_interval_s", "must be >= 0")
+        require(0 <= self.sweep_interval_s <= 86400 * 365, "sweep_interval_s", "must be 0 s to a year")
+        if self.state_dir:
+            problem = output_problem(self.state_dir, folder=True)
+            require(problem is None, "state_dir", f"{problem}")
         require(10 <= self.calibrate_timeout_s <= 86400, "calibrate_timeout_s", "must be 10-86400 s")
-        require(self.outbox_max_messages >= 100, "outbox_max_messages", "must be >= 100")
+        require(100 <= self.outbox_max_messages <= 10**9, "outbox_max_messages", "must be 100-1000000000")
         require(1 <= self.guard_pairs_per_zone <= 8, "guard_pairs_per_zone", "must be 1-8")
 
     def resolved_state_dir(self) -> Path:

@@ -12,9 +12,13 @@ from pathlib import Path
 from typing import Any
 
 from edge.errors import ConfigError
-from edge.schema import show
+from edge.fsutil import read_small
+from edge.schema import MAX_DEPTH, depth, show
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+# A configuration is a few kB; a scene's or a long poses list's stays well under this.
+CONFIG_LIMIT = 1 << 20
 
 
 def config_dir() -> Path:
@@ -27,15 +31,17 @@ def default_config_path() -> Path:
 
 
 def read_table(file: Path) -> dict[str, Any]:
-    """The TOML file as a plain table; ConfigError with one line if it cannot be read as TOML."""
+    """The TOML file as a plain table; ConfigError with one line if it cannot be read as TOML.
+
+    The file must be a regular file of at most CONFIG_LIMIT bytes (never a FIFO or a device:
+    see :func:`edge.fsutil.read_small`), nesting at most MAX_DEPTH levels."""
     name = show(str(file))
     try:
-        with open(file, "rb") as fh:
-            data = tomllib.load(fh)
+        data = tomllib.loads(read_small(file, CONFIG_LIMIT).decode("utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"{name}: no such configuration file") from None
     except OSError as exc:
-        raise ConfigError(f"{name}: cannot read: {exc.strerror}") from None
+        raise ConfigError(f"{name}: cannot read: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{name}: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as exc:
@@ -44,6 +50,8 @@ def read_table(file: Path) -> dict[str, Any]:
         raise ConfigError(f"{name}: not usable TOML: nested too deeply") from None
     except ValueError as exc:  # e.g. a whole number of more digits than Python converts
         raise ConfigError(f"{name}: not usable TOML: {str(exc).splitlines()[0]}") from None
+    if depth(data) > MAX_DEPTH:
+        raise ConfigError(f"{name}: not usable TOML: nested more than {MAX_DEPTH} levels deep")
     return data
 
 

@@ -24,9 +24,10 @@ class UsageError(EdgeError):
 
 
 class RecordingError(EdgeError):
-    """A sweep recording cannot be read or written as `edge-sweep/1` says."""
+    """A sweep recording cannot be read or written as `edge-sweep/1` says (exit status 2: the
+    recording given is bad input, as a configuration is)."""
 
-    exit_code = 1
+    exit_code = 2
 
 
 class SceneError(EdgeError):

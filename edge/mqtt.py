@@ -41,6 +41,7 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 from edge.commands import request_id_of
 from edge.config import MqttConfig
 from edge.errors import ConfigError
+from edge.fsutil import read_small
 from edge.modes import MODES
 from edge.outbox import Outbox
 
@@ -207,7 +208,7 @@ def read_password(config: MqttConfig) -> str | None:
         return config.password or None
     path = Path(config.password_file).expanduser()
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_small(path, 4096).decode("utf-8")  # never a FIFO or /dev/zero: it must not hang
     except (OSError, UnicodeDecodeError) as exc:
         why = getattr(exc, "strerror", None) or str(exc)
         raise ConfigError(f"mqtt.password_file: cannot read {path}: {why}") from None

@@ -23,6 +23,7 @@ import logging
 import os
 import re
 import shutil
+import stat
 import struct
 import zlib
 from collections.abc import Callable, Mapping, Sequence
@@ -35,7 +36,7 @@ import cv2
 import numpy as np
 
 from edge.errors import EdgeError, RecordingError
-from edge.fsutil import fsync_dir, process_alive
+from edge.fsutil import fsync_dir, output_problem, process_alive, read_small
 from edge.rig import CameraModel, Laser, Mount, Rig, Vec3
 from edge.schema import Check, FieldError, Label, build, describe, fail, read_json, require, show
 
@@ -215,6 +216,9 @@ class Recording:
         """
         fail = _at(str(self.path / SWEEP_JSON), _frame_where(zone.index, frame.file))
         file = _frame_path(self.path, frame.file, fail)
+        # The header first, always: a small PNG can claim 30000 x 30000 pixels (2.7 GB decoded),
+        # and the file may have changed since read_recording looked.
+        _check_png_header(file, self.rig.camera, fail)
         image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
         if image is None:
             fail("image is unreadable: OpenCV could not decode it")
@@ -301,8 +305,14 @@ def _check_size(width: int, height: int, camera: CameraModel, fail: Fail) -> Non
 def _check_png_header(path: Path, camera: CameraModel, fail: Fail) -> None:
     """Check a PNG's size and bit depth from its IHDR chunk, without decoding the pixels."""
     try:
-        with open(path, "rb") as f:
-            head = f.read(33)
+        # Not blocking: a FIFO put there after _frame_path looked must not hang us.
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                fail("image is unreadable: not a regular file")
+            head = os.read(fd, 33)
+        finally:
+            os.close(fd)
     except OSError as exc:
         fail(f"image is unreadable ({exc.strerror})")
     if len(head) < 33 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
@@ -351,7 +361,7 @@ def read_recording(path: str | Path, check_images: bool = True) -> Recording:
 
 def _is_recording(path: Path) -> bool:
     try:
-        return json.loads((path / SWEEP_JSON).read_bytes()).get("format") == FORMAT
+        return json.loads(read_small(path / SWEEP_JSON)).get("format") == FORMAT
     except (OSError, ValueError, AttributeError):
         return False
 
@@ -417,6 +427,9 @@ class RecordingWriter:
 
     def _check_target(self) -> None:
         p = self.path
+        problem = output_problem(p, folder=True)
+        if problem is not None and "not a folder" not in problem:  # a file: said below
+            raise RecordingError(f"{show(str(p))}: refusing to write a recording there: {problem}")
         if not os.path.lexists(p) or (p.is_dir() and not p.is_symlink() and
                                       (not any(p.iterdir()) or _is_recording(p))):
             return

@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -101,11 +102,27 @@ class CameraModel:
     cy: float
     dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
 
+    # Physical bounds, so that no file can make us allocate or compute the absurd: no sensor we
+    # could meet is wider than 8192 px; a focal length from 0.05 to 100 image sizes is a field of
+    # view from about 0.6° to 170°; a principal point lies in or near the image (within 100 image
+    # sizes: as loose as the focal length); real lenses' coefficients are within ±10 (±100 leaves
+    # room for odd fits).
+    MAX_SIDE_PX: ClassVar[int] = 8192
+    MAX_DIST: ClassVar[float] = 100.0
+
     def __post_init__(self) -> None:
-        require(self.width > 0, "width", f"must be positive, got {self.width}")
-        require(self.height > 0, "height", f"must be positive, got {self.height}")
-        require(self.fx > 0, "fx", f"must be positive, got {self.fx}")
-        require(self.fy > 0, "fy", f"must be positive, got {self.fy}")
+        for key, side in (("width", self.width), ("height", self.height)):
+            require(1 <= side <= self.MAX_SIDE_PX, key, f"must be 1-{self.MAX_SIDE_PX} pixels, got {side}")
+        size = max(self.width, self.height)
+        for key, f in (("fx", self.fx), ("fy", self.fy)):
+            require(f > 0, key, f"must be positive, got {f:g}")
+            require(0.05 * size <= f <= 100.0 * size, key,
+                    f"must be {0.05 * size:g}-{100.0 * size:g} pixels (0.05-100 times the image size), got {f:g}")
+        for key, c in (("cx", self.cx), ("cy", self.cy)):
+            require(abs(c) <= 100.0 * size, key, f"must be within ±{100.0 * size:g} pixels "
+                    f"(100 times the image size), got {c:g}")
+        require(all(abs(d) <= self.MAX_DIST for d in self.dist), "dist",
+                f"each coefficient must be within ±{self.MAX_DIST:g}, got {list(self.dist)}")
 
     @property
     def matrix(self) -> np.ndarray:
@@ -242,7 +259,7 @@ class Rig:
         flagged = [laser.name for laser in self.lasers if laser.reference]
         require(len(flagged) <= 1, "lasers", f"only one laser may be the reference, got {flagged}")
         lo, hi = self.range_limits_m
-        require(0 < lo < hi, "range_limits_m", f"must be 0 < near < far, got [{lo}, {hi}]")
+        require(0 < lo < hi <= 1000, "range_limits_m", f"must be 0 < near < far <= 1000 m, got [{lo}, {hi}]")
 
     @property
     def reference(self) -> Laser:

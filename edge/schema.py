@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, NoReturn, TypeVar
 
 from edge.errors import ConfigError, EdgeError
+from edge.fsutil import SMALL_LIMIT, read_small
 
 T = TypeVar("T")
 
@@ -91,12 +92,18 @@ def fail(error: type[EdgeError], source: str, where: str, message: str) -> NoRet
     raise error(f"{head}: {message}")
 
 
-def read_json(path: str | Path, error: type[EdgeError], missing: str = "no such file") -> Any:
+# No document of ours nests deeper than a few levels (sweep.json: zones[i].frames[j].truth.lasers…).
+MAX_DEPTH = 32
+
+
+def read_json(path: str | Path, error: type[EdgeError], missing: str = "no such file",
+              limit: int = SMALL_LIMIT) -> Any:
     """The JSON document in file `path`; `error` naming the file when it cannot be read or parsed
-    (`missing`: what to say when there is no such file)."""
+    (`missing`: what to say when there is no such file). The file must be a regular file of at
+    most `limit` bytes (:func:`edge.fsutil.read_small`) nesting at most MAX_DEPTH levels."""
     source = str(path)
     try:
-        return json.loads(Path(path).read_bytes())
+        doc = json.loads(read_small(path, limit))
     except FileNotFoundError:
         fail(error, source, "", missing)
     except OSError as exc:
@@ -109,6 +116,21 @@ def read_json(path: str | Path, error: type[EdgeError], missing: str = "no such 
         fail(error, source, "", "not usable JSON (nested too deeply)")
     except ValueError as exc:  # a whole number of more digits than Python converts
         fail(error, source, "", f"not usable JSON ({str(exc).splitlines()[0]})")
+    if depth(doc) > MAX_DEPTH:
+        fail(error, source, "", f"not usable JSON (nested more than {MAX_DEPTH} levels deep)")
+    return doc
+
+
+def depth(doc: Any) -> int:
+    """How deeply lists and tables nest in `doc` (a scalar: 0), without recursion."""
+    deepest, todo = 0, [(doc, 1)]
+    while todo:
+        node, level = todo.pop()
+        children = node.values() if isinstance(node, Mapping) else node if isinstance(node, list) else None
+        if children is not None:
+            deepest = max(deepest, level)
+            todo.extend((child, level + 1) for child in children)
+    return deepest
 
 
 def show(text: str, limit: int | None = None) -> str:

@@ -107,8 +107,8 @@ def test_degrees_round_to_positions(unit, emu):
 
 
 @pytest.mark.parametrize("pan, tilt, words", [
-    (170.0, 0.0, r"pan 170° is outside the pan-tilt unit's limits -158\.91°…158\.91°"),
-    (0.0, -50.0, r"tilt -50° is outside the pan-tilt unit's limits -46\.65°…31\.06°"),
+    (170.0, 0.0, r"pan 170° is outside the pan-tilt unit's limits -158\.91424°…158\.91424°"),
+    (0.0, -50.0, r"tilt -50° is outside the pan-tilt unit's limits -46\.6457°…31\.06285°"),
 ])
 def test_targets_outside_the_limits_are_refused_and_nothing_is_sent(unit, emu, pan, tilt, words):
     sent = len(emu.commands)
@@ -279,7 +279,7 @@ def _edge_ptu(argv: list[str], capsys) -> str:
 
 def test_cli_status_move_home(emu, capsys):
     out = _edge_ptu(["--port", emu.port, "status"], capsys)
-    assert "185.1428″" in out and "-158.91°…+158.91°" in out and "pan +0.0000°" in out
+    assert "185.1428″" in out and "-158.91424°…+158.91424°" in out and "pan +0.0000°" in out
     out = _edge_ptu(["--port", emu.port, "--set", "ptu.settle_ms=0", "move", "10", "5"], capsys)
     assert "pan +9.9771°, tilt +4.9886°" in out
     assert emu.positions() == (194, 97)

@@ -110,7 +110,7 @@ def test_replay_of_a_broken_recording_is_one_line(tmp_path: Path) -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "edge", "replay", str(tmp_path), "--json"], capture_output=True, text=True
     )
-    assert proc.returncode == 1
+    assert proc.returncode == 2  # a RecordingError: bad input, as README says
     assert proc.stdout == ""
     assert len(proc.stderr.strip().splitlines()) == 1 and "sweep.json" in proc.stderr
 

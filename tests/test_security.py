@@ -35,7 +35,8 @@ from edge.outbox import Outbox
 
 REPO = Path(__file__).resolve().parents[1]
 ACL = (REPO / "config" / "mosquitto-acl.conf").read_text()
-PASSWORDS = {"dev1": "pw-dev1", "dev2": "pw-dev2", "dashboard": "pw-dash", "homeassistant": "pw-ha"}
+PASSWORDS = {"dev1": "pw-dev1", "dev2": "pw-dev2", "dashboard": "pw-dash", "homeassistant": "pw-ha",
+             "consumer": "pw-consumer"}
 VERSION = "9.9.9"
 NOT_AUTHORIZED = 0x87
 BAD_CREDENTIALS = 0x86
@@ -175,8 +176,9 @@ def refused(result: ReasonCode | Exception | None) -> bool:
 def link_config(b: Mosquitto, **changes) -> MqttConfig:
     # A client id of its own per link: two links of one device id in a test must not take over
     # each other's connection and persistent session.
+    changes.setdefault("client_id", f"edge-test-{uuid.uuid4().hex[:8]}")
     return MqttConfig(host=b.host, port=b.port, keepalive_s=5, reconnect_min_s=0.05, reconnect_max_s=0.3,
-                      client_id=f"edge-test-{uuid.uuid4().hex[:8]}", **changes)
+                      **changes)
 
 
 def password_file(folder: Path, user: str, password: str | None = None) -> str:
@@ -524,6 +526,37 @@ def test_the_example_site_config_runs_with_the_acl(pki, peers, links, tmp_path):
         assert peers(b, "dev2", tls=tls).started().publish("edge/dev1/alert", "{}").value == NOT_AUTHORIZED
         assert refused(peers(b, None, tls=tls).start(timeout=1.0))  # allow_anonymous false
         assert refused(peers(b, "dev1").start(timeout=1.0))  # no plain MQTT
+    finally:
+        b.close()
+
+
+def test_the_site_config_ties_client_ids_to_usernames(pki, peers, links, tmp_path):
+    # use_username_as_clientid: whatever client id a client sends, the broker uses its username.
+    # The read-only consumer connecting as `edge-dev1` (the device's own default client id) once
+    # knocked the device off and could take its session; now it is simply `consumer`.
+    if not shutil.which("mosquitto_passwd"):
+        pytest.skip("mosquitto_passwd is not installed (it comes with mosquitto)")
+    b = Mosquitto()
+    try:
+        b.conf_path = _site_config(pki, tmp_path / "site", b.port)
+        b.log_path = tmp_path / "site" / "mosquitto.log"
+        b.start()
+        tls = Tls(pki.ca)
+        dash = peers(b, "dashboard", tls=tls).started().subscribe("edge/dev1/alert")
+        config = link_config(b, username="dev1", password_file=password_file(tmp_path, "dev1"),
+                             tls=TlsConfig(enabled=True, ca_file=pki.ca), client_id="edge-dev1",
+                             session_expiry_s=300)
+        link = links(config, "dev1")
+        link.start()
+        wait_until(lambda: link.connected, what="dev1 to connect to the site config's listener")
+        impostor = peers(b, "consumer", tls=tls, client_id="edge-dev1").started(session_expiry_s=300)
+        assert not impostor.session_present  # not the device's session: its own, as `consumer`
+        time.sleep(1.0)  # a take-over would have disconnected the device by now
+        assert link.connected and link.stats()["connects"] == 1, link.stats()
+        link.publish_event("alert", {"event": "intrusion", "id": "still-here", "sweep": 1})
+        assert json.loads(dash.wait_for("edge/dev1/alert").payload)["id"] == "still-here"
+        assert impostor.client.is_connected()  # and the consumer keeps its own connection
+        assert link.stats()["connects"] == 1
     finally:
         b.close()
 

@@ -131,6 +131,6 @@ def test_cli_show_of_a_broken_recording_is_one_line(tmp_path: Path) -> None:
     (tmp_path / "broken" / "sweep.json").write_text("{")
     proc = subprocess.run([sys.executable, "-m", "edge", "sim", "show", str(tmp_path / "broken")],
                           capture_output=True, text=True)
-    assert proc.returncode == 1
+    assert proc.returncode == 2  # a RecordingError: bad input, as README says
     assert "sweep.json: not valid JSON" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1

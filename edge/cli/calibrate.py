@@ -55,8 +55,10 @@ def run(args: argparse.Namespace) -> int:
     from edge.calibration.file import write_calibration
     from edge.calibration.fit import fit_calibration
     from edge.calibration.report import report
+    from edge.fsutil import check_output
     from edge.recording import read_recording
 
+    check_output(args.out, "--out", error=UsageError)  # before the fit, not after it
     recording = read_recording(args.recording)
     cal = fit_calibration(recording, targets, fit_focal=args.fit_focal)
     write_calibration(args.out, cal)

@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"pan-tilt unit on {unit.port}{' (emulator)' if emulator else ''}: {unit.model}")
             (ap, at), (dp, dt) = unit.res_arcsec, unit.resolution_deg
             print(f"resolution: pan {ap:.4f}″, tilt {at:.4f}″ per position ({dp:.6f}°, {dt:.6f}°)")
-            print(f"limits: pan {pn:+.2f}°…{px:+.2f}°, tilt {tn:+.2f}°…{tx:+.2f}°")
+            print(f"limits: pan {pn:+.5f}°…{px:+.5f}°, tilt {tn:+.5f}°…{tx:+.5f}°")  # 180.00 would hide 179.99994
             print(f"speed: {settings.speed_deg_s:g} °/s (unit allows {lo:.2f}–{hi:.2f} °/s), "
                   f"acceleration {settings.accel_deg_s2:g} °/s²")
             print(f"position: pan {pan:+.4f}°, tilt {tilt:+.4f}°")

@@ -100,11 +100,13 @@ def cmd_sim_record(args: argparse.Namespace) -> int:
 
 def cmd_sim_show(args: argparse.Namespace) -> int:
     from edge.contact import contact_sheet
-    from edge.fsutil import write_png
+    from edge.errors import UsageError
+    from edge.fsutil import check_output, write_png
     from edge.recording import read_recording
 
-    recording = read_recording(args.recording)
     out = Path(args.out) if args.out else Path(args.recording) / "contact.png"
+    check_output(out, "--out", error=UsageError)
+    recording = read_recording(args.recording)
     write_png(out, contact_sheet(recording, columns=args.columns))
     print(f"wrote {out}")
     return 0

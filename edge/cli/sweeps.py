@@ -55,9 +55,15 @@ def cmd_record(args: argparse.Namespace) -> int:
 def _live_sweep(config, out: Path, recording: Path | None) -> int:
     import contextlib
 
-    from edge.fsutil import atomic_write_bytes, write_png
+    from edge.errors import UsageError
+    from edge.fsutil import atomic_write_bytes, check_output, write_png
     from edge.mapping import draw_map, map_error, results_document
     from edge.recording import RecordingWriter
+
+    # Refused before the sweep, not after it: a folder of ours, a regular sweep.json and map.png.
+    check_output(out, "--out", folder=True, error=UsageError)
+    for name in ("sweep.json", "map.png"):
+        check_output(out / name, "--out", error=UsageError)
     from edge.replay import format_score, score_ranges
     from edge.sweep import run_configured_sweep
 

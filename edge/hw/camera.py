@@ -56,8 +56,9 @@ class CameraSettings:
     timeout_s: float = 1.0  # no frame for this long is a camera fault
 
     def __post_init__(self) -> None:
-        require(self.analogue_gain >= 1.0, "analogue_gain", "must be >= 1")
-        require(self.exposure_us > 0, "exposure_us", "must be positive")
+        # Physical ranges: sensors' analogue gain tops out at 16-64x, no frame takes a second.
+        require(1.0 <= self.analogue_gain <= 64.0, "analogue_gain", "must be 1-64")
+        require(self.exposure_us >= 1.0, "exposure_us", "must be at least 1 µs")
         require(0.1 <= self.frame_rate_hz <= 1000.0, "frame_rate_hz",
                 f"must be 0.1-1000 frames a second, got {self.frame_rate_hz:g}")
         require(
@@ -65,8 +66,8 @@ class CameraSettings:
             "exposure_us",
             f"must fit in one frame time ({1e6 / self.frame_rate_hz:.0f} µs)",
         )
-        require(self.latency_ms >= 0, "latency_ms", "must be >= 0")
-        require(self.timeout_s > 0, "timeout_s", "must be positive")
+        require(0 <= self.latency_ms <= 1000, "latency_ms", "must be 0-1000 ms")
+        require(0 < self.timeout_s <= 60, "timeout_s", "must be more than 0 and at most 60 s")
 
     @property
     def frame_ns(self) -> int:

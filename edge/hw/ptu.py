@@ -67,6 +67,11 @@ class PtuConfig:
         require(self.settle_ms >= 0, "settle_ms", "must be >= 0")
 
 
+def _deg(angle: float) -> str:
+    """An angle with as many decimals as a position step needs (0.0514°: five), no trailing 0s."""
+    return f"{angle:.5f}".rstrip("0").rstrip(".")
+
+
 def trapezoid_s(distance: float, speed: float, accel: float) -> float:
     """Duration of a rest-to-rest move with a speed cap and a constant acceleration."""
     if distance <= 0:
@@ -207,8 +212,10 @@ class PanTiltUnit:
         for name, deg, pos, (lo, hi), r in zip(("pan", "tilt"), (pan_deg, tilt_deg), target,
                                                self.limits, (rp, rt)):
             if not lo <= pos <= hi:
+                # Enough digits to be true: a limit of 179.99994° shown as 180.00° reads as if
+                # 180° were allowed.
                 raise PtuError(f"{name} {deg:g}° is outside the pan-tilt unit's limits "
-                                    f"{lo * r:.2f}°…{hi * r:.2f}°; choose a {name} within them")
+                                    f"{_deg(lo * r)}°…{_deg(hi * r)}°; choose a {name} within them")
         return target
 
     def move_time_s(self, pan_from: float, tilt_from: float, pan_to: float, tilt_to: float) -> float:
