@@ -168,7 +168,9 @@ class Outbox:
             message = OutboxMessage(seq, topic, bytes(payload), qos, bool(retain), time.time())
             try:
                 # Short of room (the reserve given back): drop before the file grows into the last of it.
-                short = self._short_of_room() and self._drop_for_room(len(message.payload)) > 0
+                short = self._short_of_room()
+                if short:
+                    self._drop_for_room(len(message.payload))
                 dropped = self._insert([(message, _rank(topic))])
                 condition = _DROPPING.format(self.path.parent) if short else "ok"
             except sqlite3.Error as exc:

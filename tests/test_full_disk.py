@@ -107,3 +107,49 @@ def test_a_restart_on_a_full_disk_opens_and_runs_on(small_disk: Path) -> None:
         assert box.condition.startswith("full: ")
         pending = box.pending(limit=1000)
         assert pending[-1].topic == ALERT and pending[-2].payload == _sweep(29)
+
+
+def test_the_service_runs_on_with_a_full_state_disk_and_says_so_in_state(small_disk: Path) -> None:
+    """The issue's restart: the broker is away, sweeps of a previous run fill the state disk."""
+    import json
+    import threading
+    import time
+
+    from edge.config import load_config
+    from edge.service import Service
+    from tests.broker import free_port
+
+    with Outbox(small_disk / "outbox.sqlite3") as box:
+        for n in range(10):
+            box.put(SWEEP, _sweep(n), retain=True)
+    hog = _fill(small_disk)
+    config = load_config(None, [f"service.state_dir={json.dumps(str(small_disk))}", 'mqtt.host="127.0.0.1"',
+                                f"mqtt.port={free_port()}", 'mode="guard"', "sweep.zones=4",
+                                "service.guard_pairs_per_zone=1", "service.watchdog=false"])
+    service = Service(config)
+    seen: list[str] = []
+
+    def watch() -> None:
+        deadline = time.monotonic() + 180
+
+        def sweeps(n: int) -> None:
+            target = service.sweeps + n
+            while time.monotonic() < deadline and service.sweeps < target:
+                time.sleep(0.02)
+
+        sweeps(1)  # the first sweep may find room again in the outbox's own files (its WAL)
+        hogs = [hog, _fill(small_disk)]  # now not a byte is left
+        sweeps(3)
+        seen.append(service.state()["health"]["storage"])
+        for h in hogs:
+            h.unlink()  # room again
+        sweeps(2)
+        seen.append(service.state()["health"]["storage"])
+        service.stop_requested.set()
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    assert service.run() == 0
+    watcher.join(5)
+    assert service.sweeps >= 6
+    assert seen[0].startswith("full: ") and seen[1] == "ok"

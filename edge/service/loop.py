@@ -125,7 +125,7 @@ class Service:
             if self._given_link:
                 stack.callback(self.link.stop)
             else:
-                self.link = stack.enter_context(open_link(self.config, self.device_id))
+                self.link = stack.enter_context(open_link(self.config, self.device_id, self.health.storage))
             stack.callback(setattr, self, "_parts", None)
             self._notifier.status("starting the rig")
             try:
