@@ -60,7 +60,8 @@ def fault(error: type[HardwareError], message: str) -> ZoneResult:
 
 
 def test_starts_ok_with_the_calibration_it_is_given() -> None:
-    assert health().parts == {"camera": "ok", "lasers": "ok", "ptu": "ok", "calibration": "nominal rig"}
+    assert health().parts == {"camera": "ok", "lasers": "ok", "ptu": "ok", "calibration": "nominal rig",
+                             "storage": "ok"}
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -56,7 +56,8 @@ def test_a_range_finder_run_publishes_every_topic_of_the_contract(broker, subscr
     online = subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
     assert online.retain or True  # live delivery of a retained message carries retain=0 in MQTT 5
     state = payload(subscriber.wait_for(f"{P}/state", timeout=10))
-    assert state["mode"] == "rangefinder" and set(state["health"]) == {"camera", "lasers", "ptu", "calibration"}
+    assert state["mode"] == "rangefinder" and set(state["health"]) == {"camera", "lasers", "ptu", "calibration",
+                                                                                 "storage"}
     assert state["device"] == DEVICE and "version" in state and "uptime_s" in state and "sweeps" in state
     # One range per camera frame: about 30 a second, each a zone result of geometry.md.
     ranges = subscriber.wait_count(f"{P}/range", 60, timeout=20)
@@ -238,7 +239,7 @@ pause_s = [0.0, {stand}, {stand}, {stand}, 0.0]
 
 def _raised(stderr: str) -> list[tuple[str, str, str]]:
     """(event, track, zones) of every alert the service logged as it raised it."""
-    return re.findall(r"guard: (intrusion|moved|cleared) (t\d+) in zones (\[[\d, ]*\])", stderr)
+    return re.findall(r"guard: (intrusion|moved|cleared) (b\d+-t\d+) in zones (\[[\d, ]*\])", stderr)
 
 
 def test_guard_alerts_survive_ten_broker_outages_exactly_as_raised_and_in_order(broker, subscriber, tmp_path, repo):

@@ -66,9 +66,10 @@ after ``relearn``); pending tracks have none.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import Counter, deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -365,14 +366,18 @@ def _dist(a: tuple[float, float], b: tuple[float, float]) -> float:
 
 
 class Guard:
-    """Learns the background of `zone_count` zones, then turns sweeps into guard events."""
+    """Learns the background of `zone_count` zones, then turns sweeps into guard events.
 
-    def __init__(self, config: GuardConfig, zone_count: int) -> None:
+    Track ids are ``t1``, ``t2``, … or, given `new_id`, whatever it returns for each new track (the
+    service's are unique across restarts and across guards: ``b7-t1``)."""
+
+    def __init__(self, config: GuardConfig, zone_count: int, new_id: Callable[[], str] | None = None) -> None:
         if zone_count < 1:
             raise ValueError(f"zone_count must be >= 1, got {zone_count}")
         self.config = config
         self.zone_count = zone_count
-        self._next_id = 1
+        numbers = itertools.count(1)
+        self._new_id = new_id or (lambda: f"t{next(numbers)}")
         self._last_sweep: int | None = None
         self._reset()
 
@@ -606,8 +611,7 @@ class Guard:
         return tr.hits >= cfg.confirm_sweeps or (cfg.confirm_zones >= 2 and len(tr.blob.zones) >= cfg.confirm_zones)
 
     def _confirm(self, tr: _TrackState, sweep: int) -> GuardEvent:
-        tr.id = f"t{self._next_id}"
-        self._next_id += 1
+        tr.id = self._new_id()
         tr.first_sweep = sweep
         tr.reported_xy = tr.blob.xy
         return tr.event(INTRUSION, sweep)

@@ -1,25 +1,48 @@
-"""The guard mode across sweeps: the `Guard` for the sweep's zone count, its events out as alerts."""
+"""The guard mode across sweeps: the `Guard` for the sweep's zone count, its events out as alerts.
+
+Alerts carry this start's boot id (`edge.service.identity`), in ``boot`` and in their track ids,
+so that (``id``, ``event``, ``sweep``) never repeats across restarts.
+"""
 
 from __future__ import annotations
 
+import itertools
 import logging
+import os
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from edge.modes.guard import Guard, GuardConfig, Track
 from edge.ranging import ZoneResult
+from edge.service.identity import BootId
 
 log = logging.getLogger(__name__)
 
 
 class GuardWatch:
     """Keeps one `Guard` while the sweeps keep their zone count (a new one learns afresh when it
-    changes) and hands every event it raises to `publish_alert` (the ``alert`` payload)."""
+    changes) and hands every event it raises to `publish_alert` (the ``alert`` payload).
 
-    def __init__(self, config: GuardConfig, publish_alert: Callable[[dict[str, Any]], object]) -> None:
+    The boot id is counted in `state_dir` on first use; without one it is random."""
+
+    def __init__(self, config: GuardConfig, publish_alert: Callable[[dict[str, Any]], object],
+                 state_dir: str | os.PathLike | None = None) -> None:
         self.config = config
         self.guard: Guard | None = None  # none before the first complete guard sweep
         self._publish_alert = publish_alert
+        self._boot = BootId(state_dir)
+        self._track_numbers = itertools.count(1)  # across guards: a new zone count keeps counting
+
+    @property
+    def boot(self) -> str:
+        """This start's boot id (``b7``), also in every ``sweep`` payload."""
+        return self._boot.value
+
+    def _new_track_id(self) -> str:
+        return f"{self.boot}-t{next(self._track_numbers)}"
+
+    def _alert(self, payload: dict[str, Any]) -> None:
+        self._publish_alert({**payload, "boot": self.boot})
 
     @property
     def learning(self) -> bool:
@@ -33,7 +56,7 @@ class GuardWatch:
               zone_t_s: Mapping[int, float] | None = None) -> None:
         """Take one complete sweep (see `Guard.update`)."""
         if self.guard is None or self.guard.zone_count != len(results):
-            self.guard = Guard(self.config, len(results))
+            self.guard = Guard(self.config, len(results), self._new_track_id)
         was_learning = self.guard.learning
         events = self.guard.update(results, sweep, t_s, zone_t_s)
         if was_learning and not self.guard.learning:
@@ -41,7 +64,7 @@ class GuardWatch:
         for event in events:
             log.warning("guard: %s %s in zones %s at %.2f m, bearing %.1f°", event.event, event.id,
                         list(event.zones), event.range_m, event.bearing_deg)
-            self._publish_alert(event.to_json())
+            self._alert(event.to_json())
 
     def relearn(self, why: str | None = None) -> None:
         """Learn the background again from the next complete sweep; every followed object is
@@ -51,7 +74,7 @@ class GuardWatch:
         if why:
             log.info("guard: learning the background again %s", why)
         for event in self.guard.relearn():
-            self._publish_alert(event.to_json())
+            self._alert(event.to_json())
 
     def state(self) -> dict[str, Any] | None:
         """The guard's part of `state`, once there is a guard."""

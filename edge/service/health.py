@@ -21,8 +21,9 @@ log = logging.getLogger(__name__)
 
 # The camera is restarted after this many zones in a row failed for want of frames.
 CAMERA_RESTART_AFTER = 2
-# The parts `state` reports, in its order; a zone that went through passed the first three.
-PARTS = ("camera", "lasers", "ptu", "calibration")
+# The parts `state` reports, in its order; a zone that went through passed the first three. The
+# storage is the state folder's disk, as the outbox finds it ("full: …" while it drops or cannot queue).
+PARTS = ("camera", "lasers", "ptu", "calibration", "storage")
 _ZONE_PARTS = PARTS[:3]
 
 
@@ -34,7 +35,7 @@ class RigHealth:
 
     def __init__(self, laser_names: Sequence[str], calibration: str, *, calibrated: bool,
                  camera: Callable[[], Camera | None], changed: Callable[[], None]) -> None:
-        self._parts = {"camera": "ok", "lasers": "ok", "ptu": "ok", "calibration": calibration}
+        self._parts = {"camera": "ok", "lasers": "ok", "ptu": "ok", "calibration": calibration, "storage": "ok"}
         self.lasers = LaserHealth(laser_names)
         self.calibrated = calibrated
         self.camera_restarts = 0
@@ -60,6 +61,12 @@ class RigHealth:
         self._camera_faults = self._camera_faults + 1 if blames_camera else 0
         if self._camera_faults >= CAMERA_RESTART_AFTER:
             self._restart_camera()
+
+    def storage(self, condition: str) -> None:
+        """The outbox's word on the state disk ("ok" or "full: …")."""
+        if self._parts["storage"] != condition:
+            self._parts["storage"] = condition
+            self._changed()
 
     def failed(self, exc: HardwareError) -> None:
         """A part failed for good (the service is about to stop): say which, and how."""

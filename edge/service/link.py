@@ -8,7 +8,7 @@ is the real one, with its outbox on disk for what must not be lost.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, Protocol
 
 from edge import __version__
@@ -65,9 +65,10 @@ class NullLink:
 
 
 @contextlib.contextmanager
-def open_link(config: Config, device_id: str) -> Iterator[Link]:
+def open_link(config: Config, device_id: str,
+              on_storage: Callable[[str], object] | None = None) -> Iterator[Link]:
     """The configured link, started: MQTT with its outbox in the state folder, or a NullLink.
-    Stopped (and the outbox closed) when the block ends."""
+    Stopped (and the outbox closed) when the block ends. `on_storage`: the outbox's condition."""
     if not config.mqtt.enabled:
         yield NullLink()
         return
@@ -75,7 +76,7 @@ def open_link(config: Config, device_id: str) -> Iterator[Link]:
     from edge.outbox import Outbox
 
     state_dir = config.service.resolved_state_dir()
-    outbox = Outbox(state_dir / "outbox.sqlite3", config.service.outbox_max_messages)
+    outbox = Outbox(state_dir / "outbox.sqlite3", config.service.outbox_max_messages, on_storage)
     try:
         link: Link = MqttLink(config.mqtt, device_id, outbox, version=__version__)
         try:

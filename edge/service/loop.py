@@ -77,7 +77,8 @@ class Service:
                                 calibrated=believed.calibration is not None,
                                 camera=lambda: self._parts.camera if self._parts else None,
                                 changed=self._publish_state)
-        self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert))
+        self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert),
+                                config.service.resolved_state_dir())
         self.steps = ModeSteps(self.health, self.guard, publish_live=lambda kind, p: self.link.publish_live(kind, p),
                                publish_event=lambda kind, p: self.link.publish_event(kind, p),
                                pause=self.stop_requested.wait, started=self.started)
@@ -124,7 +125,7 @@ class Service:
             if self._given_link:
                 stack.callback(self.link.stop)
             else:
-                self.link = stack.enter_context(open_link(self.config, self.device_id))
+                self.link = stack.enter_context(open_link(self.config, self.device_id, self.health.storage))
             stack.callback(setattr, self, "_parts", None)
             self._notifier.status("starting the rig")
             try:

@@ -70,6 +70,7 @@ class ModeSteps:
         self.sweeps += 1
         self._publish_event("sweep", {
             "sweep": self.sweeps,
+            "boot": self.guard.boot,  # (boot, sweep) is unique across restarts
             "duration_s": round(report.duration_s, 3),
             "zones": [r.to_json() for r in report.results],
         })
