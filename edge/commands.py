@@ -62,9 +62,9 @@ def parse_command(
 ) -> Command:
     """Validate one command; raise :class:`CommandError` (one line) if anything is wrong.
 
-    An empty payload stands for ``{}`` (handy for ``sweep``, ``relearn``, ``lasers_off``); the
-    size is checked before anything is decoded; angles are checked against the unit's limits
-    (inclusive, degrees)."""
+    A payload is at least ``{}``: an empty message is how MQTT clears a retained message, never a
+    command (the link drops those before they get here); the size is checked before anything is
+    decoded; angles are checked against the unit's limits (inclusive, degrees)."""
     where = f"cmd/{label(name)}"
     data = bytes(payload)
     if len(data) > max_bytes:
@@ -110,7 +110,8 @@ def request_id_of(payload: bytes) -> str | None:
 
 def _decode_object(where: str, data: bytes) -> dict[str, Any]:
     if not data:
-        return {}
+        raise CommandError(f"{where}: empty payload: a command is a JSON object, at least {{}} "
+                           "(an empty message only clears a retained command)")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -453,10 +453,13 @@ class MqttLink:
             for m in leftovers:
                 if m.topic.endswith("/result"):
                     client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
+            # retainAsPublished: without it the broker clears the retain flag of a retained command
+            # delivered live, or kept for us while we were offline, and it would be carried out.
             # Retained commands only when the subscription is new: they are refused anyway, once
             # is enough (the session keeps the subscription across reconnects).
             subscriptions = [(self.topics.cmd_filter,
-                              SubscribeOptions(qos=1, retainHandling=SubscribeOptions.RETAIN_SEND_IF_NEW_SUB))]
+                              SubscribeOptions(qos=1, retainAsPublished=True,
+                                               retainHandling=SubscribeOptions.RETAIN_SEND_IF_NEW_SUB))]
             if self.config.discovery:
                 subscriptions.append((f"{self.config.discovery_prefix}/status", SubscribeOptions(qos=1)))
             client.subscribe(subscriptions)
@@ -518,9 +521,15 @@ class MqttLink:
             self._refuse(name, f"payload of {size} bytes exceeds mqtt.max_payload_bytes = {limit}")
             return
         payload = bytes(msg.payload)
+        if not payload:
+            # An empty message is how a retained command is cleared (MQTT deletes a retained
+            # message so); it is no command, and gets no answer.
+            log.info("MQTT: cmd/%s: empty message ignored (it clears a retained command; a command's "
+                     "payload is at least {})", label(name))
+            return
         if msg.retain:
             self._refuse(name, "retained command ignored: commands must not be retained (a stale one would "
-                         "fire at every start); clear it by publishing an empty retained message",
+                         "fire at every start); clear it by publishing an empty retained message to its topic",
                          request_id_of(payload))
             return
         if self._on_command is not None:

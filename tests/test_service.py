@@ -120,7 +120,7 @@ def test_commands_are_validated_and_answered_and_the_service_runs_on(broker, sub
                                 since=mark, timeout=10)
     assert payload(state)["mode"] == "guard"
     mark = subscriber.mark()
-    publish(broker, f"{P}/cmd/lasers_off", b"")
+    publish(broker, f"{P}/cmd/lasers_off", b"{}")
     assert payload(subscriber.wait_for(f"{P}/cmd/lasers_off/result", since=mark, timeout=10))["ok"] is True
     proc.send_signal(signal.SIGTERM)
     finish(proc)
