@@ -347,7 +347,8 @@ class MqttLink:
 
     def stats(self) -> dict[str, int]:
         """Counters: sent (event hand-overs, re-sends included), acked, refused (PUBACK with an
-        error), dropped_live, live_sent, connects, commands_refused, and pending (in the outbox)."""
+        error), dropped_live, live_sent, connects, commands_refused, commands_dropped (no result
+        topic possible), and pending (in the outbox)."""
         with self._cond:
             out = dict(self._stats)
         try:

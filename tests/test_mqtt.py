@@ -515,3 +515,17 @@ def test_tls(tmp_path):
             started(link)
         finally:
             link.stop(timeout_s=1)
+
+
+def test_a_command_that_cannot_be_answered_is_dropped_and_publish_result_never_raises(broker, subscriber, make_link):
+    # Issue 13, item 1: `cmd/<name>/result` for a name of ~65,520 bytes is beyond MQTT's 65,535-byte
+    # topic limit; paho raised ValueError in the service's thread and the process died.
+    link = started(make_link())
+    publish(broker, T.cmd("x" * (65535 - len(T.cmd_prefix))), b"{}")
+    publish(broker, T.cmd("sweep"), b"{}")
+    assert next_commands(link, "sweep") == []
+    assert link.stats()["commands_dropped"] == 1 and link.connected
+    for name in ("y" * 65535, "a/b", "", "\ud800"):
+        link.publish_result(name, False, "no")  # logged and dropped: the name came from outside
+    link.publish_result("mode", True, request_id="still-fine")
+    assert result_of(subscriber, "mode")["request_id"] == "still-fine"
