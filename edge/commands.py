@@ -62,15 +62,15 @@ def parse_command(
 ) -> Command:
     """Validate one command; raise :class:`CommandError` (one line) if anything is wrong.
 
-    An empty payload stands for ``{}`` (handy for ``sweep``, ``relearn``, ``lasers_off``); the
-    size is checked before anything is decoded; angles are checked against the unit's limits
-    (inclusive, degrees)."""
-    where = f"cmd/{_label(name)}"
+    A payload is at least ``{}``: an empty message is how MQTT clears a retained message, never a
+    command (the link drops those before they get here); the size is checked before anything is
+    decoded; angles are checked against the unit's limits (inclusive, degrees)."""
+    where = f"cmd/{label(name)}"
     data = bytes(payload)
     if len(data) > max_bytes:
         raise CommandError(f"{where}: payload of {len(data)} bytes exceeds the limit of {max_bytes} bytes")
     if name not in _SCHEMAS:
-        raise CommandError(f"unknown command {_label(name)} (known: {', '.join(COMMANDS)})")
+        raise CommandError(f"unknown command {label(name)} (known: {', '.join(COMMANDS)})")
     obj = _decode_object(where, data)
     request_id = _request_id(where, obj)
     required, optional = _SCHEMAS[name]
@@ -110,7 +110,8 @@ def request_id_of(payload: bytes) -> str | None:
 
 def _decode_object(where: str, data: bytes) -> dict[str, Any]:
     if not data:
-        return {}
+        raise CommandError(f"{where}: empty payload: a command is a JSON object, at least {{}} "
+                           "(an empty message only clears a retained command)")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -242,8 +243,9 @@ def _number(where: str, key: str, value: Any) -> float:
 # ---- messages ----
 
 
-def _label(name: str) -> str:
-    """A command name as it may appear in a message: plain if it looks like a name, else escaped."""
+def label(name: str) -> str:
+    """A command name as it may appear in a message or a log line: plain if it looks like a name,
+    else escaped and cut short (a name can be 65 kB long)."""
     if isinstance(name, str) and 0 < len(name) <= 32 and name.replace("_", "a").isascii() \
             and name.replace("_", "a").isalnum():
         return name

@@ -38,7 +38,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
-from edge.commands import request_id_of
+from edge.commands import label, request_id_of
 from edge.config import MqttConfig
 from edge.errors import ConfigError
 from edge.fsutil import read_small
@@ -58,6 +58,7 @@ PAHO_INFLIGHT = 20
 EVENT_KINDS = ("sweep", "alert")  # QoS 1 through the outbox; sweep retained
 LIVE_KINDS = ("range", "cue")  # QoS 0, dropped while disconnected
 COMMAND_QUEUE_SIZE = 256  # commands waiting for the service; more are refused
+MAX_TOPIC_BYTES = 65535  # MQTT's limit on a topic name (a 2-byte length), UTF-8
 _STOP_RESERVE_S = 1.0  # of stop()'s timeout, kept for `offline` after draining the outbox
 
 
@@ -94,6 +95,17 @@ class Topics:
 
     def result(self, name: str) -> str:
         return f"{self.cmd_prefix}{name}/result"
+
+
+def answerable(topics: Topics, name: str) -> bool:
+    """Whether a command called `name` can be answered on its ``cmd/<name>/result`` topic: one topic
+    level (no wildcard, separator or NUL) whose result topic fits MQTT's 65,535 bytes."""
+    if not name or any(c in name for c in "+#/\0"):
+        return False
+    try:
+        return len(topics.result(name).encode("utf-8")) <= MAX_TOPIC_BYTES
+    except UnicodeEncodeError:  # a lone surrogate
+        return False
 
 
 def utc_timestamp(t: float | None = None) -> str:
@@ -264,7 +276,7 @@ class MqttLink:
         self._state: bytes | None = None
         self._inflight: dict[int, int] = {}  # mid → outbox seq; sender thread only
         self._stats = {"sent": 0, "acked": 0, "refused": 0, "dropped_live": 0, "live_sent": 0,
-                       "connects": 0, "commands_refused": 0}
+                       "connects": 0, "commands_refused": 0, "commands_dropped": 0}
 
     # ---- life cycle ----
 
@@ -336,7 +348,8 @@ class MqttLink:
 
     def stats(self) -> dict[str, int]:
         """Counters: sent (event hand-overs, re-sends included), acked, refused (PUBACK with an
-        error), dropped_live, live_sent, connects, commands_refused, and pending (in the outbox)."""
+        error), dropped_live, live_sent, connects, commands_refused, commands_dropped (no result
+        topic possible), and pending (in the outbox)."""
         with self._cond:
             out = dict(self._stats)
         try:
@@ -383,9 +396,15 @@ class MqttLink:
                        extra: dict[str, Any] | None = None) -> None:
         """A command's result on ``cmd/<name>/result``, QoS 1 (`extra`: more keys, e.g. what a
         calibration found). Not queued on disk: one given while disconnected is kept by paho and
-        sent after the reconnect."""
-        if not name or any(c in name for c in "+#/\0"):
-            raise ValueError(f"publish_result: {name!r} is not a command name")
+        sent after the reconnect.
+
+        Never raises: a result that cannot be sent (a name that is no topic level, a result topic
+        over MQTT's length limit) is dropped with a log line, since the name came from outside."""
+        if not answerable(self.topics, name):
+            log.warning("MQTT: no result for cmd/%s: it cannot be answered on MQTT (its result topic "
+                        "would be longer than %d bytes, or the name is no topic level); dropped",
+                        label(name), MAX_TOPIC_BYTES)
+            return
         body: dict[str, Any] = {"ok": bool(ok), **(extra or {})}
         if error is not None:
             body["error"] = error
@@ -393,7 +412,10 @@ class MqttLink:
             body["request_id"] = request_id
         client = self._client
         if client is not None and not self._closing:
-            client.publish(self.topics.result(name), encode(body), qos=1)
+            try:
+                client.publish(self.topics.result(name), encode(body), qos=1)
+            except (ValueError, TypeError) as exc:  # paho's checks of a topic or payload
+                log.warning("MQTT: no result for cmd/%s: %s", label(name), exc)
 
     def commands(self) -> list[tuple[str, bytes]]:
         """The commands received since the last call, oldest first: (name, raw payload)."""
@@ -433,10 +455,13 @@ class MqttLink:
             for m in leftovers:
                 if m.topic.endswith("/result"):
                     client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
+            # retainAsPublished: without it the broker clears the retain flag of a retained command
+            # delivered live, or kept for us while we were offline, and it would be carried out.
             # Retained commands only when the subscription is new: they are refused anyway, once
             # is enough (the session keeps the subscription across reconnects).
             subscriptions = [(self.topics.cmd_filter,
-                              SubscribeOptions(qos=1, retainHandling=SubscribeOptions.RETAIN_SEND_IF_NEW_SUB))]
+                              SubscribeOptions(qos=1, retainAsPublished=True,
+                                               retainHandling=SubscribeOptions.RETAIN_SEND_IF_NEW_SUB))]
             if self.config.discovery:
                 subscriptions.append((f"{self.config.discovery_prefix}/status", SubscribeOptions(qos=1)))
             client.subscribe(subscriptions)
@@ -482,6 +507,14 @@ class MqttLink:
         name = topic[len(self.topics.cmd_prefix):]
         if not name or "/" in name:
             return
+        if not answerable(self.topics, name):
+            # Nothing can be carried out that nobody can be told about: a name this long is no
+            # command anyway, and its result topic would be beyond MQTT's limit.
+            log.warning("MQTT: a command on %s%s cannot be answered (its result topic would be longer "
+                        "than %d bytes): dropped", self.topics.cmd_prefix, label(name), MAX_TOPIC_BYTES)
+            with self._cond:
+                self._stats["commands_dropped"] += 1
+            return
         self._command(name, msg)
 
     def _command(self, name: str, msg: paho.MQTTMessage) -> None:
@@ -490,16 +523,22 @@ class MqttLink:
             self._refuse(name, f"payload of {size} bytes exceeds mqtt.max_payload_bytes = {limit}")
             return
         payload = bytes(msg.payload)
+        if not payload:
+            # An empty message is how a retained command is cleared (MQTT deletes a retained
+            # message so); it is no command, and gets no answer.
+            log.info("MQTT: cmd/%s: empty message ignored (it clears a retained command; a command's "
+                     "payload is at least {})", label(name))
+            return
         if msg.retain:
             self._refuse(name, "retained command ignored: commands must not be retained (a stale one would "
-                         "fire at every start); clear it by publishing an empty retained message",
+                         "fire at every start); clear it by publishing an empty retained message to its topic",
                          request_id_of(payload))
             return
         if self._on_command is not None:
             try:
                 self._on_command(name, payload)
             except Exception:  # noqa: BLE001 - a failing handler must not take the link down
-                log.exception("MQTT: command handler failed for %s", name)
+                log.exception("MQTT: command handler failed for cmd/%s", label(name))
             return
         try:
             self._commands.put_nowait((name, payload))
@@ -508,7 +547,7 @@ class MqttLink:
                          request_id_of(payload))
 
     def _refuse(self, name: str, error: str, request_id: str | None = None) -> None:
-        log.warning("MQTT: cmd/%s refused: %s", name, error)
+        log.warning("MQTT: cmd/%s refused: %s", label(name), error)
         with self._cond:
             self._stats["commands_refused"] += 1
         self.publish_result(name, False, error, request_id)

@@ -42,8 +42,7 @@ def test_mode():
 
 
 @pytest.mark.parametrize("name", ["sweep", "relearn", "lasers_off"])
-def test_argument_less_commands_take_an_empty_payload_or_an_empty_object(name):
-    assert parse(name, b"").args == {}
+def test_argument_less_commands_take_an_empty_object(name):
     assert parse(name, "{}").args == {}
     assert parse(name, {"request_id": "r1"}).request_id == "r1"
 
@@ -104,9 +103,12 @@ def test_not_json(payload, why):
     assert why in message
 
 
-def test_empty_payload_is_only_enough_for_argument_less_commands():
-    assert refused("mode", b"") == "cmd/mode: missing key 'mode'"
-    assert refused("point", b"") == "cmd/point: missing key 'pan_deg'"
+@pytest.mark.parametrize("name", ["sweep", "relearn", "lasers_off", "mode", "point"])
+def test_an_empty_payload_is_no_command(name):
+    # Issue 13, item 9: an empty message is how a retained command is cleared; it once stood for
+    # {} and so started a sweep.
+    assert refused(name, b"") == (f"cmd/{name}: empty payload: a command is a JSON object, at least {{}} "
+                                  "(an empty message only clears a retained command)")
 
 
 @pytest.mark.parametrize("payload, kind", [

@@ -346,9 +346,9 @@ def test_a_command_reaches_commands(broker, subscriber, make_link):
 def test_a_command_handler_is_called_instead_when_given(broker, make_link):
     seen: list = []
     link = started(make_link(on_command=lambda name, payload: seen.append((name, payload))))
-    publish(broker, T.cmd("sweep"), b"")
+    publish(broker, T.cmd("sweep"), b"{}")
     wait_until(lambda: seen, what="the handler")
-    assert seen == [("sweep", b"")] and link.commands() == []
+    assert seen == [("sweep", b"{}")] and link.commands() == []
 
 
 def test_an_oversized_command_is_refused_unread(broker, subscriber, make_link):
@@ -367,16 +367,66 @@ def test_an_oversized_command_is_refused_unread(broker, subscriber, make_link):
     assert len(subscriber.messages(T.result("mode"))) == 1
 
 
+def next_commands(link: MqttLink, marker: str) -> list[tuple[str, bytes]]:
+    """The commands the link took up to a live `cmd/<marker> {}` sent now (commands arrive in order)."""
+    got: list = []
+    wait_until(lambda: got.extend(link.commands()) or (marker, b"{}") in got, what=f"cmd/{marker}")
+    return got[:got.index((marker, b"{}"))]
+
+
 def test_a_retained_command_is_ignored(broker, subscriber, make_link):
     publish(broker, T.cmd("lasers_off"), b'{"request_id": "stale"}', retain=True)
     link = started(make_link())
     body = result_of(subscriber, "lasers_off")
     assert body["ok"] is False and body["error"].startswith("retained command ignored")
     assert body["request_id"] == "stale"
-    publish(broker, T.cmd("sweep"), b"")
+    publish(broker, T.cmd("sweep"), b"{}")
     got: list = []
     wait_until(lambda: got.extend(link.commands()) or got, what="a live command")
-    assert got == [("sweep", b"")]
+    assert got == [("sweep", b"{}")]
+
+
+def test_a_retained_command_is_ignored_when_it_comes_live_or_was_kept_for_an_offline_device(
+        broker, subscriber, make_link):
+    # Issue 13, item 9: with MQTT 5's default subscription (retain_as_published off) the broker
+    # clears the retain flag on live delivery, and on messages kept for an offline session: both
+    # were carried out. The device now subscribes with retain_as_published.
+    link = started(make_link())
+    publish(broker, T.cmd("sweep"), b'{"request_id": "live"}', retain=True)
+    body = result_of(subscriber, "sweep")
+    assert body["ok"] is False and body["error"].startswith("retained command ignored")
+    publish(broker, T.cmd("relearn"), b"{}")
+    assert next_commands(link, "relearn") == []
+    link.stop(timeout_s=1.0)  # the session stays with the broker
+    mark = subscriber.mark()
+    publish(broker, T.cmd("mode"), b'{"mode": "guard", "request_id": "offline"}', retain=True)
+    again = started(make_link())  # the same device id, so the same client id and session
+    body = result_of(subscriber, "mode", since=mark)
+    assert body["ok"] is False and body["request_id"] == "offline" and "retained" in body["error"]
+    publish(broker, T.cmd("relearn"), b"{}")
+    assert next_commands(again, "relearn") == []
+
+
+def test_an_empty_message_clears_a_retained_command_and_does_nothing(broker, subscriber, make_link):
+    # Issue 13, item 9: the README's way to clear a retained command (an empty retained message)
+    # started a sweep, since an empty payload stood for {}. An empty message is no command now,
+    # retained or not: nothing is carried out and nothing is answered.
+    link = started(make_link())
+    publish(broker, T.cmd("sweep"), b"{}", retain=True)
+    result_of(subscriber, "sweep")
+    mark = subscriber.mark()
+    publish(broker, T.cmd("sweep"), b"", retain=True)  # clears it at the broker
+    publish(broker, T.cmd("lasers_off"), b"")  # and a plain empty message
+    publish(broker, T.cmd("relearn"), b"{}")
+    assert next_commands(link, "relearn") == []
+    assert subscriber.messages(T.result("sweep"), since=mark) == []
+    assert subscriber.messages(T.result("lasers_off"), since=mark) == []
+    late = Subscriber(broker, (T.cmd("sweep"),), persistent=False)  # nothing is retained any more
+    try:
+        time.sleep(0.5)
+        assert late.messages() == []
+    finally:
+        late.close()
 
 
 def test_the_request_id_is_echoed(broker, subscriber, make_link):
@@ -465,3 +515,17 @@ def test_tls(tmp_path):
             started(link)
         finally:
             link.stop(timeout_s=1)
+
+
+def test_a_command_that_cannot_be_answered_is_dropped_and_publish_result_never_raises(broker, subscriber, make_link):
+    # Issue 13, item 1: `cmd/<name>/result` for a name of ~65,520 bytes is beyond MQTT's 65,535-byte
+    # topic limit; paho raised ValueError in the service's thread and the process died.
+    link = started(make_link())
+    publish(broker, T.cmd("x" * (65535 - len(T.cmd_prefix))), b"{}")
+    publish(broker, T.cmd("sweep"), b"{}")
+    assert next_commands(link, "sweep") == []
+    assert link.stats()["commands_dropped"] == 1 and link.connected
+    for name in ("y" * 65535, "a/b", "", "\ud800"):
+        link.publish_result(name, False, "no")  # logged and dropped: the name came from outside
+    link.publish_result("mode", True, request_id="still-fine")
+    assert result_of(subscriber, "mode")["request_id"] == "still-fine"

@@ -121,7 +121,7 @@ def test_commands_are_validated_and_answered_and_the_service_runs_on(broker, sub
                                 since=mark, timeout=10)
     assert payload(state)["mode"] == "guard"
     mark = subscriber.mark()
-    publish(broker, f"{P}/cmd/lasers_off", b"")
+    publish(broker, f"{P}/cmd/lasers_off", b"{}")
     assert payload(subscriber.wait_for(f"{P}/cmd/lasers_off/result", since=mark, timeout=10))["ok"] is True
     proc.send_signal(signal.SIGTERM)
     finish(proc)
@@ -392,3 +392,32 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
     assert len(feeds) >= 10
     assert max(b - a for a, b in zip(feeds, feeds[1:])) < 4.0
     assert time.monotonic() - feeds[-1] > 8
+
+
+def test_a_command_whose_result_topic_cannot_exist_is_dropped_and_the_service_runs_on(broker, subscriber, tmp_path):
+    # Issue 13, item 1: a command name of ~65,520 bytes makes `cmd/<name>/result` longer than MQTT's
+    # 65,535-byte topic limit; paho raised, and the process died. Now it is dropped with a log line,
+    # a long name whose result fits is answered, and the service goes on ranging.
+    proc = start(broker, tmp_path, 'mode="rangefinder"')
+    try:
+        subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
+        subscriber.wait_count(f"{P}/range", 5, timeout=20)
+        prefix = f"{P}/cmd/"
+        unanswerable = "x" * (65535 - len(prefix))  # the longest topic there is
+        answerable = "y" * (65535 - len(prefix) - len("/result"))  # its result topic just fits
+        publish(broker, prefix + unanswerable, b"{}")
+        mark = subscriber.mark()
+        publish(broker, prefix + answerable, b'{"request_id": "long"}')
+        result = payload(subscriber.wait_for(f"{prefix}{answerable}/result", since=mark, timeout=20))
+        assert result["ok"] is False and result["request_id"] == "long" and len(result["error"]) < 200
+        mark = subscriber.mark()
+        subscriber.wait_count(f"{P}/range", 5, timeout=30, since=mark)
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGTERM)
+        err = finish(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert "cannot be answered" in err
+    assert max(len(line) for line in err.splitlines()) < 1000  # no 65 kB log lines

@@ -4,11 +4,17 @@ dispatcher, the guard across sweeps; and the service answering commands through 
 from __future__ import annotations
 
 import json
+import socket
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
 
 from edge.commands import Command
 from edge.config import load_config
 from edge.errors import CommandError
 from edge.modes.guard import GuardConfig
+from edge.notify import Notifier
 from edge.ranging import OK, ZoneResult
 from edge.service import Service
 from edge.service.commanding import LATER, Dispatcher
@@ -24,6 +30,8 @@ class Recorder:
     def __init__(self, commands=()) -> None:
         self.queued = list(commands)
         self.results: list[tuple] = []
+        self.result_times: list[float] = []  # time.monotonic() of each result
+        self._lock = threading.Lock()
         self.states: list[dict] = []
         self.events: list[tuple] = []
         self.stopped = False
@@ -35,8 +43,17 @@ class Recorder:
         self.stopped = True
 
     def commands(self):
-        out, self.queued = self.queued, []
+        with self._lock:
+            out, self.queued = self.queued, []
         return out
+
+    def send(self, *commands: tuple[str, bytes]) -> None:
+        """Commands as if they had just arrived (from the test's thread)."""
+        with self._lock:
+            self.queued.extend(commands)
+
+    def ranges(self) -> int:
+        return sum(kind == "range" for kind, _ in self.events)
 
     def publish_state(self, payload):
         self.states.append(payload)
@@ -49,6 +66,7 @@ class Recorder:
 
     def publish_result(self, name, ok, error=None, request_id=None, extra=None):
         self.results.append((name, ok, error, request_id))
+        self.result_times.append(time.monotonic())
 
 
 def test_the_null_link_takes_everything_and_gives_nothing(tmp_path):
@@ -118,3 +136,117 @@ def test_the_service_answers_commands_through_its_link(tmp_path):
                             ("sweep", True, None, None), ("mode", True, None, None)]
     assert service.mode == "guard" and link.states[-1]["mode"] == "guard"
     assert set(link.states[-1]) == {"device", "mode", "health", "version", "uptime_s", "sweeps", "camera_restarts"}
+
+
+# ---- the service's loop on the simulated rig, in this process ----
+
+
+class WatchdogSocket:
+    """A NOTIFY_SOCKET as systemd has it: every datagram kept with its time.monotonic()."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.got: list[tuple[float, str]] = []
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._sock.bind(str(path))
+        self._sock.settimeout(0.1)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._receive, daemon=True)
+        self._thread.start()
+
+    def _receive(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.got.append((time.monotonic(), self._sock.recv(4096).decode()))
+            except TimeoutError:
+                pass
+
+    def notifier(self, watchdog_usec: int) -> Notifier:
+        return Notifier({"NOTIFY_SOCKET": str(self.path), "WATCHDOG_USEC": str(watchdog_usec)})
+
+    def feeds(self) -> list[float]:
+        return [t for t, m in list(self.got) if m == "WATCHDOG=1"]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self._sock.close()
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out after {timeout} s waiting for {what}"
+        time.sleep(0.01)
+
+
+def running(tmp_path: Path, link: Recorder, notifier: Notifier | None = None, *sets: str):
+    """A range-finder service on the simulated rig in a thread; returns (service, thread)."""
+    config = load_config(None, ["mqtt.enabled=false", 'mode="rangefinder"', "rangefinder.pan_deg=-90.0",
+                                f"service.state_dir={json.dumps(str(tmp_path / 'state'))}", *sets])
+    service = Service(config, link=link, notifier=notifier)
+    thread = threading.Thread(target=service.run, daemon=True)
+    thread.start()
+    wait_until(lambda: link.ranges() >= 3, 60, "the first ranges")
+    return service, thread
+
+
+def stopped(service: Service, thread: threading.Thread) -> None:
+    service.stop_requested.set()
+    thread.join(30)
+    assert not thread.is_alive()
+
+
+def test_lasers_off_keeps_the_lasers_off_and_ranging_paused_until_a_mode_command(tmp_path):
+    # Issue 13, item 5: cmd/lasers_off answered ok, but the range finder lit them again at its next
+    # frame. Now ranging pauses (state says so), the watchdog is still fed, cmd/point is refused,
+    # and cmd/mode resumes.
+    watchdog = WatchdogSocket(tmp_path / "notify.sock")
+    link = Recorder()
+    service, thread = running(tmp_path, link, watchdog.notifier(100_000))  # fed every 0.05 s
+    try:
+        pins = [service.parts.lasers.factory.pin(n) for n in (17, 27, 22)]
+        link.send(("lasers_off", b'{"request_id": "off"}'))
+        wait_until(lambda: ("lasers_off", True, None, "off") in link.results, 30, "lasers_off's result")
+        ranges, feeds = link.ranges(), len(watchdog.feeds())
+        assert link.states[-1]["paused"] == "lasers_off"
+        lit = set()
+        deadline = time.monotonic() + 1.5
+        while time.monotonic() < deadline:  # before the fix a laser was back on within 25 ms
+            lit |= {i for i, pin in enumerate(pins) if pin.state}
+            time.sleep(0.002)
+        assert lit == set() and service.parts.lasers.lit == frozenset()
+        assert link.ranges() == ranges
+        wait_until(lambda: len(watchdog.feeds()) >= feeds + 3, 30, "the watchdog fed while paused")
+        link.send(("point", b'{"pan_deg": 10, "tilt_deg": 0, "request_id": "p"}'))
+        wait_until(lambda: link.results[-1][3] == "p", 30, "point's result")
+        assert link.results[-1][:2] == ("point", False) and "lasers are off" in link.results[-1][2]
+        assert link.ranges() == ranges and service.parts.lasers.lit == frozenset()
+        link.send(("mode", b'{"mode": "rangefinder", "request_id": "on"}'))
+        wait_until(lambda: ("mode", True, None, "on") in link.results, 30, "mode's result")
+        wait_until(lambda: link.ranges() >= ranges + 5, 60, "ranging to resume")
+        assert "paused" not in link.states[-1]
+    finally:
+        stopped(service, thread)
+        watchdog.close()
+
+
+def test_a_burst_of_slow_commands_does_not_starve_the_watchdog(tmp_path):
+    # Issue 13, item 6: forty cmd/point from -90 to +90 and back were carried out in one go, with
+    # no WATCHDOG=1 between them (gaps of 48 s against WatchdogSec=30). Now the loop feeds it after
+    # every command: each point (a 180 degree turn) is followed by a feed before the next one ends.
+    watchdog = WatchdogSocket(tmp_path / "notify.sock")
+    link = Recorder()
+    service, thread = running(tmp_path, link, watchdog.notifier(200_000))  # fed every 0.1 s
+    try:
+        link.send(*[("point", json.dumps({"pan_deg": 90.0 if k % 2 == 0 else -90.0, "tilt_deg": 0.0,
+                                          "request_id": f"p{k}"}).encode()) for k in range(6)])
+        wait_until(lambda: sum(r[0] == "point" for r in link.results) == 6, 120, "six point results")
+        points = [t for r, t in zip(link.results, link.result_times) if r[0] == "point"]
+        assert [r[1] for r in link.results if r[0] == "point"] == [True] * 6
+        feeds = watchdog.feeds()
+        for a, b in zip(points, points[1:]):
+            assert any(a <= f <= b for f in feeds), "no WATCHDOG=1 between two commands"
+    finally:
+        stopped(service, thread)
+        watchdog.close()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Mapping
 
-from edge.commands import Command, parse_command, request_id_of
+from edge.commands import Command, label, parse_command, request_id_of
 from edge.errors import CommandError, EdgeError
 
 log = logging.getLogger(__name__)
@@ -43,13 +43,16 @@ class Dispatcher:
         try:
             command = parse_command(name, payload, max_bytes=self._max_bytes, pan_limits=pan, tilt_limits=tilt)
         except CommandError as exc:
-            log.warning("command %s refused: %s", name, exc)
+            log.warning("command %s refused: %s", label(name), exc)
             self._publish_result(name, False, str(exc), request_id_of(payload))
             return
         try:
             error = self.handlers[command.name](command)
         except EdgeError as exc:
             error = str(exc)
+        except Exception as exc:  # noqa: BLE001 - a bug; the sender still gets an answer
+            log.exception("command %s failed", name)
+            error = f"cmd/{name} failed: internal error ({type(exc).__name__}); see the device's log"
         if isinstance(error, Later):
             log.info("command %s started", name)
             return

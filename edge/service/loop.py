@@ -20,6 +20,7 @@ import logging
 import signal
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import replace
 from types import FrameType
@@ -27,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from edge import __version__
 from edge.calibration.in_use import NOMINAL, BelievedRig, believed_rig
-from edge.commands import Command
+from edge.commands import Command, label
 from edge.config import Config
 from edge.errors import HardwareError
 from edge.notify import Notifier, WatchdogFeeder
@@ -46,6 +47,12 @@ log = logging.getLogger(__name__)
 
 # Between steps the loop waits at most this long for a command or a stop.
 _IDLE_S = 0.05
+# Commands are carried out one by one, the watchdog fed after each; once a turn of the loop has spent
+# this long on them, the rest wait for the next turn (a burst of slow cmd/point must not starve the
+# mode, nor hold off a stop).
+_COMMANDS_PER_TURN_S = 0.25
+# `state`'s "paused" while cmd/lasers_off holds the lasers off.
+PAUSED_LASERS_OFF = "lasers_off"
 
 
 class Service:
@@ -67,6 +74,8 @@ class Service:
         self._next_sweep = 0.0  # monotonic time of the next scheduled sweep
         self._sweep_now = False
         self._interrupt = False  # a command wants the current step to end early
+        self._paused: str | None = None  # why ranging is paused (cmd/lasers_off), or None
+        self._pending: deque[tuple[str, bytes]] = deque()  # commands taken from the link, not yet carried out
         self._aim = (config.rangefinder.pan_deg, config.rangefinder.tilt_deg)
         believed = believed_rig(config, service=True)
         if believed.calibration is None and believed.health != NOMINAL:
@@ -175,7 +184,11 @@ class Service:
             self._interrupt = False
             parts = self._parts
             assert parts is not None
-            if self.calibration.running:
+            if self._paused is not None:
+                if parts.lasers.lit:  # what a step cut short by cmd/lasers_off may have left on
+                    parts.lasers.off()
+                self.stop_requested.wait(_IDLE_S)
+            elif self.calibration.running:
                 self.steps.close_fan()  # here, not in the command: the blind aid may be mid-scan there
                 self.calibration.step()
             elif self._sweep_now or (self.mode == "rangefinder" and time.monotonic() >= self._next_sweep):
@@ -199,12 +212,25 @@ class Service:
             self._publish_state()
 
     def _between_steps(self) -> None:
-        """Feed the watchdog (the loop made progress) and take the commands received."""
+        """Feed the watchdog (the loop made progress) and carry out the commands received, one by
+        one, feeding it after each; what is left after `_COMMANDS_PER_TURN_S` waits for the next
+        turn. New commands are taken from the link only when the last ones are done, so that the
+        link's bounded queue stays the bound (beyond it the link refuses them)."""
+        self._progressed()
+        if not self._pending:
+            self._pending.extend(self.link.commands())
+        began = time.monotonic()
+        while self._pending and not self.stop_requested.is_set():
+            name, payload = self._pending.popleft()
+            self.handle_command(name, payload)
+            self._progressed()
+            if time.monotonic() - began >= _COMMANDS_PER_TURN_S:
+                break
+
+    def _progressed(self) -> None:
         if self._feeder is not None:
             self._feeder.progressed()
             self._feeder.feed_if_due()
-        for name, payload in self.link.commands():
-            self.handle_command(name, payload)
 
     def _should_stop(self, deadline: float | None, also: Callable[[], bool] | None = None,
                      sweeping: bool = False) -> Callable[[], bool]:
@@ -227,12 +253,17 @@ class Service:
     # ---- commands ----
 
     def handle_command(self, name: str, payload: bytes) -> None:
-        """Validate and carry out one command; every command gets a result, ok or not."""
-        self.commands.handle(name, payload)
+        """Validate and carry out one command; every command that can be answered gets a result,
+        ok or not. Nothing a sender can send ends the loop: whatever escapes is logged."""
+        try:
+            self.commands.handle(name, payload)
+        except Exception:  # noqa: BLE001 - the name and payload came from outside
+            log.exception("command %s: failed; the service goes on", label(name))
 
     def _cmd_mode(self, command: Command) -> str | None:
         mode = command.args["mode"]
         self.calibration.cancel("cancelled by cmd/mode")
+        self._resume("cmd/mode")
         if mode != self.mode:
             log.info("mode %s → %s", self.mode, mode)
             if self.mode == "blindaid":
@@ -247,12 +278,15 @@ class Service:
     def _cmd_sweep(self, command: Command) -> str | None:
         if self.calibration.running:
             return self.calibration.refusal()
+        if self._resume("cmd/sweep"):
+            self._publish_state()
         self._sweep_now = True
         return None
 
     def _cmd_point(self, command: Command) -> str | None:
         """Aim and range once; the range finder then keeps ranging there."""
-        refused = "the rig is not running" if self._parts is None else self.calibration.refusal()
+        refused = ("the rig is not running" if self._parts is None
+                   else self._paused_refusal() or self.calibration.refusal())
         if refused or self._parts is None:
             return refused
         pan, tilt = self._aim = (command.args["pan_deg"], command.args["tilt_deg"])
@@ -268,16 +302,40 @@ class Service:
 
     def _cmd_calibrate(self, command: Command) -> str | Later | None:
         """Start an interactive flat-target calibration; its result comes when it ends."""
-        error = self.calibration.start(command.args["distances_m"], command.request_id, self._parts, self.ranger)
+        error = self._paused_refusal() or self.calibration.start(
+            command.args["distances_m"], command.request_id, self._parts, self.ranger)
         if error is not None:
             return error
         self._interrupt = True
         return LATER
 
     def _cmd_lasers_off(self, command: Command) -> str | None:
+        """Lasers off, and kept off: ranging pauses (the loop idles, still feeding the watchdog and
+        taking commands) until cmd/mode or cmd/sweep resumes it."""
         self.calibration.cancel("cancelled by cmd/lasers_off")
         if self._parts is not None:
             self._parts.lasers.off()
+        if self._paused is None:
+            log.info("lasers off: ranging paused until cmd/mode or cmd/sweep")
+            self._notifier.status("paused: lasers off")
+        self._paused = PAUSED_LASERS_OFF
+        self._sweep_now = False  # a sweep asked for before is not carried out with the lasers off
+        self._interrupt = True  # the step under way ends at its next frame or zone
+        self._publish_state()
+        return None
+
+    def _resume(self, why: str) -> bool:
+        """End a pause; whether there was one."""
+        if self._paused is None:
+            return False
+        log.info("%s: ranging resumes", why)
+        self._paused = None
+        self._notifier.status(f"running: {self.mode}")
+        return True
+
+    def _paused_refusal(self) -> str | None:
+        if self._paused == PAUSED_LASERS_OFF:
+            return "the lasers are off (cmd/lasers_off): send cmd/mode or cmd/sweep to resume first"
         return None
 
     # ---- publishing ----
@@ -292,6 +350,7 @@ class Service:
             "uptime_s": round(time.monotonic() - self.started, 1),
             "sweeps": self.sweeps,
             "camera_restarts": self.health.camera_restarts,
+            **({"paused": self._paused} if self._paused is not None else {}),
             **({"guard": guard} if guard is not None else {}),
             **({"calibration": calibration} if calibration is not None else {}),
         }
