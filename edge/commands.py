@@ -181,12 +181,19 @@ def _mode(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: tuple
     return {"mode": mode}
 
 
+def _degrees(x: float) -> str:
+    """Enough digits that a limit reads true (a D46-17 stops at 179.99994°, which :g calls 180),
+    none that say nothing (159, not 159.00000)."""
+    return f"{x:.5f}".rstrip("0").rstrip(".")
+
+
 def _point(where: str, obj: dict[str, Any], pan: tuple[float, float], tilt: tuple[float, float]) -> dict[str, Any]:
     args = {}
     for key, (lo, hi), what in (("pan_deg", pan, "pan"), ("tilt_deg", tilt, "tilt")):
         value = _number(where, key, obj[key])
         if not lo <= value <= hi:
-            raise CommandError(f"{where}: {key} = {value:g} is outside the {what} limits {lo:g}..{hi:g}°")
+            raise CommandError(f"{where}: {key} = {value:g} is outside the {what} limits "
+                               f"{_degrees(lo)}..{_degrees(hi)}°")
         args[key] = value
     return args
 

@@ -137,6 +137,15 @@ def test_non_finite_numbers():
     assert "finite" in refused("point", {"pan_deg": 10**400, "tilt_deg": 0})
 
 
+def test_limits_are_written_with_the_digits_that_make_them_true():
+    """A D46-17's pan stops at 179.99994°: 'outside -180..180°' for 180 would be a riddle."""
+    limit = 3500 * 185.1428 / 3600  # the emulated unit's 3500 positions
+    with pytest.raises(CommandError) as info:
+        parse_command("point", b'{"pan_deg": 180, "tilt_deg": 0}', max_bytes=65536,
+                      pan_limits=(-limit, limit), tilt_limits=TILT)
+    assert str(info.value) == "cmd/point: pan_deg = 180 is outside the pan limits -179.99994..179.99994°"
+
+
 def test_angles_outside_the_limits():
     assert refused("point", {"pan_deg": 159.5, "tilt_deg": 0}) == \
         "cmd/point: pan_deg = 159.5 is outside the pan limits -159..159°"
