@@ -28,9 +28,11 @@ def test_fan_scan_cues_the_nearest_wall_and_the_button_speaks(tmp_path: Path, ca
                 runner.scan(lambda: False)
         finally:
             runner.close()
-    # The office ahead of the device: the east wall 2.4 m away, nearer (2.0 m) to the right.
-    assert cues and all(c.sound == "beep" for c in cues)
-    nearest = min(cues, key=lambda c: c.range_m)
+    # The office ahead of the device: the east wall 2.4 m away, nearer (2.0 m) to the right. (A
+    # loaded machine may keep the rig from framing for blind_after_s: "cannot see" then, honestly.)
+    seen = [c for c in cues if c.sound != "blind"]
+    assert seen and all(c.sound == "beep" for c in seen)
+    nearest = min(seen, key=lambda c: c.range_m)
     assert 1.8 < nearest.range_m < 2.2 and nearest.bearing_deg < 0 and nearest.pan > 0  # right
     asked = [r.getMessage() for r in caplog.records if "asked" in r.getMessage()]
     assert asked and "metres" in asked[0]
