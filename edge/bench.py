@@ -116,8 +116,8 @@ def bench_blindaid(config: Config, repeats: int = 3) -> list[str]:
         runner = BlindAidRunner(config, parts, on_cue=lambda cue: None)
 
         class TimedAid(BlindAid):
-            def update(self, result: ZoneResult, t_s: float) -> Cue | None:
-                cue = super().update(result, t_s)
+            def update(self, result: ZoneResult, t_s: float, seen_s: float | None = None) -> Cue | None:
+                cue = super().update(result, t_s, seen_s)
                 frame_t = (runner.sweeper.last_frame_end_ns - runner._t0_ns) / 1e9
                 start = -(-runner.now() // chunk) * chunk  # the chunk boundary its sound would start at
                 per_zone.append(start - frame_t)

@@ -15,8 +15,10 @@ import pytest
 
 from edge.errors import HardwareError
 from edge.modes.blindaid import sound as audio
-from edge.modes.blindaid.logic import BEEP, SILENCE, TONE, BlindAid, BlindAidConfig, Cue
+from edge.modes.blindaid.logic import BEEP, BLIND, SILENCE, TONE, BlindAid, BlindAidConfig, Cue
 from edge.modes.blindaid.sound import (
+    WARBLE_HZ,
+    WARBLE_STEP_S,
     AplaySink,
     CuePlayer,
     NullSink,
@@ -156,6 +158,34 @@ def test_no_clicks_when_cues_change_at_chunk_joins() -> None:
     j = np.array(joins[:-1])
     assert np.abs(out[j] - out[j - 1]).max() <= bound
     assert np.abs(out).max() > 0.5 * 32767  # it did play
+
+
+def test_cannot_see_is_a_low_warble_unlike_silence_beeps_and_the_tone() -> None:
+    """The blind cue: loud and continuous (no gap, unlike beeps; unlike silence), centred, two
+    low pitches taking turns every WARBLE_STEP_S (unlike the one high tone), without clicks."""
+    blind = Cue(BLIND, reason="camera fault", pan=1.0)  # a pan given is ignored: from the centre
+    out = Synth(SR, volume=1.0).render(blind, 0.0, 1.0)
+    left, right = out[:, 0].astype(float), out[:, 1].astype(float)
+    assert np.array_equal(left, right)
+    step = round(WARBLE_STEP_S * SR)
+    rms = np.sqrt(np.mean(left[: step * 8].reshape(8, step)[:, step // 8:] ** 2, axis=1))
+    assert (rms > 0.25 * 32767).all()  # never a gap (a full sine, centred: 0.5 × full scale rms)
+    pitches = [peak_hz(left[i * step + step // 8: (i + 1) * step]) for i in range(6)]
+    assert pitches[0::2] == pytest.approx([WARBLE_HZ[0]] * 3, rel=0.03)
+    assert pitches[1::2] == pytest.approx([WARBLE_HZ[1]] * 3, rel=0.03)
+    assert max(WARBLE_HZ) < CFG.pitch_low_hz  # below every beep and the tone
+    w = 2 * np.pi * max(WARBLE_HZ) / SR
+    assert max_jump(out) <= 32767 * (w + np.pi / (2 * Synth(SR).ramp_n)) + 2  # the steps do not click
+    # Beeps and the tone heard one after another with it: each unlike the warble.
+    s = Synth(SR)
+    for cue in (beep(0.2, 500.0), Cue(TONE, pitch_hz=1600.0), Cue()):
+        s.render(blind, 0.0, 0.5)
+        other = s.render(cue, 0.5, 1.0)[round(0.05 * SR):, 0].astype(float)
+        if cue.sound == SILENCE:
+            assert not other.any()
+        else:
+            assert peak_hz(other) >= CFG.pitch_low_hz
+        s = Synth(SR)
 
 
 def test_nearer_beep_speeds_up_at_once() -> None:

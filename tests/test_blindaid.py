@@ -12,6 +12,8 @@ from hypothesis import strategies as st
 from edge.errors import ConfigError
 from edge.modes.blindaid.logic import (
     BEEP,
+    BLIND,
+    CANNOT_SEE,
     SILENCE,
     TONE,
     BlindAid,
@@ -213,27 +215,112 @@ def test_stale_readings_dropped() -> None:
     assert aid.cue.zone == 0
     cue = aid.tick(1.51)  # the left reading is now too old: the one ahead drives the cue
     assert cue is not None and cue.zone == 3 and cue.range_m == 2.0
+    aid.update(ok(RIGHT, 3.5), 2.5)  # the rig still sees (nothing near on the right)
     cue = aid.tick(2.6)
     assert cue is not None and cue.sound == SILENCE
 
 
-def test_faults_hold_then_drop() -> None:
+def test_ambiguous_holds_then_drops() -> None:
     aid = quiet(hold_s=0.5, max_age_s=1.5)
     aid.update(ok(AHEAD, 1.2), 0.0)
-    for status in (FAULT, AMBIGUOUS):
-        aid.reset()
-        aid.update(ok(AHEAD, 1.2), 0.0)
-        assert aid.update(bad(AHEAD, status), 0.2) is None  # held
-        assert aid.cue.sound == BEEP and aid.cue.range_m == 1.2
-        assert aid.update(bad(AHEAD, status), 0.6) is None  # hold runs from the first fault
-        cue = aid.tick(0.71)
-        assert cue is not None and cue.sound == SILENCE
+    assert aid.update(bad(AHEAD, AMBIGUOUS), 0.2) is None  # held
+    assert aid.cue.sound == BEEP and aid.cue.range_m == 1.2
+    assert aid.update(bad(AHEAD, AMBIGUOUS), 0.6) is None  # hold runs from the first one
+    cue = aid.tick(0.71)
+    assert cue is not None and cue.sound == SILENCE
+
+
+# --- cannot see ----------------------------------------------------------------------------------
+
+
+def part_fault(pan: float, part: str | None) -> ZoneResult:
+    return ZoneResult(0, pan, 0.0, FAULT, detail="camera: no frame within 1 s", part=part)
+
+
+@pytest.mark.parametrize(("part", "words"), [("camera", "camera fault"), ("ptu", "pan-tilt unit fault"),
+                                             ("lasers", "lasers fault"), (None, "ranging fault")])
+def test_a_fault_zone_is_blind_at_once_and_says_so(part: str | None, words: str) -> None:
+    aid = quiet()
+    aid.update(ok(AHEAD, 1.2), 0.0)
+    cue = aid.update(part_fault(AHEAD, part), 0.1)
+    assert cue is not None and cue.sound == BLIND and cue.reason == words
+    assert cue.speech == CANNOT_SEE  # said even with speak_new off: it is not an announcement
+    assert cue.range_m is None and cue.zone is None and cue.pitch_hz is None
+    assert aid.update(part_fault(LEFT, part), 0.3) is None  # the same blindness: nothing new
+    assert aid.speak(0.35) == CANNOT_SEE
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(0.0, 0.69), min_size=1, max_size=20), st.floats(0.71, 30.0))
+def test_nothing_from_the_rig_for_too_long_is_blind_never_silence(gaps: list[float], wait: float) -> None:
+    """Results (and frames) that come often enough keep the readings; a wait longer than
+    blind_after_s (0.7 s) is blind, whatever came before, and the first result after it ends it."""
+    aid = quiet(blind_after_s=0.7)
+    t = last = 0.0
+    for g in gaps:
+        t = last + g
+        assert aid.update(ok(AHEAD, 4.0), t) is None  # clear, seen: silence all along
+        last = t + g / 2
+        aid.alive(last)  # a frame between results
+        assert aid.tick(last + 0.69) is None
+    t_frame = last
+    cue = aid.tick(t_frame + wait)
+    assert cue is not None and cue.sound == BLIND and cue.reason.startswith("nothing from the rig")
+    assert aid.tick(t_frame + wait + 5.0) is None  # still blind: no new cue for the longer wait
+    cue = aid.update(ok(AHEAD, 1.5), t_frame + wait + 5.1)
+    assert cue is not None and cue.sound == BEEP and cue.range_m == 1.5
+
+
+def test_blind_from_the_start_when_nothing_ever_comes() -> None:
+    aid = quiet()
+    assert aid.tick(10.0) is None  # the first tick starts the wait
+    cue = aid.tick(10.8)
+    assert cue is not None and cue.sound == BLIND
+
+
+def test_a_frame_taken_before_the_stall_does_not_restart_the_wait() -> None:
+    aid = quiet(blind_after_s=0.7)
+    aid.update(ok(AHEAD, 1.5), 1.0)
+    aid.alive(0.9)  # delivered late, exposed earlier: the wait still runs from 1.0
+    cue = aid.tick(1.71)
+    assert cue is not None and cue.sound == BLIND
+
+
+def test_back_to_the_readings_after_good_zones() -> None:
+    aid = BlindAid(BlindAidConfig(speak_min_gap_s=3.0))
+    first = aid.update(ok(LEFT, 1.2), 0.0)
+    assert first is not None and first.speech == "one point two metres, left"
+    blind = aid.update(part_fault(LEFT, "camera"), 1.0)
+    assert blind is not None and blind.sound == BLIND and blind.speech == CANNOT_SEE
+    # Back: the zone ranges again; what is seen then is new, and said (the gap has passed).
+    cue = aid.update(ok(AHEAD, 0.4), 3.5)
+    assert cue is not None and cue.sound == TONE and cue.speech == "zero point four metres, ahead"
+    # Blind again soon: the warble at once, the words not again within speak_min_gap_s.
+    again = aid.update(part_fault(AHEAD, "camera"), 3.9)
+    assert again is not None and again.sound == BLIND and again.speech is None
+
+
+def test_the_service_can_say_it_cannot_see() -> None:
+    aid = quiet()
+    aid.update(ok(AHEAD, 1.0), 0.0)
+    cue = aid.set_blinded("lasers switched off by cmd/lasers_off", 0.1)
+    assert cue is not None and cue.sound == BLIND and cue.reason == "lasers switched off by cmd/lasers_off"
+    assert aid.update(ok(AHEAD, 1.0), 0.2) is None  # zones may come; still blind while it says so
+    cue = aid.set_blinded(None, 0.3)
+    assert cue is not None and cue.sound == BEEP and cue.range_m == 1.0
+
+
+def test_blind_after_s_bounded_so_the_cue_comes_within_a_second() -> None:
+    with pytest.raises(FieldError):
+        BlindAidConfig(blind_after_s=1.0)
+    with pytest.raises(FieldError):
+        BlindAidConfig(blind_after_s=0.0)
 
 
 def test_fresh_reading_after_fault_ends_hold() -> None:
     aid = quiet(hold_s=0.5)
     aid.update(ok(AHEAD, 1.2), 0.0)
-    aid.update(bad(AHEAD, FAULT), 0.1)
+    assert aid.update(bad(AHEAD, FAULT), 0.1).sound == BLIND  # type: ignore[union-attr]
     aid.update(ok(AHEAD, 1.2), 0.3)
     aid.tick(0.9)
     assert aid.cue.sound == BEEP
@@ -319,7 +406,9 @@ def test_cue_json() -> None:
     cue = quiet().update(ok(LEFT, 1.23456), 0.0)
     assert cue is not None
     payload = cue.to_json()
-    assert set(payload) == {"bearing_deg", "range_m", "zone", "sound", "interval_s", "pitch_hz", "pan", "speech"}
+    assert set(payload) == {"bearing_deg", "range_m", "zone", "sound", "interval_s", "pitch_hz", "pan", "speech",
+                            "reason"}
+    assert payload["reason"] is None
     assert payload["sound"] == "beep" and payload["range_m"] == 1.235 and payload["zone"] == 0
     assert "ts" not in payload
     json.dumps(payload)

@@ -168,3 +168,17 @@ def test_nothing_new_publishes_nothing() -> None:
     rig.zone(fault(PtuError, "gone"))
     rig.zone(fault(PtuError, "gone"))
     assert len(changes) == 1
+
+
+def test_the_blind_aid_cannot_see_when_its_reference_laser_does_not_range() -> None:
+    """The reference laser dark (or stuck on): every zone reads no_spot, which looks like open
+    space; the health says why the blind aid cannot see. Another laser dark: it still sees."""
+    h = health()
+    for _ in range(8):
+        h.zone(zone(("parallel", "sloped")))
+    assert h.cannot_see("center") is not None and "laser center does not light" in h.cannot_see("center")
+    h = health()
+    for _ in range(8):
+        h.zone(zone(("center", "parallel")))
+    assert h.parts["lasers"].startswith("fault: laser sloped")
+    assert h.cannot_see("center") is None

@@ -315,12 +315,22 @@ def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, t
     assert len(cues) >= 3
     for c in cues:
         assert set(c) >= {"ts", "bearing_deg", "range_m", "zone", "sound", "interval_s", "pitch_hz", "pan"}
+    # A loaded machine may make the aid say "cannot see" (its "blind" warble) now and then: aside.
+    seen = [c for c in cues if c["sound"] != "blind"]
     # The person walks up to about 0.4 m in front and back: the cues get near, then far again.
-    near = min(c["range_m"] for c in cues if c["range_m"] is not None)
+    near = min(c["range_m"] for c in seen if c["range_m"] is not None)
     assert near < 0.6
-    assert any(c["sound"] == "tone" or c["interval_s"] < 0.12 for c in cues)
-    assert cues[-1]["range_m"] > 1.5
+    assert any(c["sound"] == "tone" or (c["sound"] == "beep" and c["interval_s"] < 0.12) for c in seen)
+    assert [c for c in seen if c["range_m"] is not None][-1]["range_m"] > 1.5
     _, sounds = _beeps(wav)
+    from edge.modes.blindaid.sound import WARBLE_HZ
+
+    def warble(sound: tuple[float, float, float]) -> bool:
+        return min(WARBLE_HZ) - 25 < sound[1] < max(WARBLE_HZ) + 25
+
+    # Gaps between beeps with no warble in between (a beep after it starts at once).
+    beep_gaps = [b[0] - a[0] for a, b in zip(sounds, sounds[1:]) if not warble(a) and not warble(b)]
+    sounds = [s for s in sounds if not warble(s)]
     assert len(sounds) >= 10
     pitches = [c["pitch_hz"] for c in cues if c["sound"] in ("beep", "tone")]
     # Every sound in the file is at the pitch of a cue that was published (within 3 %).
@@ -329,7 +339,7 @@ def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, t
     # And the beeps' rhythm is a cue's: the commonest gap between onsets is one of their intervals.
     import numpy as np
 
-    gaps = np.diff([t for t, _, _ in sounds])
+    gaps = np.array(beep_gaps)
     intervals = [c["interval_s"] for c in cues if c["sound"] == "beep"]
     typical = float(np.median(gaps))
     assert min(abs(typical - i) / i for i in intervals) < 0.1, (typical, intervals)

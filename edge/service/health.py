@@ -68,6 +68,13 @@ class RigHealth:
             self._parts["storage"] = condition
             self._changed()
 
+    def cannot_see(self, reference: str) -> str | None:
+        """Why ranging is blind although zones come back, or None: the `reference` laser (the one
+        every range is measured with) does not light or does not go off, so every zone reads
+        `no_spot`, which looks like open space. The blind aid says "cannot see" for it."""
+        verdict = self._laser_verdicts.get(reference)
+        return None if verdict is None else verdict.words(self.calibrated)
+
     def failed(self, exc: HardwareError) -> None:
         """A part failed for good (the service is about to stop): say which, and how."""
         if exc.part in self._parts:

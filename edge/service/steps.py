@@ -1,8 +1,9 @@
 """One step of each mode on opened parts: a sweep, a burst of ranges, a pass of the blind aid's fan.
 
 The service's loop chooses the step; a step runs until it is done or `should_stop()` says so
-(checked between zones or frames, where the loop also takes commands). Every zone and frame goes
-out as a live ``range`` and into the rig's health.
+(checked between zones or frames, where the loop also takes commands). Every zone and frame of
+every mode goes out as a live ``range`` and into the rig's health (which restarts a stalled
+camera); the blind aid hears besides when the health says its reference laser cannot range.
 """
 
 from __future__ import annotations
@@ -43,6 +44,12 @@ class ModeSteps:
         self._pause = pause
         self._started = started
         self._blindaid: BlindAidRunner | None = None
+        self._blinded: str | None = None  # why the service says the blind aid cannot see
+
+    @property
+    def blindaid(self) -> BlindAidRunner | None:
+        """The blind aid's runner while its fan is open (its clock, its sound)."""
+        return self._blindaid
 
     def zone(self, result: ZoneResult, lit_when_off: Set[str] = frozenset()) -> None:
         """A zone's outcome, out and into the health."""
@@ -117,8 +124,25 @@ class ModeSteps:
             def on_cue(cue: Cue) -> None:
                 self._publish_live("cue", cue.to_json())
 
-            self._blindaid = BlindAidRunner(config, parts, on_cue, on_zone=self.zone, ranger=ranger)
-        self._blindaid.scan(should_stop)
+            self._blindaid = BlindAidRunner(config, parts, on_cue, ranger=ranger)
+            self._blindaid.set_blinded(self._blinded)
+        reference = ranger.rig.reference.name
+        runner = self._blindaid
+
+        def on_zone(result: ZoneResult, lit_when_off: Set[str]) -> None:
+            self.zone(result, lit_when_off)
+            runner.set_blinded(self._blinded or self.health.cannot_see(reference))
+
+        runner.on_zone = on_zone
+        runner.scan(should_stop)
+
+    def blinded(self, reason: str | None) -> None:
+        """The rig cannot see although it runs (`reason`, e.g. "lasers switched off by
+        cmd/lasers_off"), or, with None, can again: the blind aid says "cannot see" meanwhile.
+        Keep the fan open (no `close_fan`) while ranging is paused so: its sound goes on."""
+        self._blinded = reason
+        if self._blindaid is not None:
+            self._blindaid.set_blinded(reason)
 
     def close_fan(self) -> None:
         """Close the blind aid's runner (its sound, its button), if open."""

@@ -6,7 +6,19 @@ keeps the latest reading of each zone; the nearest valid obstacle within ``clear
 
 - nothing within ``clear_m``: **silence** (the way is clear);
 - between ``danger_m`` and ``clear_m``: parking-sensor **beeps**, faster and higher as it nears;
-- at or inside ``danger_m``: a continuous **tone**.
+- at or inside ``danger_m``: a continuous **tone**;
+- the rig cannot see: **blind**, a low two-tone warble and the words "cannot see", never silence.
+
+Blind comes from three inputs, whichever says so first: a ``fault`` zone result (a part failed for
+that zone: a camera without frames, a unit that does not answer, lasers switched off by their
+safety timer), no sign of life from the rig for ``blind_after_s`` (no zone result, and no frame
+either, :meth:`BlindAid.alive`, counted from when that frame was taken: a stalled camera blocks
+each frame up to its timeout, so the fault result itself comes late; :meth:`BlindAid.tick`,
+called on the sound's own clock, notices the silence of the rig first), and
+:meth:`BlindAid.set_blinded` (the service says the rig cannot see: lasers switched off by command,
+a laser that does not light). It ends with the first result that is not a fault, and the cue
+follows the readings again (an obstacle then is announced anew). Silence therefore always means
+"seen, and clear".
 
 Everything here is pure: results and times in, :class:`Cue` values out. No clocks, no I/O; the
 sound itself is made by :mod:`edge.modes.blindaid.sound`, and the service publishes each cue on ``cue``.
@@ -44,8 +56,10 @@ from dataclasses import dataclass, replace
 from edge.ranging import AMBIGUOUS, FAULT, NO_SPOT, OK, OUT_OF_RANGE, ZoneResult
 from edge.schema import require
 
-SILENCE, BEEP, TONE = "silence", "beep", "tone"
-SOUNDS = (SILENCE, BEEP, TONE)
+SILENCE, BEEP, TONE, BLIND = "silence", "beep", "tone", "blind"
+SOUNDS = (SILENCE, BEEP, TONE, BLIND)
+CANNOT_SEE = "cannot see"  # what is said when the aid goes blind
+_WAITED = "nothing from the rig"  # the blind reason when no sign of life came for too long
 SAMPLE_RATES = (8000, 16000, 22050, 32000, 44100, 48000)
 
 
@@ -74,6 +88,7 @@ class BlindAidConfig:
     hysteresis_m: float = 0.05  # against flicker at clear_m, danger_m and between zones
     min_change_m: float = 0.05  # a new cue when the nearest range moves by this much
     speak_button_pin: int = 0  # BCM pin of a push button (to ground) that asks "how far?"; 0: none
+    blind_after_s: float = 0.7  # no frame or zone result for this long: "cannot see" (~0.1-0.3 s apart)
 
     def __post_init__(self) -> None:
         require(3 <= self.fan_zones <= 15 and self.fan_zones % 2 == 1, "fan_zones",
@@ -105,6 +120,8 @@ class BlindAidConfig:
         require(0 <= self.hysteresis_m < self.clear_m - self.danger_m, "hysteresis_m",
                 "must be >= 0 and less than clear_m - danger_m")
         require(self.min_change_m >= 0, "min_change_m", "must be >= 0")
+        # Above 0.9 s the blind cue could not sound within a second of the rig going blind.
+        require(0.1 <= self.blind_after_s <= 0.9, "blind_after_s", "must be in [0.1, 0.9] s")
 
     # --- the laws ---
 
@@ -163,7 +180,8 @@ class Cue:
     ``bearing_deg`` (positive = left), ``range_m`` and ``zone`` (fan index, left to right) describe
     the nearest obstacle, or are None when the way is clear. ``interval_s`` is set for beeps only,
     ``pitch_hz`` for beeps and the tone. ``pan`` is the stereo position, −1 left … +1 right.
-    ``speech`` is a phrase to say with this cue (an announcement), else None.
+    ``speech`` is a phrase to say with this cue (an announcement), else None. ``reason`` says, for
+    the blind cue only, why the aid cannot see (the part at fault, or how long no result came).
     """
 
     sound: str = SILENCE
@@ -174,6 +192,7 @@ class Cue:
     pitch_hz: float | None = None
     pan: float = 0.0
     speech: str | None = None
+    reason: str | None = None
 
     def to_json(self) -> dict:
         def r(v: float | None, nd: int) -> float | None:
@@ -188,6 +207,7 @@ class Cue:
             "pitch_hz": r(self.pitch_hz, 1),
             "pan": round(self.pan, 3),
             "speech": self.speech,
+            "reason": self.reason,
         }
 
 
@@ -250,6 +270,10 @@ class BlindAid:
         self._nearest_zone: int | None = None
         self._announced: str | None = None  # direction last announced; None after clear
         self._last_speech_s = -math.inf
+        self._last_blind_speech_s = -math.inf
+        self._since_s: float | None = None  # when results were last seen (or first expected)
+        self._fault: str | None = None  # why the latest zone result was a fault
+        self._blinded: str | None = None  # why the service says the rig cannot see
 
     @property
     def cue(self) -> Cue:
@@ -270,14 +294,40 @@ class BlindAid:
             return None
         return int(i)
 
-    def update(self, result: ZoneResult, t_s: float) -> Cue | None:
-        """Take one zone result measured at `t_s` (seconds, any monotonic origin). Returns the new
-        cue when it changed meaningfully (sound, zone, range by ``min_change_m``, or something to
-        say), else None."""
+    def update(self, result: ZoneResult, t_s: float, seen_s: float | None = None) -> Cue | None:
+        """Take one zone result measured at `t_s` (seconds, any monotonic origin); `seen_s`, when
+        given, is when the rig last showed it worked for it (its last frame's end; default
+        `t_s`). Returns the new cue when it changed meaningfully (sound, zone, range by
+        ``min_change_m``, or something to say), else None."""
+        self.alive(t_s if seen_s is None else seen_s)
+        self._fault = _fault_reason(result) if result.status == FAULT else None
         zone = self.zone_of(result)
         if zone is not None:
             self._record(zone, result, t_s)
         return self.tick(t_s)
+
+    def alive(self, t_s: float) -> None:
+        """The rig showed at `t_s` that it works, short of a result (a frame's exposure ended): the
+        wait for the next sign of life starts again from there (never from earlier)."""
+        self._since_s = t_s if self._since_s is None else max(self._since_s, t_s)
+
+    def set_blinded(self, reason: str | None, t_s: float) -> Cue | None:
+        """The service says the rig cannot see (`reason`: lasers switched off, a laser that does not
+        light…), or, with None, that this is over. Same return as update."""
+        self._blinded = reason
+        return self.tick(t_s)
+
+    def blind_reason(self, t_s: float) -> str | None:
+        """Why the aid cannot see at `t_s`, or None when it can."""
+        if self._blinded is not None:
+            return self._blinded
+        if self._fault is not None:
+            return self._fault
+        if self._since_s is None:
+            self._since_s = t_s  # the first call starts the wait for the first result
+        if t_s - self._since_s > self.config.blind_after_s:
+            return f"{_WAITED} for {t_s - self._since_s:.1f} s"
+        return None
 
     def tick(self, t_s: float) -> Cue | None:
         """Re-evaluate at `t_s` without a new result (readings age out); same return as update."""
@@ -307,8 +357,11 @@ class BlindAid:
         return f"{distance_words(reading.range_m)}, {self.config.direction(reading.bearing_deg)}"
 
     def speak(self, t_s: float) -> str:
-        """The phrase for the nearest obstacle now ("one point two metres, left", "way clear"),
-        on request. Counts as an announcement for the rate limit."""
+        """The phrase for the nearest obstacle now ("one point two metres, left", "way clear",
+        "cannot see"), on request. Counts as an announcement for the rate limit."""
+        if self.blind_reason(t_s) is not None:
+            self._last_speech_s = t_s
+            return CANNOT_SEE
         reading = self.nearest(t_s)
         self._last_speech_s = t_s
         self._announced = None if reading is None else self.config.direction(reading.bearing_deg)
@@ -341,6 +394,9 @@ class BlindAid:
     def _choose(self, t_s: float) -> Cue | None:
         """The cue for now, if it differs meaningfully from the last one; updates speech state."""
         c = self.config
+        blind = self.blind_reason(t_s)
+        if blind is not None:
+            return self._choose_blind(blind, t_s)
         reading = self.nearest(t_s)
         self._nearest_zone = None if reading is None else reading.zone
         if reading is None:
@@ -366,6 +422,22 @@ class BlindAid:
         )
         return cue if changed else None
 
+    def _choose_blind(self, reason: str, t_s: float) -> Cue | None:
+        """The blind cue, said aloud on entering it (at most once per speak_min_gap_s); a changed
+        reason makes a new cue (for `cue` on MQTT), a stale wait's growing seconds do not."""
+        last = self._cue
+        self._nearest_zone = None
+        self._announced = None  # whatever is seen next is new
+        cue = Cue(sound=BLIND, reason=reason)
+        if last.sound == BLIND:
+            same = last.reason == reason or (reason.startswith(_WAITED)
+                                            and (last.reason or "").startswith(_WAITED))
+            return None if same else cue
+        if t_s - self._last_blind_speech_s >= self.config.speak_min_gap_s:
+            self._last_blind_speech_s = t_s
+            return replace(cue, speech=CANNOT_SEE)
+        return cue
+
     def _announcement(self, reading: Reading | None, t_s: float) -> str | None:
         """Something new to say: an obstacle after clear, or the nearest one in another direction,
         at most once per speak_min_gap_s (a due announcement waits for the gap, then is said if it
@@ -381,3 +453,12 @@ class BlindAid:
         self._announced = direction
         self._last_speech_s = t_s
         return self.phrase(reading)
+
+
+_PART_WORDS = {"camera": "camera", "lasers": "lasers", "ptu": "pan-tilt unit"}
+
+
+def _fault_reason(result: ZoneResult) -> str:
+    """Why a fault result means the aid cannot see: the part that failed, in a few words (the
+    details, which change from zone to zone, are in `state` and the log)."""
+    return f"{_PART_WORDS.get(result.part or '', 'ranging')} fault"

@@ -4,8 +4,14 @@ The pure part (which obstacle, which sound) is :mod:`edge.modes.blindaid.logic`,
 :mod:`edge.modes.blindaid.sound`; this module moves the unit through the fan one zone at a time, feeds each
 result to the :class:`~edge.modes.blindaid.BlindAid`, and keeps the sound going: a thread advances
 the :class:`~edge.modes.blindaid.sound.CuePlayer` on the clock every few milliseconds, whatever the unit is
-doing, so beeps keep their rhythm while the head moves. Speech is synthesised in a thread of its
-own (espeak-ng takes 50-200 ms on a Pi) and mixed in when ready.
+doing, so beeps keep their rhythm while the head moves. That thread also ticks the blind aid on
+its own clock: when the rig stops giving results (a camera that stalls blocks the loop for its
+timeout on every frame) the "cannot see" cue sounds within ``blindaid.blind_after_s``, long before
+the zone's fault comes back. Speech is synthesised in a thread of its own (espeak-ng takes
+50-200 ms on a Pi) and mixed in when ready.
+
+Every zone result also goes to `on_zone` with the lasers seen lit when off (the service publishes it
+on ``range`` and feeds the rig's health, which restarts a stalled camera, as in the other modes).
 
 Times are seconds since the runner started: the stream time of the sound, so that a WAV of a run
 is its timeline.
@@ -16,11 +22,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Set
 from dataclasses import replace
+from typing import Any
 
+from edge.capture import Capture
 from edge.config import Config
-from edge.modes.blindaid.logic import BlindAid, Cue, fan_poses, scan_order
+from edge.hw.base import Frame
+from edge.modes.blindaid.logic import BLIND, BlindAid, Cue, fan_poses, scan_order
 from edge.modes.blindaid.sound import AplaySink, CuePlayer, NullSink, Synth, WavSink, speak_to_frames
 from edge.ranging import Ranger, ZoneResult
 
@@ -42,7 +51,8 @@ class BlindAidRunner:
     """The blind aid's loop step and its sound, on opened parts."""
 
     def __init__(self, config: Config, parts, on_cue: Callable[[Cue], None],
-                 on_zone: Callable[[ZoneResult], None] | None = None, ranger: Ranger | None = None) -> None:
+                 on_zone: Callable[[ZoneResult, Set[str]], None] | None = None,
+                 ranger: Ranger | None = None) -> None:
         from edge.sweep import sweeper_for
 
         self.config = config
@@ -51,8 +61,16 @@ class BlindAidRunner:
         self.order = scan_order(config.blindaid)
         # One laser-off/on pair a zone: the blind aid wants fresh ranges, not the last millimetre.
         fan = replace(config, sweep=replace(config.sweep, pairs_per_zone=1))
-        self.sweeper = sweeper_for(parts, on_zone=on_zone, config=fan, ranger=ranger)
+        self.sweeper = sweeper_for(parts, config=fan, ranger=ranger)
+        # Every frame delivered is a sign that the rig still works: the blind aid's "nothing for too
+        # long" counts from the latest one's exposure, not only from the last zone's result, so that
+        # a slow zone (a loaded machine) is not taken for a stalled part. From the exposure, not
+        # from its delivery: a frame exposed before a stall but delivered after it proves nothing.
+        self.sweeper.capture = Capture(_Heeded(parts.camera, "frame_after", self._seen), parts.lasers, fan)
         self.on_cue = on_cue
+        self.on_zone = on_zone
+        # The loop's thread (zone results) and the sound's (ticks) both move the blind aid.
+        self._lock = threading.Lock()
         self._cue_frames: list[tuple[float, float]] = []  # (cue time, frame end time)
         sink, live = open_audio(config)
         self._t0_ns = time.monotonic_ns()
@@ -66,6 +84,11 @@ class BlindAidRunner:
         self._clock = threading.Thread(target=self._play, name="blind-aid sound", daemon=True)
         self._clock.start()
 
+    @property
+    def t0_ns(self) -> int:
+        """The monotonic time (ns) of stream time 0: the origin of `now()` and of the sound."""
+        return self._t0_ns
+
     def now(self) -> float:
         return (time.monotonic_ns() - self._t0_ns) / 1e9
 
@@ -73,10 +96,28 @@ class BlindAidRunner:
         period = self.player.chunk_n / self.player.sample_rate / 2
         while not self._stop.wait(period):
             try:
-                self.player.advance(self.now())
+                t = self.now()
+                with self._lock:
+                    cue = self.aid.tick(t)  # readings age out; no results for too long: blind
+                    if cue is not None:
+                        self._play_cue(cue, t, None)
+                self.player.advance(t)
             except Exception as exc:  # a sound card gone must not take the ranging with it
                 log.error("blind aid: sound stopped: %s", exc)
                 return
+
+    def _seen(self, frame: Frame) -> None:
+        with self._lock:
+            self.aid.alive((frame.t_end_ns - self._t0_ns) / 1e9)
+
+    def set_blinded(self, reason: str | None) -> None:
+        """The rig cannot see (`reason`: lasers switched off, a laser that does not light), or, with
+        None, can again: the blind cue sounds until this ends (and the zones see)."""
+        t = self.now()
+        with self._lock:
+            cue = self.aid.set_blinded(reason, t)
+            if cue is not None:
+                self._play_cue(cue, t, None)
 
     def scan(self, should_stop: Callable[[], bool]) -> None:
         """One pass over the fan (there and back), a cue whenever the picture changes."""
@@ -87,9 +128,12 @@ class BlindAidRunner:
             result = self.sweeper.zone(k, pan, tilt)
             t = self.now()
             frame_t = (self.sweeper.last_frame_end_ns - self._t0_ns) / 1e9
-            cue = self.aid.update(result, t) or self.aid.tick(t)
-            if cue is not None:
-                self._play_cue(cue, t, frame_t)
+            with self._lock:
+                cue = self.aid.update(result, t, seen_s=frame_t)
+                if cue is not None:
+                    self._play_cue(cue, t, frame_t)
+            if self.on_zone is not None:
+                self.on_zone(result, frozenset(self.sweeper.lit_when_off))
             if self._asked.is_set():
                 self._asked.clear()
                 log.info("blind aid: asked: %s", self.speak())
@@ -97,14 +141,20 @@ class BlindAidRunner:
     def speak(self) -> str:
         """Say where the nearest obstacle is now (the button on the device asks for it)."""
         t = self.now()
-        text = self.aid.speak(t)
+        with self._lock:
+            text = self.aid.speak(t)
         self._say(text, t)
         return text
 
-    def _play_cue(self, cue: Cue, t: float, frame_t: float) -> None:
+    def _play_cue(self, cue: Cue, t: float, frame_t: float | None) -> None:
+        """Play and publish `cue` (from the loop's thread with the frame that made it, or from the
+        sound's clock with None). Called under the lock, so the player gets cues in their order."""
         self.player.set_cue(cue, t)
         log.debug("cue at %.3f s: %s", t, cue.to_json())
-        self._cue_frames.append((t, frame_t))
+        if cue.sound == BLIND:
+            log.warning("blind aid: cannot see: %s", cue.reason)
+        if frame_t is not None:
+            self._cue_frames.append((t, frame_t))
         self.on_cue(cue)
         if cue.speech:
             self._say(cue.speech, t)
@@ -128,3 +178,25 @@ class BlindAidRunner:
         self._stop.set()
         self._clock.join(timeout=2.0)
         self.player.close(self.now())
+
+
+class _Heeded:
+    """A part whose `method` hands what it returns to `seen` (a frame came); everything else
+    passes through to the part."""
+
+    def __init__(self, part, method: str, seen: Callable[[Any], None]) -> None:
+        self._part = part
+        self._method = method
+        self._on_seen = seen
+
+    def __getattr__(self, name: str):
+        attr = getattr(self._part, name)
+        if name != self._method:
+            return attr
+
+        def heeded(*args, **kwargs):
+            out = attr(*args, **kwargs)
+            self._on_seen(out)
+            return out
+
+        return heeded

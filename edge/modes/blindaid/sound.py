@@ -33,11 +33,16 @@ import numpy as np
 
 from edge.errors import AudioError
 from edge.fsutil import current_umask
-from edge.modes.blindaid.logic import BEEP, SILENCE, TONE, BlindAidConfig, Cue, pan_gains
+from edge.modes.blindaid.logic import BEEP, BLIND, SILENCE, TONE, BlindAidConfig, Cue, pan_gains
 
 log = logging.getLogger(__name__)
 
 _FULL_SCALE = 32767.0
+# The "cannot see" warble: two low pitches, below every beep (pitch_low_hz >= 400 Hz by default) and
+# far below the tone, alternating every WARBLE_STEP_S without a gap, from the centre. Unlike silence
+# it sounds; unlike beeps it never stops; unlike the tone it moves, and is low.
+WARBLE_HZ = (300.0, 225.0)
+WARBLE_STEP_S = 0.125
 
 
 def _as_frames(frames: np.ndarray) -> np.ndarray:
@@ -79,6 +84,8 @@ class Synth:
       the tone starts at once; when only the interval changes, the next beep comes at the earlier of
       its old time and the last beep + the new interval (a nearing obstacle speeds up at once).
     - **tone**: continuous at ``cue.pitch_hz``, rising and falling with the same ramps.
+    - **blind** ("cannot see"): a low two-tone warble, :data:`WARBLE_HZ` alternating every
+      :data:`WARBLE_STEP_S`, continuous and centred, rising with the same ramps.
     - **silence**: the sound present fades out over ``ramp_s``.
 
     The sine's phase runs on through pitch changes and silences (no phase jumps); the stereo gains
@@ -104,6 +111,8 @@ class Synth:
         self._next_onset = 0
         self._last_onset: int | None = None
         self._gate_until = 0
+        self._warble_n = max(1, round(WARBLE_STEP_S * sample_rate))
+        self._warble_start = 0
         c = pan_gains(0.0)
         self._g_from = np.array(c)
         self._g_to = np.array(c)
@@ -142,6 +151,7 @@ class Synth:
         self._pos = pos
         self._next_onset += shift
         self._gate_until += shift
+        self._warble_start += shift
         self._g_start += shift
         if self._last_onset is not None:
             self._last_onset += shift
@@ -162,10 +172,12 @@ class Synth:
         else:
             self._gate_until = pos
             self._last_onset = None
+        if cue.sound == BLIND:
+            self._warble_start = pos
         if cue.sound != SILENCE:
-            if cue.pitch_hz:
+            if cue.pitch_hz and cue.sound != BLIND:
                 self._freq = float(cue.pitch_hz)
-            target = np.array(pan_gains(cue.pan))
+            target = np.array(pan_gains(0.0 if cue.sound == BLIND else cue.pan))
             if not np.allclose(target, self._g_to):
                 if self._env <= 0.0:  # nothing is sounding: jump
                     self._g_from, self._g_to, self._g_start = target, target, pos
@@ -180,7 +192,7 @@ class Synth:
         pos0 = self._pos
         gate = np.zeros(n)
         c = self._cue
-        if c is not None and c.sound == TONE:
+        if c is not None and c.sound in (TONE, BLIND):
             gate[:] = 1.0
         elif c is not None and c.sound == BEEP:
             gate_n = self.beep_n - self.ramp_n  # the fall follows the gate's end
@@ -194,9 +206,16 @@ class Synth:
                 self._next_onset += self._interval_n
         ramp, self._env = _slew(gate, self._env, 1.0 / self.ramp_n)
         amp = 0.5 - 0.5 * np.cos(np.pi * ramp)
-        w = 2.0 * math.pi * self._freq / self.sample_rate
-        phase = self._phase + w * np.arange(n)
-        self._phase = math.fmod(self._phase + w * n, 2.0 * math.pi)
+        phase: np.ndarray
+        if c is not None and c.sound == BLIND:  # the pitch steps; the phase runs on (no clicks)
+            step = (np.arange(pos0, pos0 + n) - self._warble_start) // self._warble_n
+            w_n = 2.0 * math.pi * np.where(step % 2 == 0, WARBLE_HZ[0], WARBLE_HZ[1]) / self.sample_rate
+            phase = self._phase + np.concatenate(([0.0], np.cumsum(w_n)[:-1]))[:n]
+            self._phase = math.fmod(self._phase + float(w_n.sum()), 2.0 * math.pi)
+        else:
+            w = 2.0 * math.pi * self._freq / self.sample_rate
+            phase = self._phase + w * np.arange(n)
+            self._phase = math.fmod(self._phase + w * n, 2.0 * math.pi)
         mono = (self.volume * _FULL_SCALE) * amp * np.sin(phase)
         idx = np.arange(pos0, pos0 + n)
         frac = np.clip((idx - self._g_start) / self.pan_glide_n, 0.0, 1.0)[:, None]
@@ -209,8 +228,8 @@ def _sound_of(cue: Cue | None) -> tuple | None:
     """What of a cue the synthesiser hears (speech and metadata aside)."""
     if cue is None:
         return None
-    if cue.sound == SILENCE:
-        return (SILENCE,)
+    if cue.sound in (SILENCE, BLIND):
+        return (cue.sound,)
     return (cue.sound, cue.interval_s, cue.pitch_hz, cue.pan)
 
 
