@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 import threading
 import time
 from collections.abc import Callable, Mapping
+from types import FrameType
 
 log = logging.getLogger(__name__)
 
@@ -176,3 +178,23 @@ class WatchdogFeeder:
         self._progress = False
         self._last_feed = now
         return self.notifier.watchdog()
+
+    def tick(self) -> None:
+        """What the loop calls when it got something done: progress, and a feed when due."""
+        self.progressed()
+        self.feed_if_due()
+
+
+def stop_on_signals(stop: threading.Event) -> None:
+    """SIGTERM (systemd's stop) and SIGINT set `stop`, which the service's loop checks between
+    zones. Only the main thread may take signals: tests that run a service in a thread stop it by
+    setting the event themselves."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        log.info("%s: stopping", signal.Signals(signum).name)
+        stop.set()
+
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, on_signal)

@@ -4,6 +4,8 @@ and answered on ``cmd/<name>/result``, ok or not, with the request id it came wi
 from __future__ import annotations
 
 import logging
+import time
+from collections import deque
 from collections.abc import Callable, Mapping
 
 from edge.commands import Command, label, parse_command, request_id_of
@@ -61,3 +63,37 @@ class Dispatcher:
         else:
             log.info("command %s done", name)
         self._publish_result(name, error is None, error, command.request_id)
+
+
+class CommandQueue:
+    """Commands taken from the link (`receive()`) and carried out one by one by `handle`, with
+    `progressed()` (the watchdog's food) after each. Once a turn has spent `budget_s` on them, the
+    rest wait for the next turn: a burst of slow cmd/point must not starve the mode, nor hold off a
+    stop. New commands are taken only when the last ones are done, so that the link's bounded
+    queue stays the bound (beyond it the link refuses them). Nothing a sender can send escapes."""
+
+    def __init__(self, receive: Callable[[], list[tuple[str, bytes]]], handle: Callable[[str, bytes], None],
+                 progressed: Callable[[], None], budget_s: float = 0.25) -> None:
+        self._receive = receive
+        self._handle = handle
+        self._progressed = progressed
+        self._budget_s = budget_s
+        self._pending: deque[tuple[str, bytes]] = deque()
+
+    def handle(self, name: str, payload: bytes) -> None:
+        """Carry out one command; whatever escapes its handling is logged, never raised."""
+        try:
+            self._handle(name, payload)
+        except Exception:  # noqa: BLE001 - the name and payload came from outside
+            log.exception("command %s: failed; the service goes on", label(name))
+
+    def run(self, stopping: Callable[[], bool]) -> None:
+        """A turn's worth of the commands received."""
+        if not self._pending:
+            self._pending.extend(self._receive())
+        began = time.monotonic()
+        while self._pending and not stopping():
+            self.handle(*self._pending.popleft())
+            self._progressed()
+            if time.monotonic() - began >= self._budget_s:
+                break
