@@ -32,7 +32,7 @@ from typing import Protocol
 import numpy as np
 
 from edge.errors import AudioError
-from edge.fsutil import current_umask
+from edge.fsutil import current_umask, fsync_dir
 from edge.modes.blindaid.logic import BEEP, BLIND, SILENCE, TONE, BlindAidConfig, Cue, pan_gains
 
 log = logging.getLogger(__name__)
@@ -308,11 +308,7 @@ class WavSink:
         os.fsync(self._fh.fileno())
         self._fh.close()
         os.replace(self.tmp_path, self.path)
-        dir_fd = os.open(self.path.parent if str(self.path.parent) else ".", os.O_RDONLY)
-        try:
-            os.fsync(dir_fd)
-        finally:
-            os.close(dir_fd)
+        fsync_dir(self.path.parent)  # the rename itself, through a power cut
 
     def discard(self) -> None:
         """Give up: remove the temporary file, leave `path` as it was."""
