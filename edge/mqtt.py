@@ -449,12 +449,8 @@ class MqttLink:
             if receive_max is not None and receive_max < PAHO_INFLIGHT:
                 log.warning("MQTT: the broker takes %d unacknowledged messages, we may send %d: it may "
                             "disconnect us under load", receive_max, PAHO_INFLIGHT)
-            client.publish(self.topics.status, "online", qos=1, retain=True)
-            if self._state is not None:
-                client.publish(self.topics.state, self._state, qos=1, retain=True)
-            for m in leftovers:
-                if m.topic.endswith("/result"):
-                    client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
+            # Subscribed before "online" goes out: the broker takes a client's packets in order, so
+            # whoever sees "online" and sends a command at once finds us listening.
             # retainAsPublished: without it the broker clears the retain flag of a retained command
             # delivered live, or kept for us while we were offline, and it would be carried out.
             # Retained commands only when the subscription is new: they are refused anyway, once
@@ -465,6 +461,12 @@ class MqttLink:
             if self.config.discovery:
                 subscriptions.append((f"{self.config.discovery_prefix}/status", SubscribeOptions(qos=1)))
             client.subscribe(subscriptions)
+            client.publish(self.topics.status, "online", qos=1, retain=True)
+            if self._state is not None:
+                client.publish(self.topics.state, self._state, qos=1, retain=True)
+            for m in leftovers:
+                if m.topic.endswith("/result"):
+                    client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
             self.publish_discovery()
             with self._cond:
                 self._connected = True

@@ -529,3 +529,24 @@ def test_a_command_that_cannot_be_answered_is_dropped_and_publish_result_never_r
         link.publish_result(name, False, "no")  # logged and dropped: the name came from outside
     link.publish_result("mode", True, request_id="still-fine")
     assert result_of(subscriber, "mode")["request_id"] == "still-fine"
+
+
+def test_the_device_listens_before_it_says_online(tmp_path: Path) -> None:
+    """Whoever sees `online` and sends a command at once must find the device subscribed: the
+    broker takes one client's packets in order, so SUBSCRIBE has to go out before PUBLISH online
+    (seen lost in a clean clone, when the other way round)."""
+    with Mosquitto(extra="log_type debug") as debug_broker:
+        outbox = Outbox(tmp_path / "outbox.sqlite3")
+        link = MqttLink(config_for(debug_broker), DEV, outbox, version=VERSION)
+        try:
+            started(link)
+            wait_until(lambda: "Received SUBSCRIBE" in debug_broker.log_path.read_text()
+                       and "status" in debug_broker.log_path.read_text(), what="the broker's log")
+        finally:
+            link.stop(timeout_s=0.5)
+            outbox.close()
+        lines = debug_broker.log_path.read_text().splitlines()
+    mine = [i for i, line in enumerate(lines) if f"from edge-{DEV}" in line]
+    subscribe = next(i for i in mine if "Received SUBSCRIBE" in lines[i])
+    online = next(i for i in mine if "Received PUBLISH" in lines[i] and f"'edge/{DEV}/status'" in lines[i])
+    assert subscribe < online, lines[subscribe - 1:online + 2]
