@@ -47,10 +47,13 @@ class Capture:
     """Takes frames with given lasers on, synchronised to the lasers' switching."""
 
     def __init__(
-        self, camera: Camera, lasers: LaserBank, config: Config | None = None, *, timeout_s: float | None = None
+        self, camera: Camera, lasers: LaserBank, config: Config | None = None, *, timeout_s: float | None = None,
+        on_frame: Callable[[Frame], None] | None = None,
     ) -> None:
         self.camera = camera
         self.lasers = lasers
+        # Told of every frame the camera delivers, used or not: a sign of life (the blind aid's).
+        self.on_frame = on_frame
         # How long to wait for one frame: `timeout_s`, else [camera] timeout_s.
         self.timeout_s = timeout_s if timeout_s is not None else (config or Config()).camera.timeout_s
         self.dropped = 0  # frames not used because their exposure overlapped a laser switch
@@ -75,6 +78,8 @@ class Capture:
             effective = self.lasers.set(on)
             switch_ns = self.lasers.last_switch_ns
             frame = self.camera.frame_after(max(effective, not_before), self.timeout_s)
+            if self.on_frame is not None:
+                self.on_frame(frame)
             self._check(frame)
             if switch_ns != before:
                 self.dropped += self._straddlers(frame, switch_ns, effective)

@@ -218,19 +218,19 @@ class ConfiguredSweep:
 
 
 def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None, config: Config | None = None,
-                ranger: Ranger | None = None) -> Sweeper:
+                ranger: Ranger | None = None, capture: Capture | None = None) -> Sweeper:
     """A sweeper on opened parts (``edge.parts``), ranging with the configured rig and its
     calibration (``edge.calibration.in_use``; `config`, when
     given, changes how it sweeps: a mode's own pattern; `ranger`, when given, is reused rather
-    than built again: building one lays out every laser's search band)."""
+    than built again: building one lays out every laser's search band; `capture`, when given,
+    replaces the parts' own: one that heeds every frame)."""
     config = config or parts.config
     truth = parts.truth if parts.simulated else None
     if ranger is None:
         from edge.calibration.in_use import believed_rig
 
         ranger = Ranger(believed_rig(config).rig, config.ranging)
-    return Sweeper(config, parts.ptu, parts.capture, ranger,
-                   on_zone=on_zone, truth=truth)
+    return Sweeper(config, parts.ptu, capture or parts.capture, ranger, on_zone=on_zone, truth=truth)
 
 
 def run_configured_sweep(

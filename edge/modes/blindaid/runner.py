@@ -24,7 +24,6 @@ import threading
 import time
 from collections.abc import Callable, Set
 from dataclasses import replace
-from typing import Any
 
 from edge.capture import Capture
 from edge.config import Config
@@ -57,20 +56,20 @@ class BlindAidRunner:
 
         self.config = config
         self.aid = BlindAid(config.blindaid)
+        # The loop's thread (zone results) and the sound's (ticks) both move the blind aid.
+        self._lock = threading.Lock()
         self.poses = fan_poses(config.blindaid)
         self.order = scan_order(config.blindaid)
         # One laser-off/on pair a zone: the blind aid wants fresh ranges, not the last millimetre.
         fan = replace(config, sweep=replace(config.sweep, pairs_per_zone=1))
-        self.sweeper = sweeper_for(parts, config=fan, ranger=ranger)
         # Every frame delivered is a sign that the rig still works: the blind aid's "nothing for too
         # long" counts from the latest one's exposure, not only from the last zone's result, so that
         # a slow zone (a loaded machine) is not taken for a stalled part. From the exposure, not
         # from its delivery: a frame exposed before a stall but delivered after it proves nothing.
-        self.sweeper.capture = Capture(_Heeded(parts.camera, "frame_after", self._seen), parts.lasers, fan)
+        capture = Capture(parts.camera, parts.lasers, fan, on_frame=self._seen)
+        self.sweeper = sweeper_for(parts, config=fan, ranger=ranger, capture=capture)
         self.on_cue = on_cue
         self.on_zone = on_zone
-        # The loop's thread (zone results) and the sound's (ticks) both move the blind aid.
-        self._lock = threading.Lock()
         self._cue_frames: list[tuple[float, float]] = []  # (cue time, frame end time)
         sink, live = open_audio(config)
         self._t0_ns = time.monotonic_ns()
@@ -178,25 +177,3 @@ class BlindAidRunner:
         self._stop.set()
         self._clock.join(timeout=2.0)
         self.player.close(self.now())
-
-
-class _Heeded:
-    """A part whose `method` hands what it returns to `seen` (a frame came); everything else
-    passes through to the part."""
-
-    def __init__(self, part, method: str, seen: Callable[[Any], None]) -> None:
-        self._part = part
-        self._method = method
-        self._on_seen = seen
-
-    def __getattr__(self, name: str):
-        attr = getattr(self._part, name)
-        if name != self._method:
-            return attr
-
-        def heeded(*args, **kwargs):
-            out = attr(*args, **kwargs)
-            self._on_seen(out)
-            return out
-
-        return heeded
