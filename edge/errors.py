@@ -39,9 +39,9 @@ class SceneError(EdgeError):
 class HardwareError(EdgeError):
     """A part of the rig (camera, lasers, pan-tilt unit) did not deliver.
 
-    ``part`` names the part to blame (one of :data:`PARTS`), or None when no single part is: the
-    service routes health and recovery by it, never by the words of the message, which are for
-    people. Drivers raise the subclass of their part.
+    ``part`` names the part to blame ("camera", "lasers", "ptu", "audio": the subclasses' own), or
+    None when no single part is: the service routes health and recovery by it, never by the words
+    of the message, which are for people. Drivers raise the subclass of their part.
     """
 
     exit_code = 1
@@ -76,9 +76,6 @@ class AudioError(HardwareError):
 
     part = "audio"
 
-
-# The parts a HardwareError may blame, as the service's `state` names them.
-PARTS = ("camera", "lasers", "ptu", "audio")
 
 
 class CalibrationError(EdgeError):

@@ -101,7 +101,7 @@ class ZoneResult:
     normal: np.ndarray | None = None
     lasers: dict[str, LaserMeasurement] = field(default_factory=dict)
     detail: str = ""  # why a zone is not ok, for people
-    # A fault's part to blame (edge.errors.PARTS), for health and recovery; not published: the
+    # A fault's part to blame (a HardwareError's `part`), for health and recovery; not published: the
     # detail says it in words.
     part: str | None = None
 

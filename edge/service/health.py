@@ -35,7 +35,7 @@ class RigHealth:
 
     def __init__(self, laser_names: Sequence[str], calibration: str, *, calibrated: bool,
                  camera: Callable[[], Camera | None], changed: Callable[[], None]) -> None:
-        self._parts = {"camera": "ok", "lasers": "ok", "ptu": "ok", "calibration": calibration, "storage": "ok"}
+        self._parts = {**dict.fromkeys(PARTS, "ok"), "calibration": calibration}
         self.lasers = LaserHealth(laser_names)
         self.calibrated = calibrated
         self.camera_restarts = 0
