@@ -13,7 +13,7 @@ from edge.modes.guard import GuardConfig
 from edge.ranging import OK, ZoneResult
 from edge.service import Service
 from edge.service.guarding import GuardWatch
-from edge.service.identity import BOOT_FILE, next_boot_id
+from edge.service.identity import BOOT_FILE, BootId, next_boot_id
 from tests.test_service_parts import Recorder
 
 
@@ -24,7 +24,7 @@ def _sweep(ranges: dict[int, float], n: int = 16) -> list[ZoneResult]:
 def _night(state_dir: Path) -> list[dict]:
     """One start of the guard: learn an empty room, then someone stands in zones 4-5."""
     alerts: list[dict] = []
-    watch = GuardWatch(GuardConfig(learn_sweeps=3, confirm_sweeps=2), alerts.append, state_dir)
+    watch = GuardWatch(GuardConfig(learn_sweeps=3, confirm_sweeps=2), alerts.append, BootId(state_dir))
     for sweep in range(1, 4):
         watch.sweep(_sweep({}), sweep, float(sweep))
     for sweep in range(4, 7):
@@ -44,7 +44,7 @@ def test_the_same_intrusion_after_a_restart_has_another_key(tmp_path: Path) -> N
 
 def test_track_ids_keep_counting_when_the_zone_count_changes(tmp_path: Path) -> None:
     alerts: list[dict] = []
-    watch = GuardWatch(GuardConfig(learn_sweeps=2, confirm_sweeps=1), alerts.append, tmp_path)
+    watch = GuardWatch(GuardConfig(learn_sweeps=2, confirm_sweeps=1), alerts.append, BootId(tmp_path))
     for n in (16, 8):  # a new guard for another zone count learns afresh, but ids go on
         for sweep in (1, 2):
             watch.sweep(_sweep({}, n), sweep, float(sweep))

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-import os
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -21,28 +20,22 @@ log = logging.getLogger(__name__)
 
 class GuardWatch:
     """Keeps one `Guard` while the sweeps keep their zone count (a new one learns afresh when it
-    changes) and hands every event it raises to `publish_alert` (the ``alert`` payload).
-
-    The boot id is counted in `state_dir` on first use; without one it is random."""
+    changes) and hands every event it raises to `publish_alert` (the ``alert`` payload), with this
+    start's `boot` id (random when none is given)."""
 
     def __init__(self, config: GuardConfig, publish_alert: Callable[[dict[str, Any]], object],
-                 state_dir: str | os.PathLike | None = None) -> None:
+                 boot: BootId | None = None) -> None:
         self.config = config
         self.guard: Guard | None = None  # none before the first complete guard sweep
         self._publish_alert = publish_alert
-        self._boot = BootId(state_dir)
+        self._boot = boot if boot is not None else BootId(None)
         self._track_numbers = itertools.count(1)  # across guards: a new zone count keeps counting
 
-    @property
-    def boot(self) -> str:
-        """This start's boot id (``b7``), also in every ``sweep`` payload."""
-        return self._boot.value
-
     def _new_track_id(self) -> str:
-        return f"{self.boot}-t{next(self._track_numbers)}"
+        return f"{self._boot.value}-t{next(self._track_numbers)}"
 
     def _alert(self, payload: dict[str, Any]) -> None:
-        self._publish_alert({**payload, "boot": self.boot})
+        self._publish_alert({**payload, "boot": self._boot.value})
 
     @property
     def learning(self) -> bool:

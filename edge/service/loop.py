@@ -35,6 +35,7 @@ from edge.service.commanding import LATER, CommandQueue, Dispatcher, Handler, La
 from edge.service.course import Course, Step
 from edge.service.guarding import GuardWatch
 from edge.service.health import RigHealth
+from edge.service.identity import BootId
 from edge.service.link import Link, NullLink, open_link
 from edge.service.steps import ModeSteps
 
@@ -74,9 +75,10 @@ class Service:
                                 calibrated=believed.calibration is not None,
                                 camera=lambda: self._parts.camera if self._parts else None,
                                 changed=self._publish_state)
-        self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert),
-                                config.service.resolved_state_dir())
-        self.steps = ModeSteps(self.health, self.guard, publish_live=lambda kind, p: self.link.publish_live(kind, p),
+        boot = BootId(config.service.resolved_state_dir())  # in every sweep and alert
+        self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert), boot)
+        self.steps = ModeSteps(self.health, self.guard, boot,
+                               publish_live=lambda kind, p: self.link.publish_live(kind, p),
                                publish_event=lambda kind, p: self.link.publish_event(kind, p),
                                pause=self.stop_requested.wait, started=self.started)
         self.calibration = CalibrationController(

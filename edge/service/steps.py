@@ -19,6 +19,7 @@ from edge.errors import HardwareError
 from edge.ranging import FAULT, Ranger, ZoneResult
 from edge.service.guarding import GuardWatch
 from edge.service.health import RigHealth
+from edge.service.identity import BootId
 
 if TYPE_CHECKING:
     from edge.modes.blindaid.runner import BlindAidRunner
@@ -34,10 +35,11 @@ class ModeSteps:
     """`publish_live` and `publish_event` are the link's; `pause(s)` waits, ending early on a
     stop; `started` is the service's monotonic start (the guard's clock)."""
 
-    def __init__(self, health: RigHealth, guard: GuardWatch, *, publish_live: Publish, publish_event: Publish,
-                 pause: Callable[[float], object], started: float) -> None:
+    def __init__(self, health: RigHealth, guard: GuardWatch, boot: BootId, *, publish_live: Publish,
+                 publish_event: Publish, pause: Callable[[float], object], started: float) -> None:
         self.health = health
         self.guard = guard
+        self._boot = boot
         self.sweeps = 0  # complete sweeps so far
         self._publish_live = publish_live
         self._publish_event = publish_event
@@ -77,7 +79,7 @@ class ModeSteps:
         self.sweeps += 1
         self._publish_event("sweep", {
             "sweep": self.sweeps,
-            "boot": self.guard.boot,  # (boot, sweep) is unique across restarts
+            "boot": self._boot.value,  # (boot, sweep) is unique across restarts
             "duration_s": round(report.duration_s, 3),
             "zones": [r.to_json() for r in report.results],
         })
