@@ -8,6 +8,7 @@ Devices log in with username = device id (dev1, dev2); `dashboard` is the operat
 from __future__ import annotations
 
 import ast
+import contextlib
 import glob
 import json
 import os
@@ -506,14 +507,22 @@ def _site_config(pki: Pki, folder: Path, port: int) -> Path:
     return conf
 
 
-def test_the_example_site_config_runs_with_the_acl(pki, peers, links, tmp_path):
+@contextlib.contextmanager
+def _site_broker(pki, tmp_path) -> Iterator[Mosquitto]:
+    """Mosquitto started with the shipped site config (its paths and port replaced)."""
     if not shutil.which("mosquitto_passwd"):
         pytest.skip("mosquitto_passwd is not installed (it comes with mosquitto)")
     b = Mosquitto()  # for its executable, port and life cycle; started with the site's config instead
     try:
         b.conf_path = _site_config(pki, tmp_path / "site", b.port)
         b.log_path = tmp_path / "site" / "mosquitto.log"
-        b.start()
+        yield b.start()
+    finally:
+        b.close()
+
+
+def test_the_example_site_config_runs_with_the_acl(pki, peers, links, tmp_path):
+    with _site_broker(pki, tmp_path) as b:
         tls = Tls(pki.ca)
         dash = peers(b, "dashboard", tls=tls).started().subscribe("edge/#")
         config = link_config(b, username="dev1", password_file=password_file(tmp_path, "dev1"),
@@ -526,21 +535,13 @@ def test_the_example_site_config_runs_with_the_acl(pki, peers, links, tmp_path):
         assert peers(b, "dev2", tls=tls).started().publish("edge/dev1/alert", "{}").value == NOT_AUTHORIZED
         assert refused(peers(b, None, tls=tls).start(timeout=1.0))  # allow_anonymous false
         assert refused(peers(b, "dev1").start(timeout=1.0))  # no plain MQTT
-    finally:
-        b.close()
 
 
 def test_the_site_config_ties_client_ids_to_usernames(pki, peers, links, tmp_path):
     # use_username_as_clientid: whatever client id a client sends, the broker uses its username.
     # The read-only consumer connecting as `edge-dev1` (the device's own default client id) once
     # knocked the device off and could take its session; now it is simply `consumer`.
-    if not shutil.which("mosquitto_passwd"):
-        pytest.skip("mosquitto_passwd is not installed (it comes with mosquitto)")
-    b = Mosquitto()
-    try:
-        b.conf_path = _site_config(pki, tmp_path / "site", b.port)
-        b.log_path = tmp_path / "site" / "mosquitto.log"
-        b.start()
+    with _site_broker(pki, tmp_path) as b:
         tls = Tls(pki.ca)
         dash = peers(b, "dashboard", tls=tls).started().subscribe("edge/dev1/alert")
         config = link_config(b, username="dev1", password_file=password_file(tmp_path, "dev1"),
@@ -557,8 +558,6 @@ def test_the_site_config_ties_client_ids_to_usernames(pki, peers, links, tmp_pat
         assert json.loads(dash.wait_for("edge/dev1/alert").payload)["id"] == "still-here"
         assert impostor.client.is_connected()  # and the consumer keeps its own connection
         assert link.stats()["connects"] == 1
-    finally:
-        b.close()
 
 
 # ---- no listening port ----
