@@ -14,12 +14,12 @@ taken again). Frames skipped because they straddled a switch are counted in ``dr
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Callable, Iterable
 from typing import NamedTuple
 
 import numpy as np
 
+from edge.clock import REAL, Clock
 from edge.config import Config
 from edge.errors import CameraError, LaserError
 from edge.hw.base import Camera, Frame, LaserBank
@@ -48,10 +48,11 @@ class Capture:
 
     def __init__(
         self, camera: Camera, lasers: LaserBank, config: Config | None = None, *, timeout_s: float | None = None,
-        on_frame: Callable[[Frame], None] | None = None,
+        on_frame: Callable[[Frame], None] | None = None, clock: Clock = REAL,
     ) -> None:
         self.camera = camera
         self.lasers = lasers
+        self.clock = clock  # the rig's: the camera's frames and the lasers' switches are timed on it
         # Told of every frame the camera delivers, used or not: a sign of life (the blind aid's).
         self.on_frame = on_frame
         # How long to wait for one frame: `timeout_s`, else [camera] timeout_s.
@@ -72,7 +73,7 @@ class Capture:
         and wholly after `not_before_ns` (default: now — a frame begun before the call may show
         the unit before it stopped moving)."""
         on = _names(lasers_on)
-        not_before = time.monotonic_ns() if not_before_ns is None else int(not_before_ns)
+        not_before = self.clock.now_ns() if not_before_ns is None else int(not_before_ns)
         for _ in range(_MAX_RETAKES + 1):
             before = self.lasers.last_switch_ns
             effective = self.lasers.set(on)
@@ -140,7 +141,7 @@ class Capture:
                 if i and nudge is not None:
                     self.lasers.off()  # no beam on while the unit moves
                     nudge(i)
-                    not_before = time.monotonic_ns()
+                    not_before = self.clock.now_ns()
                 shots.append(self.take((), not_before))
                 shots.append(self.take(on))
         finally:

@@ -10,17 +10,21 @@ simulated rig also knows the truth: each zone's true range and the room's floor 
 ``open_parts(config)`` opens the pan-tilt unit, the lasers and the camera, starts the camera, and
 closes everything however the block ends: the lasers first (eye safety), then the camera (released
 once), then the unit.
+
+All parts of a rig keep one time, the rig's clock (:func:`rig_clock`): real time on real parts, and
+simulated time for an all-simulated rig unless ``sim.clock = "real"`` (see :mod:`edge.clock`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import time
+import logging
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from edge.clock import REAL, Clock, SimClock
 from edge.errors import CameraError
 from edge.hw.base import Camera, LaserBank, PanTilt
 from edge.hw.lasers import Lasers, LasersConfig, default_factory
@@ -33,6 +37,8 @@ if TYPE_CHECKING:  # light at import: `edge lasers off` takes its laser_factory(
     from edge.sim.ptu_emulator import Emulator
     from edge.sim.render import Renderer
 
+log = logging.getLogger(__name__)
+
 
 @dataclass
 class SimWorld:
@@ -41,7 +47,8 @@ class SimWorld:
 
     emulator: Emulator
     factory: Any  # edge.sim.gpio.LaserFactory
-    epoch_ns: int
+    epoch_ns: int  # on the rig's clock
+    clock: Clock = REAL
     renderer: Renderer | None = None  # the simulated camera's, once it is open
 
 
@@ -55,6 +62,7 @@ class Parts:
     world: SimWorld | None = None  # a simulated rig's wiring and truth; None on real parts
     button: Any = None  # the blind aid's "how far?" push button (a gpiozero Button), if wired
     truths: dict[int, dict] = field(default_factory=dict)  # zone index → truth (simulator only)
+    clock: Clock = REAL  # the rig's: what its parts time themselves on
 
     @property
     def simulated(self) -> bool:
@@ -73,7 +81,7 @@ class Parts:
         from edge.sim.record import zone_truth
 
         renderer = self.world.renderer
-        t_s = (time.monotonic_ns() - self.world.epoch_ns) / 1e9
+        t_s = (self.world.clock.now_ns() - self.world.epoch_ns) / 1e9
         spots = renderer.spots(pan_deg, tilt_deg, t_s)
         self.truths[index] = zone_truth(renderer.rig, spots, renderer.rig.camera_to_base(pan_deg, tilt_deg))
         return self.truths[index]
@@ -88,40 +96,55 @@ class Parts:
         return room_in_base_frame(renderer.scene.floor_plan(), renderer.scene.base_to_world())
 
 
-def open_ptu(settings: PtuConfig) -> tuple[PanTiltUnit, Emulator | None]:
+def all_simulated(config: Config) -> bool:
+    """Every part of the rig is the simulator's: only then can the rig keep simulated time."""
+    return (config.camera.backend == "sim" and config.lasers.backend == "sim"
+            and config.ptu.port.startswith("sim://"))
+
+
+def rig_clock(config: Config) -> Clock:
+    """The rig's clock: simulated for an all-simulated rig under ``sim.clock = "simulated"`` (the
+    default), else real time."""
+    if config.sim.clock == "simulated" and all_simulated(config):
+        return SimClock()
+    return REAL
+
+
+def open_ptu(settings: PtuConfig, clock: Clock = REAL) -> tuple[PanTiltUnit, Emulator | None]:
     """An initialised unit; for ``sim://`` the emulator on a pty, opened through the real driver.
 
     The unit owns the emulator it was opened on: ``unit.close()`` stops it too.
     """
     if not settings.port.startswith("sim://"):
-        return PanTiltUnit.open(settings), None
+        return PanTiltUnit.open(settings, clock=clock), None
     from edge.sim.ptu_emulator import Emulator
 
     # The emulated unit has the wide pan range (±180°) so that the default 64-zone full turn is
     # reachable; a standard D46-17 stops at ±159° and the sweep marks the zones beyond as faults.
-    emulator = Emulator(pan_limits=(-3500, 3500))
+    emulator = Emulator(pan_limits=(-3500, 3500), clock=clock)
     try:
-        unit = PanTiltUnit.open(dataclasses.replace(settings, port=emulator.port), on_close=emulator.close)
+        unit = PanTiltUnit.open(dataclasses.replace(settings, port=emulator.port), on_close=emulator.close,
+                                clock=clock)
     except BaseException:
         emulator.close()
         raise
     return unit, emulator
 
 
-def laser_factory(settings: LasersConfig) -> Any:
+def laser_factory(settings: LasersConfig, clock: Clock = REAL) -> Any:
     """The gpiozero pin factory of ``[lasers] backend``: the default one for ``gpio``, the
-    simulator's mock laser pins for ``sim``."""
+    simulator's mock laser pins (their changes timed on `clock`) for ``sim``."""
     if settings.backend == "sim":
         from edge.sim.gpio import laser_factory as sim_factory
 
-        return sim_factory(settings.sim_wires or None)
+        return sim_factory(settings.sim_wires or None, clock)
     return default_factory()
 
 
-def open_lasers(config: Config, factory: Any = None) -> Lasers:
+def open_lasers(config: Config, factory: Any = None, clock: Clock = REAL) -> Lasers:
     """The configured lasers (``[lasers]``, pins and polarity from ``[[rig.lasers]]``), all off."""
-    factory = factory if factory is not None else laser_factory(config.lasers)
-    return Lasers(config.rig.wiring(), config.lasers, factory)
+    factory = factory if factory is not None else laser_factory(config.lasers, clock)
+    return Lasers(config.rig.wiring(), config.lasers, factory, clock)
 
 
 # The Pi Camera v2 (IMX219) binned 2 × 2 over its whole field of view: the raw mode that keeps the
@@ -129,7 +152,7 @@ def open_lasers(config: Config, factory: Any = None) -> Lasers:
 PICAM_V2_BINNED = (1640, 1232)
 
 
-def open_camera(config: Config, factory: Any = None, **sim: Any) -> Camera:
+def open_camera(config: Config, factory: Any = None, clock: Clock = REAL, **sim: Any) -> Camera:
     """The configured camera (``[camera] backend``), not yet started.
 
     The simulated camera watches the simulated lasers' pins: give their pin `factory`, and as `sim`
@@ -150,19 +173,24 @@ def open_camera(config: Config, factory: Any = None, **sim: Any) -> Camera:
         raise CameraError("camera: the simulated camera needs the simulated lasers' pin factory")
     from edge.sim.camera import SimCamera
 
-    return SimCamera.from_config(config, factory, **sim)
+    return SimCamera.from_config(config, factory, clock=clock, **sim)
 
 
 @contextlib.contextmanager
-def open_parts(config: Config) -> Iterator[Parts]:
-    """The configured parts, started; lasers off and everything closed when the block ends."""
+def open_parts(config: Config, clock: Clock | None = None) -> Iterator[Parts]:
+    """The configured parts, started, on `clock` (default: :func:`rig_clock`); lasers off and
+    everything closed when the block ends."""
     from edge.capture import Capture
 
+    clock = clock if clock is not None else rig_clock(config)
+    if config.sim.clock == "simulated" and not clock.simulated and any(
+            (config.camera.backend == "sim", config.lasers.backend == "sim", config.ptu.port.startswith("sim://"))):
+        log.info("the rig has real parts: it runs on real time (sim.clock applies to an all-simulated rig)")
     with contextlib.ExitStack() as stack:
-        unit, emulator = open_ptu(config.ptu)
+        unit, emulator = open_ptu(config.ptu, clock)
         stack.callback(unit.close)
-        pins = laser_factory(config.lasers)  # the rig's GPIO: real, or the simulator's mock pins
-        lasers = open_lasers(config, pins)
+        pins = laser_factory(config.lasers, clock)  # the rig's GPIO: real, or the simulator's mock pins
+        lasers = open_lasers(config, pins, clock)
         stack.callback(lasers.close)
         button = None
         if config.blindaid.speak_button_pin:
@@ -173,10 +201,10 @@ def open_parts(config: Config) -> Iterator[Parts]:
         world = None
         sim: dict[str, Any] = {}
         if emulator is not None:
-            world = SimWorld(emulator, pins, time.monotonic_ns())
+            world = SimWorld(emulator, pins, clock.now_ns(), clock)
             sim = {"pose_at": emulator.pose, "heading": emulator.heading,
                    "pose_step_deg": emulator.resolution_arcsec / 3600.0, "scene_epoch_ns": world.epoch_ns}
-        camera = open_camera(config, pins, **sim)
+        camera = open_camera(config, pins, clock, **sim)
         stack.callback(camera.close)
         stack.callback(lasers.close)  # runs first: lasers off before anything else closes
         if world is not None:
@@ -184,4 +212,5 @@ def open_parts(config: Config) -> Iterator[Parts]:
 
             world.renderer = camera.renderer if isinstance(camera, SimCamera) else None
         camera.start()
-        yield Parts(config, unit, lasers, camera, Capture(camera, lasers, config), world, button=button)
+        yield Parts(config, unit, lasers, camera, Capture(camera, lasers, config, clock=clock), world, button=button,
+                    clock=clock)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -30,7 +29,7 @@ MAX_FAULTS_IN_A_ROW = 3
 @dataclass
 class SweepReport:
     results: list[ZoneResult] = field(default_factory=list)
-    duration_s: float = 0.0
+    duration_s: float = 0.0  # on the rig's clock: what the rig took (simulated time on a simulated rig)
     limit_s: float = 0.0  # what the camera's frame rate and the unit's motion allow at best
     dropped_frames: int = 0  # frames exposed across a laser switch, never used
 
@@ -115,7 +114,8 @@ class Sweeper:
         views = [self.views(*poses[i]) for i in order]
         report.limit_s = sweep_limit_s(self.config, self.ptu, views, start)
         dropped_before = self.capture.dropped
-        started = time.monotonic()
+        clock = self.capture.clock  # the rig's: a simulated rig's sweep takes its simulated time
+        started = clock.now_ns()
         in_a_row = 0
         for done, index in enumerate(order):
             pan, tilt = poses[index]
@@ -134,7 +134,7 @@ class Sweeper:
                     part=result.part,
                 )
         report.results.sort(key=lambda r: r.index)
-        report.duration_s = time.monotonic() - started
+        report.duration_s = (clock.now_ns() - started) / 1e9
         report.dropped_frames = self.capture.dropped - dropped_before
         return report
 

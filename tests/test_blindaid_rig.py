@@ -29,19 +29,20 @@ RUN_S = STALL_AT_S + STALL_S + 6.0
 
 
 class Recorder(NullLink):
-    """A link that keeps what the service publishes, with the monotonic time it was published."""
+    """A link that keeps what the service publishes, with the rig's time it was published."""
 
     def __init__(self) -> None:
         self.log: list[tuple[int, str, dict[str, Any]]] = []
         self.lock = threading.Lock()
+        self.now = time.monotonic_ns  # the service's rig clock, once there is a service
 
     def publish_state(self, payload: dict[str, Any]) -> None:
         with self.lock:
-            self.log.append((time.monotonic_ns(), "state", payload))
+            self.log.append((self.now(), "state", payload))
 
     def publish_live(self, kind: str, payload: dict[str, Any]) -> None:
         with self.lock:
-            self.log.append((time.monotonic_ns(), kind, payload))
+            self.log.append((self.now(), kind, payload))
 
     def of(self, kind: str) -> list[tuple[int, dict[str, Any]]]:
         with self.lock:
@@ -77,6 +78,7 @@ def test_a_stalled_camera_sounds_cannot_see_within_a_second_and_is_restarted(tmp
     link = Recorder()
     notifier = Notifier({"NOTIFY_SOCKET": str(sock_path), "WATCHDOG_USEC": "2000000"})
     service = Service(config, run_for_s=RUN_S, link=link, notifier=notifier)
+    link.now = service.clock.now_ns  # the stall, the sound and the cues are all on the rig's clock
     clocks: dict[str, int] = {}
     feeds: list[int] = []
     done = threading.Event()
@@ -89,7 +91,7 @@ def test_a_stalled_camera_sounds_cannot_see_within_a_second_and_is_restarted(tmp
                 clocks["epoch"] = parts.camera._epoch  # the simulator's fault clock: its first start
             try:
                 if systemd.recv(4096) == b"WATCHDOG=1":
-                    feeds.append(time.monotonic_ns())
+                    feeds.append(time.monotonic_ns())  # systemd's watchdog is real time
             except TimeoutError:
                 pass
 
@@ -137,8 +139,9 @@ def test_a_stalled_camera_sounds_cannot_see_within_a_second_and_is_restarted(tmp
     assert states[-1]["camera_restarts"] >= 1
     assert states[-1]["health"]["camera"] == "ok"  # back once its frames came again
 
-    # The loop fed the watchdog through the stall (every 1 s when due; generous for a loaded machine).
-    fed_during = [t for t in feeds if stall_ns <= t <= stall_end_ns]
-    assert fed_during
-    gaps = np.diff([clocks["t0"], *feeds]) / 1e9
+    # The loop fed the watchdog all along, the stall included (every 1 s of real time when due;
+    # generous for a loaded machine). On the simulated clock the stall takes the rig's time, not the
+    # computer's: a stall in real time is test_service_parts' watchdog test.
+    assert feeds
+    gaps = np.diff(feeds) / 1e9
     assert gaps.max() < 8.0

@@ -21,12 +21,12 @@ import atexit
 import functools
 import logging
 import threading
-import time
 import weakref
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from edge.clock import REAL, Clock
 from edge.errors import LaserError
 from edge.schema import require
 
@@ -108,7 +108,8 @@ class Lasers:
     """A bank of lasers on GPIO pins (implements :class:`edge.hw.base.LaserBank`)."""
 
     def __init__(
-        self, lasers: Sequence[LaserWiring], settings: LasersConfig | None = None, factory: Any = None
+        self, lasers: Sequence[LaserWiring], settings: LasersConfig | None = None, factory: Any = None,
+        clock: Clock = REAL,
     ) -> None:
         from gpiozero import DigitalOutputDevice
 
@@ -118,15 +119,16 @@ class Lasers:
         self.settings = settings
         # gpiozero's default for real GPIO; the composition root (edge.parts) passes the simulator's.
         self.factory = factory if factory is not None else default_factory()
+        self.clock = clock  # the rig's: switch times are compared with frame times
         self.settle_ns = int(round(settings.settle_ms * 1e6))
         self.max_on_ns = int(round(settings.max_on_s * 1e9))
         self.watchdog_trips = 0
         self._lock = threading.RLock()
-        self._wake = threading.Condition(self._lock)
         self._devices: dict[str, Any] = {}
         self._on_since: dict[str, int] = {}  # laser → when it was last switched on (monotonic ns)
         self._closed = False
-        self._watchdog: threading.Thread | None = None
+        # Eye safety: on the real clock a thread of its own, which a hung loop cannot hold up.
+        self._watchdog = clock.timer(self._watch, "laser-watchdog")
         try:
             for laser in wired:
                 # initial_value=False: configured as an output already at its off level.
@@ -138,7 +140,7 @@ class Lasers:
             if isinstance(exc, LaserError):
                 raise
             raise LaserError(f"lasers: cannot set up GPIO: {exc}") from None
-        self._last_switch_ns = time.monotonic_ns()
+        self._last_switch_ns = self.clock.now_ns()
         # Run close() at interpreter exit, without the registry keeping this object alive.
         self._atexit = functools.partial(_close_if_alive, weakref.ref(self))
         atexit.register(self._atexit)
@@ -164,7 +166,7 @@ class Lasers:
                     self._devices[name].off()
                     del self._on_since[name]
                     changed = True
-            now = time.monotonic_ns()
+            now = self.clock.now_ns()
             for name in self.names:
                 if name in wanted and name not in self._on_since:
                     self._devices[name].on()
@@ -173,7 +175,7 @@ class Lasers:
                     self._on_since[name] = now
                     changed = True
             if changed:
-                self._last_switch_ns = time.monotonic_ns()
+                self._last_switch_ns = self.clock.now_ns()
                 self._arm_watchdog()
             return self._last_switch_ns + self.settle_ns
 
@@ -201,8 +203,8 @@ class Lasers:
                 return
             self._closed = True
             self._on_since.clear()
-            self._wake.notify_all()  # the watchdog thread ends
             self._close_devices()
+        self._watchdog.close()
         atexit.unregister(self._atexit)
 
     def __enter__(self) -> Lasers:
@@ -224,39 +226,35 @@ class Lasers:
                 device.close()
             except Exception as exc:
                 log.error("laser GPIO: could not release: %s", exc)
-        self._last_switch_ns = time.monotonic_ns()
+        self._last_switch_ns = self.clock.now_ns()
 
     def _arm_watchdog(self) -> None:
-        """Wake the watchdog (under the lock) so that it sees the new deadlines."""
-        if self._on_since and (self._watchdog is None or not self._watchdog.is_alive()):
-            self._watchdog = threading.Thread(target=self._watch, name="laser-watchdog", daemon=True)
-            self._watchdog.start()
-        self._wake.notify_all()
+        """(Under the lock.) Wake the watchdog when the laser on longest reaches its limit."""
+        if self._on_since:
+            self._watchdog.arm(min(self._on_since.values()) + self.max_on_ns)
+        else:
+            self._watchdog.disarm()
 
     def _watch(self) -> None:
         with self._lock:
-            while not self._closed:
-                if not self._on_since:
-                    self._wake.wait()
-                    continue
-                now = time.monotonic_ns()
-                overdue = [n for n, t in self._on_since.items() if now - t >= self.max_on_ns]
-                if overdue:
-                    for name in overdue:
-                        try:
-                            self._devices[name].off()
-                        except Exception as exc:
-                            log.error("laser %s: watchdog could not switch it off: %s", name, exc)
-                        del self._on_since[name]
-                    self._last_switch_ns = time.monotonic_ns()
-                    self.watchdog_trips += 1
-                    log.warning(
-                        "laser %s on for more than %.3g s: switched off (eye safety, [lasers] max_on_s)",
-                        ", ".join(overdue), self.settings.max_on_s,
-                    )
-                    continue
-                first = min(self._on_since.values())
-                self._wake.wait(timeout=max(first + self.max_on_ns - now, 0) / 1e9)
+            if self._closed:
+                return
+            now = self.clock.now_ns()
+            overdue = [n for n, t in self._on_since.items() if now - t >= self.max_on_ns]
+            for name in overdue:
+                try:
+                    self._devices[name].off()
+                except Exception as exc:
+                    log.error("laser %s: watchdog could not switch it off: %s", name, exc)
+                del self._on_since[name]
+            if overdue:
+                self._last_switch_ns = self.clock.now_ns()
+                self.watchdog_trips += 1
+                log.warning(
+                    "laser %s on for more than %.3g s: switched off (eye safety, [lasers] max_on_s)",
+                    ", ".join(overdue), self.settings.max_on_s,
+                )
+            self._arm_watchdog()
 
 
 def force_all_off(wiring: Iterable[LaserWiring], factory: Any = None) -> list[tuple[str, int, bool]]:

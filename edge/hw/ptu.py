@@ -35,6 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from edge.clock import REAL, Clock
 from edge.errors import PtuError
 from edge.schema import require
 
@@ -88,7 +89,10 @@ class _UnitReset(Exception):
 class PanTiltUnit:
     """A PTU-D46 behind the ``PanTilt`` interface: degrees in and out, positive pan left, tilt up."""
 
-    def __init__(self, config: PtuConfig, ser: Any, on_close: Callable[[], None] | None = None) -> None:
+    def __init__(self, config: PtuConfig, ser: Any, on_close: Callable[[], None] | None = None,
+                 clock: Clock = REAL) -> None:
+        # The rig's clock, for the settling after a move; the line's timeouts are real time always.
+        self.clock = clock
         self.config = config
         self._ser = ser
         self._ser.timeout = _POLL_S  # every read returns within this; our deadlines do the rest
@@ -109,7 +113,7 @@ class PanTiltUnit:
 
     @classmethod
     def open(cls, config: PtuConfig, initialise: bool = True,
-             on_close: Callable[[], None] | None = None) -> PanTiltUnit:
+             on_close: Callable[[], None] | None = None, clock: Clock = REAL) -> PanTiltUnit:
         """Open ``config.port`` with pyserial (any URL it knows: a device, a pty, ``loop://``).
         `on_close` runs when the unit is closed (or fails to open), after the port is closed."""
         import serial
@@ -121,7 +125,7 @@ class PanTiltUnit:
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PtuError(f"cannot open the pan-tilt unit's port {config.port}: {exc}; "
                                 "check ptu.port and the cable") from None
-        unit = cls(config, ser, on_close)
+        unit = cls(config, ser, on_close, clock)
         if initialise:
             try:
                 unit.initialise()
@@ -256,7 +260,7 @@ class PanTiltUnit:
             # was sent to, so asking again would only cost two more round trips).
             self._pos = target
         if self.config.settle_ms > 0:
-            time.sleep(self.config.settle_ms / 1000.0)
+            self.clock.sleep(self.config.settle_ms / 1000.0)
         rp, rt = self.resolution_deg
         return target[0] * rp, target[1] * rt
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import statistics
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -89,7 +88,8 @@ class Rangefinder:
         self.filter.reset()
         previous = None
         frames = 0
-        started = time.monotonic()
+        clock = self.capture.clock
+        started = clock.now_ns()
         lit = False
         try:
             while not should_stop() and (max_frames is None or frames < max_frames):
@@ -107,7 +107,7 @@ class Rangefinder:
                     filtered = None
                     if result.status == OK and result.range_m is not None:
                         filtered = self.filter.add(result.range_m, result.sigma_m or 0.0)
-                    elapsed = time.monotonic() - started
+                    elapsed = (clock.now_ns() - started) / 1e9
                     on_range(result, filtered, {"frame": shot.frame.sequence,
                                                 "rate_hz": round((frames - 1) / elapsed, 2) if elapsed > 0 else None})
                 previous = shot

@@ -90,7 +90,8 @@ class CalibrationController:
         try:
             self._session = TargetCalibration(
                 distances_m, ranger, self.config.rig.build(), parts.capture, folder, sweeper.zone,
-                timeout_s=self.config.service.calibrate_timeout_s, device=self.device_id)
+                timeout_s=self.config.service.calibrate_timeout_s, device=self.device_id,
+                clock=lambda: parts.clock.now_ns() / 1e9)  # the board's rest is timed on the rig's frames
         except OSError as exc:  # the state folder is not writable, or full
             return f"cannot keep the calibration frames in {folder}: {exc.strerror or exc}"
         self._parts = parts

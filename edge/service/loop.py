@@ -7,6 +7,10 @@ moves bytes; commands reach us through the `Link`'s queue, and what we publish g
 on-disk outbox (alerts, sweeps) or straight away (ranges, cues). `RigHealth` keeps each part's
 condition and restarts the camera; `GuardWatch` keeps the guard across sweeps.
 
+Time is the rig's clock (:func:`edge.parts.rig_clock`): ``--for``, the range finder's sweep
+interval, uptimes and the guard's times count the rig's seconds, simulated ones on a simulated rig.
+Waiting for a command while paused is real time under either clock.
+
 Stopping: SIGTERM and SIGINT (and ``--for``) set a flag that the sweep checks between zones; the
 lasers go off as the parts close, a last ``state`` goes out, then ``offline``. A crash or a
 watchdog kill skips all that, which is why the unit's ExecStopPost runs ``edge lasers off`` and the
@@ -18,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -58,7 +61,10 @@ class Service:
         self.course = Course(config.mode, (config.rangefinder.pan_deg, config.rangefinder.tilt_deg),
                              config.service.sweep_interval_s)
         self.device_id = config.device.resolved_id()
-        self.started = time.monotonic()
+        from edge.parts import rig_clock
+
+        self.clock = rig_clock(config)
+        self.started = self._now()
         self.stop_requested = threading.Event()
         self.link: Link = link or NullLink()
         self._given_link = link is not None
@@ -80,13 +86,13 @@ class Service:
         self.steps = ModeSteps(self.health, self.guard, boot,
                                publish_live=lambda kind, p: self.link.publish_live(kind, p),
                                publish_event=lambda kind, p: self.link.publish_event(kind, p),
-                               pause=self.stop_requested.wait, started=self.started)
+                               pause=self._pause, now=self._now)
         self.calibration = CalibrationController(
             config, self.device_id,
             publish_result=lambda ok, error, request_id, extra: self.link.publish_result(
                 "calibrate", ok, error=error, request_id=request_id, extra=extra),
             publish_state=self._publish_state, publish_range=lambda r: self.link.publish_live("range", r),
-            report_zone=self.steps.zone, adopt=self._adopt, pause=self.stop_requested.wait)
+            report_zone=self.steps.zone, adopt=self._adopt, pause=self._pause)
         handlers: dict[str, Handler] = {"mode": self._cmd_mode, "sweep": self._cmd_sweep, "point": self._cmd_point,
                                         "relearn": self._cmd_relearn, "calibrate": self._cmd_calibrate,
                                         "lasers_off": self._cmd_lasers_off}
@@ -96,6 +102,14 @@ class Service:
             lambda: self._parts.ptu.limits_deg if self._parts else ((-180.0, 180.0), (-90.0, 90.0)),
             config.mqtt.max_payload_bytes)
         self.queue = CommandQueue(lambda: self.link.commands(), self.commands.handle, self._progressed)
+
+    def _now(self) -> float:
+        """The rig's time, s."""
+        return self.clock.now_ns() / 1e9
+
+    def _pause(self, seconds: float) -> bool:
+        """Wait a moment (after a failure), ending early on a stop."""
+        return self.clock.idle(self.stop_requested, seconds)
 
     @property
     def mode(self) -> str:
@@ -126,11 +140,9 @@ class Service:
         stop_on_signals(self.stop_requested)
         with contextlib.ExitStack() as stack:
             if self.run_for_s is not None:  # --for: a stop like any other, checked between zones
-                timer = threading.Timer(max(0.0, self.started + self.run_for_s - time.monotonic()),
-                                        self.stop_requested.set)
-                timer.daemon = True
-                timer.start()
-                stack.callback(timer.cancel)
+                timer = self.clock.timer(self.stop_requested.set, "--for")
+                timer.arm(round((self.started + self.run_for_s) * 1e9))
+                stack.callback(timer.close)
             if self._given_link:
                 stack.callback(self.link.stop)
             else:
@@ -138,7 +150,7 @@ class Service:
             stack.callback(setattr, self, "_parts", None)
             self._notifier.status("starting the rig")
             try:
-                with open_parts(self.config) as parts:
+                with open_parts(self.config, self.clock) as parts:
                     self._parts = parts
                     self._publish_state()
                     self._notifier.ready()
@@ -164,25 +176,25 @@ class Service:
     # ---- the loop ----
 
     def _loop(self) -> None:
-        self.course.start(time.monotonic())
+        self.course.start(self._now())
         while not self.stop_requested.is_set():
             self._between_steps()
             if self.stop_requested.is_set():
                 break
             parts = self._parts
             assert parts is not None
-            step = self.course.next_step(time.monotonic(), self.calibration.running)
+            step = self.course.next_step(self._now(), self.calibration.running)
             if step is Step.PAUSED:
                 if parts.lasers.lit:  # what a step cut short by cmd/lasers_off may have left on
                     parts.lasers.off()
-                self.stop_requested.wait(_IDLE_S)
+                self.clock.idle(self.stop_requested, _IDLE_S)
             elif step is Step.CALIBRATE:
                 self.steps.close_fan()  # here, not in the command: the blind aid may be mid-scan there
                 self.calibration.step()
             elif step is Step.SWEEP:
                 self._sweep(parts)
             elif step is Step.RANGE:
-                due = lambda: self.course.sweep_due(time.monotonic())  # noqa: E731
+                due = lambda: self.course.sweep_due(self._now())  # noqa: E731
                 self.steps.range(parts, self.ranger, self.course.aim, self._should_stop(due))
             elif step is Step.FAN:
                 self.steps.fan(parts, self.config, self.ranger,  # cmd/mode closes it when leaving the mode
@@ -289,7 +301,7 @@ class Service:
     def state(self) -> dict[str, Any]:
         present = {"paused": self.course.paused, "guard": self.guard.state(), "calibration": self.calibration.state()}
         return {"device": self.device_id, "mode": self.mode, "health": self.health.parts, "version": __version__,
-                "uptime_s": round(time.monotonic() - self.started, 1), "sweeps": self.sweeps,
+                "uptime_s": round(self._now() - self.started, 1), "sweeps": self.sweeps,
                 "camera_restarts": self.health.camera_restarts,
                 **{key: value for key, value in present.items() if value is not None}}
 

@@ -9,7 +9,6 @@ camera); the blind aid hears besides when the health says its reference laser ca
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Callable, Set
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -33,10 +32,10 @@ Publish = Callable[[str, dict[str, Any]], object]
 
 class ModeSteps:
     """`publish_live` and `publish_event` are the link's; `pause(s)` waits, ending early on a
-    stop; `started` is the service's monotonic start (the guard's clock)."""
+    stop; `now()` is the rig's time in seconds (the guard's clock)."""
 
     def __init__(self, health: RigHealth, guard: GuardWatch, boot: BootId, *, publish_live: Publish,
-                 publish_event: Publish, pause: Callable[[float], object], started: float) -> None:
+                 publish_event: Publish, pause: Callable[[float], object], now: Callable[[], float]) -> None:
         self.health = health
         self.guard = guard
         self._boot = boot
@@ -44,7 +43,8 @@ class ModeSteps:
         self._publish_live = publish_live
         self._publish_event = publish_event
         self._pause = pause
-        self._started = started
+        self._now = now
+        self._started = now()
         self._blindaid: BlindAidRunner | None = None
         self._blinded: str | None = None  # why the service says the blind aid cannot see
 
@@ -68,7 +68,7 @@ class ModeSteps:
         zone_t: dict[int, float] = {}
 
         def on_zone(result: ZoneResult) -> None:
-            zone_t[result.index] = time.monotonic() - self._started
+            zone_t[result.index] = self._now() - self._started
             self.zone(result, sweeper.lit_when_off)
 
         sweeper = sweeper_for(parts, on_zone=on_zone, config=config, ranger=ranger)
@@ -87,7 +87,7 @@ class ModeSteps:
         log.info("sweep %d: %d of %d zones ok in %.1f s (limit %.1f s), %d faults",
                  self.sweeps, ok, len(report.results), report.duration_s, report.limit_s, report.faults)
         if guarding:
-            self.guard.sweep(report.results, self.sweeps, time.monotonic() - self._started, zone_t)
+            self.guard.sweep(report.results, self.sweeps, self._now() - self._started, zone_t)
         return True
 
     def point(self, parts: Parts, ranger: Ranger, pan: float, tilt: float) -> ZoneResult:

@@ -1,7 +1,7 @@
 """The simulated camera: the renderer behind a real frame clock and a rolling shutter.
 
 :class:`SimCamera` behaves like the Pi camera as far as timing goes. Once started, frames begin
-every frame period on ``time.monotonic_ns()``, whether anyone asks for them or not. Row r of a
+every frame period on the rig's clock (:mod:`edge.clock`), whether anyone asks for them or not. Row r of a
 frame starts its exposure ``r·readout/(H−1)`` after row 0 and is exposed for the configured time;
 the frame is delivered when its last row has been read. ``frame_after(t)`` sleeps until the first
 frame starting at or after `t` has been delivered, then renders it: the pose comes from
@@ -9,11 +9,13 @@ frame starting at or after `t` has been delivered, then renders it: the pose com
 its GPIO pin actually did during that row's exposure (:class:`edge.sim.light.LaserLight`). So a
 laser switched mid-frame lights only some rows of its spot, as on the real sensor.
 
-Rendering takes real time (a new view 50–70 ms, a frame of a known view about 10 ms); frame times
-follow the clock regardless. Given ``heading`` (where the unit is going: the emulator's), a thread
-renders the view there while the unit is still moving, as a real camera would simply have it. A camera keeps only
-a short queue of delivered frames: a frame delivered more than ``queue_frames`` periods before the
-request is gone (dropped, as a real camera drops frames nobody collects).
+Rendering takes the computer's time (a new view 50–70 ms, a frame of a known view about 10 ms);
+frame times follow the rig's clock regardless: on the real clock a slow computer delivers frames
+late (and drops them), on a simulated one time waits for the renderer. Given ``heading`` (where
+the unit is going: the emulator's), a thread renders the view there while the unit is still
+moving, as a real camera would simply have it. A camera keeps only a short queue of delivered
+frames: a frame delivered more than ``queue_frames`` periods before the request is gone (dropped,
+as a real camera drops frames nobody collects).
 """
 
 from __future__ import annotations
@@ -21,11 +23,11 @@ from __future__ import annotations
 import inspect
 import logging
 import threading
-import time
 from collections.abc import Callable
 
 import numpy as np
 
+from edge.clock import REAL, Clock
 from edge.config import Config
 from edge.errors import CameraError, ConfigError
 from edge.hw.base import Frame
@@ -61,10 +63,12 @@ class SimCamera:
         seed: int = 0,
         scene_epoch_ns: int = 0,
         noise: bool = True,
+        clock: Clock = REAL,
     ) -> None:
         if not 0.0 <= readout_fraction < 1.0:
             raise ValueError(f"readout_fraction must be in [0, 1), got {readout_fraction}")
         self.renderer = renderer
+        self.clock = clock
         self.closed = False
         self.light = light
         self.settings = settings
@@ -76,7 +80,7 @@ class SimCamera:
         self.pose_at: PoseAt = _as_pose_at(pose_at) if pose_at is not None else _standing(pose_deg)
         self.queue_frames = queue_frames
         self.seed = seed
-        # Scene time (movers) is (t − epoch)/1e9 s: by default the monotonic clock itself.
+        # Scene time (movers) is (t − epoch)/1e9 s: by default the clock's own time.
         self.scene_epoch_ns = scene_epoch_ns
         self.noise = noise
         height = renderer.rig.camera.height
@@ -124,7 +128,7 @@ class SimCamera:
 
     def start(self) -> None:
         if self._t0 is None:
-            self._t0 = time.monotonic_ns()
+            self._t0 = self.clock.now_ns()
             if self._epoch is None:
                 self._epoch = self._t0  # fault times count from the first start, not a restart
             self._last_k = -1
@@ -186,12 +190,12 @@ class SimCamera:
         timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
         fault = self._fault_now()
         if fault is not None and fault.kind == "hang":
-            _sleep_until(self._fault_end_ns(fault))  # no timeout: that is what a hang is
+            self.clock.sleep_until_ns(self._fault_end_ns(fault))  # no timeout: that is what a hang is
         elif fault is not None and fault.kind == "stall":
-            _sleep_until(min(self._fault_end_ns(fault), time.monotonic_ns() + int(timeout_s * 1e9)))
-            if time.monotonic_ns() < self._fault_end_ns(fault):
+            self.clock.sleep_until_ns(min(self._fault_end_ns(fault), self.clock.now_ns() + int(timeout_s * 1e9)))
+            if self.clock.now_ns() < self._fault_end_ns(fault):
                 raise CameraError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
-        now = time.monotonic_ns()
+        now = self.clock.now_ns()
         deadline = now + int(timeout_s * 1e9)
         span = self.readout_ns + self.exposure_ns  # first row's start to last row's end
         k = max(_ceil_div(int(t_ns) - self._t0, self.frame_ns), 0, self._last_k + 1)
@@ -200,9 +204,9 @@ class SimCamera:
         k = max(k, oldest)
         ready = self.frame_start_ns(k) + span
         if ready > deadline:
-            _sleep_until(deadline)
+            self.clock.sleep_until_ns(deadline)
             raise CameraError(f"camera: no frame starting after {t_ns} within {timeout_s:g} s")
-        _sleep_until(ready)
+        self.clock.sleep_until_ns(ready)
         self._last_k = k
         frame = self._render(k)
         if fault is not None and fault.kind == "corrupt" and self._corrupted < fault.count:
@@ -216,7 +220,7 @@ class SimCamera:
         """The configured fault under way now, if any (times from when the camera started)."""
         if not self.faults or self._t0 is None or self._epoch is None:  # _epoch: set with _t0
             return None
-        since = (time.monotonic_ns() - self._epoch) / 1e9
+        since = (self.clock.now_ns() - self._epoch) / 1e9
         for fault in self.faults:
             if fault.kind == "corrupt":
                 if fault.at_s <= since and self._corrupted < fault.count:
@@ -264,7 +268,3 @@ def _as_pose_at(pose: Callable[..., tuple[float, float]]) -> PoseAt:
         takes_time = True
     return pose if takes_time else (lambda _t: pose())
 
-
-def _sleep_until(t_ns: int) -> None:
-    while (left := t_ns - time.monotonic_ns()) > 0:
-        time.sleep(left / 1e9)

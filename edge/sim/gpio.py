@@ -2,8 +2,8 @@
 
 The real lasers are switched through gpiozero; in the simulator the very same code drives a
 ``gpiozero.pins.mock.MockFactory`` whose pins are :class:`LaserPin`. Each pin logs every change of
-its output with ``time.monotonic_ns()`` (absolute times, unlike ``MockPin.states``, which keeps
-deltas), so that the simulated camera can ask :class:`edge.sim.light.LaserLight` how much of each
+its output with the rig's clock (:mod:`edge.clock`; absolute times, unlike ``MockPin.states``,
+which keeps deltas), so that the simulated camera can ask :class:`edge.sim.light.LaserLight` how much of each
 row's exposure each laser was lit. Light on purpose (no numpy): ``edge lasers off`` on a simulated
 rig loads this and nothing else of the simulator.
 """
@@ -13,11 +13,11 @@ from __future__ import annotations
 import mmap
 import os
 import threading
-import time
 from pathlib import Path
 
 from gpiozero.pins.mock import MockFactory, MockPin
 
+from edge.clock import REAL, Clock
 from edge.errors import LaserError
 
 # A pin keeps at most this many changes; older ones are dropped (frames only look back a frame or
@@ -88,6 +88,7 @@ class LaserPin(MockPin):
     def __init__(self, factory, info) -> None:
         self._log_lock = threading.Lock()
         self._log: list[tuple[int, bool | None]] = []
+        self._clock: Clock = getattr(factory, "clock", REAL)
         super().__init__(factory, info)
         self._wires: Wires | None = getattr(factory, "wires", None)
         self._bcm = _bcm(info)
@@ -102,7 +103,7 @@ class LaserPin(MockPin):
 
     def _record(self) -> None:
         level = self._driven()
-        t = time.monotonic_ns()
+        t = self._clock.now_ns()
         if self._wires is not None and self._bcm is not None:
             self._wires.drive(self._bcm, level)
         with self._log_lock:
@@ -123,7 +124,7 @@ class LaserPin(MockPin):
 
     @property
     def log(self) -> list[tuple[int, bool | None]]:
-        """A copy of the changes so far: ``(monotonic ns, True/False driven, None undriven)``."""
+        """A copy of the changes so far: ``(rig clock ns, True/False driven, None undriven)``."""
         with self._log_lock:
             return list(self._log)
 
@@ -131,12 +132,13 @@ class LaserPin(MockPin):
 class LaserFactory(MockFactory):
     """gpiozero's mock pin factory with :class:`LaserPin` pins, optionally on shared :class:`Wires`."""
 
-    def __init__(self, wires: Wires | None = None) -> None:
+    def __init__(self, wires: Wires | None = None, clock: Clock = REAL) -> None:
         super().__init__(pin_class=LaserPin)
         self.wires = wires
+        self.clock = clock  # the pins' changes are timed on it
 
 
-def laser_factory(wires_file: str | os.PathLike | None = None) -> LaserFactory:
-    """A mock pin factory for the simulated lasers; with `wires_file`, their levels outlive the
-    process (see :class:`Wires`)."""
-    return LaserFactory(Wires(wires_file) if wires_file else None)
+def laser_factory(wires_file: str | os.PathLike | None = None, clock: Clock = REAL) -> LaserFactory:
+    """A mock pin factory for the simulated lasers, timed on `clock`; with `wires_file`, their
+    levels outlive the process (see :class:`Wires`)."""
+    return LaserFactory(Wires(wires_file) if wires_file else None, clock)

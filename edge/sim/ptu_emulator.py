@@ -14,9 +14,11 @@ What it does like a real unit:
   the reply share one line (``PP * Current Pan position is 0``), because the command's delimiter
   is a space.
 - Resolution 185.1428″/position, pan −3090…3090, tilt −907…604 positions, speeds 57…2900
-  positions/s. Each axis moves in real time along a trapezoidal profile; position queries
-  mid-move report where the axis is now. ``A`` answers only when both axes have stopped, and
-  until then the command parser is blocked (later commands wait in the buffer), as on the unit.
+  positions/s. Each axis moves on the rig's clock (:mod:`edge.clock`) along a trapezoidal profile;
+  position queries mid-move report where the axis is now. ``A`` answers only when both axes have
+  stopped, and until then the command parser is blocked (later commands wait in the buffer), as on
+  the unit. On a simulated clock the driver waiting for that answer is the rig waiting for its
+  move: the emulator moves the clock to the move's end and answers at once.
 - ``H`` halts, ``R`` recalibrates (echo on and verbose again, back at 0 after ``reset_s``).
 
 Simplifications (traps if you compare with a real head): a new target mid-move replans from the
@@ -26,7 +28,8 @@ no baud-rate delay.
 
 Faults for tests (``inject``): ``drop`` (swallow the next N replies), ``garble`` (corrupt the next
 N replies' bytes: the high bit of every other byte, as line noise at a wrong baud rate looks),
-``silence`` (no output at all for S seconds; commands still execute), ``reset`` (power-cycled:
+``silence`` (no output at all for S seconds of real time — a fault of the line, which is real;
+commands still execute), ``reset`` (power-cycled:
 echo on, verbose, default speeds, position lost → 0, a pending await is lost, banner printed),
 ``hang`` (never answers again), ``notice`` (``!P`` glued in front of the next N replies, as the
 unit's asynchronous limit notice arrives).
@@ -45,6 +48,7 @@ import tty
 from collections import deque
 from dataclasses import dataclass
 
+from edge.clock import REAL, Clock
 from edge.hw.ptu import trapezoid_s
 
 log = logging.getLogger(__name__)
@@ -116,7 +120,9 @@ class Emulator:
         accel: int = 2000,
         accel_max: int = 200_000,
         reset_s: float = 2.0,
+        clock: Clock = REAL,
     ) -> None:
+        self.clock = clock
         self.resolution_arcsec = resolution_arcsec
         self.speed_bounds = speed_bounds
         self.accel_max = accel_max
@@ -135,23 +141,27 @@ class Emulator:
         self._drop = self._garble = self._notices = 0
         self._silent_until = 0.0
         self._hung = False
-        self._motion = (0.0, 0.0)  # start and end of the latest move (monotonic s)
+        self._motion = (0.0, 0.0)  # start and end of the latest move (the clock's s)
 
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no line discipline between the driver and us: bytes as sent
         os.set_blocking(self._master, False)
         self.port = os.ttyname(self._slave)
-        self._power_up(time.monotonic())
+        self._power_up(self._now())
         self._thread = threading.Thread(target=self._run, name=f"ptu-emulator {self.port}", daemon=True)
         self._thread.start()
         log.debug("PTU emulator serving %s", self.port)
+
+    def _now(self) -> float:
+        """The unit's time (s): the rig's clock, which its motion follows."""
+        return self.clock.now_ns() / 1e9
 
     # ---- in-process API (the simulated camera, tests) ----
 
     def pose(self) -> tuple[float, float]:
         """(pan, tilt) in degrees at this instant, mid-move included (not rounded to positions)."""
         with self._lock:
-            now = time.monotonic()
+            now = self._now()
             k = self.resolution_arcsec / 3600.0
             return self.pan.at(now) * k, self.tilt.at(now) * k
 
@@ -164,13 +174,13 @@ class Emulator:
     def positions(self) -> tuple[int, int]:
         """(pan, tilt) in whole positions, as a query would answer now."""
         with self._lock:
-            now = time.monotonic()
+            now = self._now()
             return round(self.pan.at(now)), round(self.tilt.at(now))
 
     @property
     def moving(self) -> bool:
         with self._lock:
-            now = time.monotonic()
+            now = self._now()
             return self.pan.moving(now) or self.tilt.moving(now) or self._pending == "R"
 
     @property
@@ -185,7 +195,7 @@ class Emulator:
         if mode not in FAULTS:
             raise ValueError(f"unknown fault {mode!r} (known: {', '.join(FAULTS)})")
         with self._lock:
-            now = time.monotonic()
+            now = self._now()
             if mode == "drop":
                 self._drop += count
             elif mode == "garble":
@@ -193,7 +203,7 @@ class Emulator:
             elif mode == "notice":
                 self._notices += count
             elif mode == "silence":
-                self._silent_until = now + seconds
+                self._silent_until = time.monotonic() + seconds
             elif mode == "hang":
                 self._hung = True
             else:
@@ -262,7 +272,24 @@ class Emulator:
                         if self.echo:
                             self._send(data)
                         self._buf += data
-                self._service(time.monotonic())
+                self._service(self._now())
+                waits_for = self._waits_for() if self.clock.simulated else None
+            if waits_for is not None:
+                # The driver waits for the move's end: on a simulated clock that is the rig's
+                # time passing (outside the lock: the camera reads the pose meanwhile).
+                self.clock.sleep_until_ns(waits_for)
+                with self._lock:
+                    self._service(self._now())
+
+    def _waits_for(self) -> int | None:
+        """(Under the lock.) When the pending ``A`` or ``R`` will answer (clock ns), if one is."""
+        if self._pending == "A":
+            end = max(self.pan.t0 + self.pan.duration, self.tilt.t0 + self.tilt.duration)
+        elif self._pending == "R":
+            end = self._reset_done
+        else:
+            return None
+        return math.ceil(end * 1e9) + 1  # a nanosecond past it: float seconds round
 
     def _service(self, now: float) -> None:
         if self._pending == "A" and not (self.pan.moving(now) or self.tilt.moving(now)):

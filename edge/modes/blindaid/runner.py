@@ -2,10 +2,11 @@
 
 The pure part (which obstacle, which sound) is :mod:`edge.modes.blindaid.logic`, the sound is
 :mod:`edge.modes.blindaid.sound`; this module moves the unit through the fan one zone at a time, feeds each
-result to the :class:`~edge.modes.blindaid.BlindAid`, and keeps the sound going: a thread advances
-the :class:`~edge.modes.blindaid.sound.CuePlayer` on the clock every few milliseconds, whatever the unit is
-doing, so beeps keep their rhythm while the head moves. That thread also ticks the blind aid on
-its own clock: when the rig stops giving results (a camera that stalls blocks the loop for its
+result to the :class:`~edge.modes.blindaid.BlindAid`, and keeps the sound going: a timer on the rig's
+clock (:mod:`edge.clock`; a thread of its own in real time) advances the
+:class:`~edge.modes.blindaid.sound.CuePlayer` every few milliseconds, whatever the unit is doing, so
+beeps keep their rhythm while the head moves. That timer also ticks the blind aid: when the rig
+stops giving results (a camera that stalls blocks the loop for its
 timeout on every frame) the "cannot see" cue sounds within ``blindaid.blind_after_s``, long before
 the zone's fault comes back. Speech is synthesised in a thread of its own (espeak-ng takes
 50-200 ms on a Pi) and mixed in when ready.
@@ -13,15 +14,14 @@ the zone's fault comes back. Speech is synthesised in a thread of its own (espea
 Every zone result also goes to `on_zone` with the lasers seen lit when off (the service publishes it
 on ``range`` and feeds the rig's health, which restarts a stalled camera, as in the other modes).
 
-Times are seconds since the runner started: the stream time of the sound, so that a WAV of a run
-is its timeline.
+Times are seconds of the rig's clock since the runner started: the stream time of the sound, so
+that a WAV of a run is its timeline (its simulated timeline on a simulated rig).
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable, Set
 from dataclasses import replace
 
@@ -66,13 +66,14 @@ class BlindAidRunner:
         # long" counts from the latest one's exposure, not only from the last zone's result, so that
         # a slow zone (a loaded machine) is not taken for a stalled part. From the exposure, not
         # from its delivery: a frame exposed before a stall but delivered after it proves nothing.
-        capture = Capture(parts.camera, parts.lasers, fan, on_frame=self._seen)
+        capture = Capture(parts.camera, parts.lasers, fan, on_frame=self._seen, clock=parts.clock)
         self.sweeper = sweeper_for(parts, config=fan, ranger=ranger, capture=capture)
         self.on_cue = on_cue
         self.on_zone = on_zone
         self._cue_frames: list[tuple[float, float]] = []  # (cue time, frame end time)
         sink, live = open_audio(config)
-        self._t0_ns = time.monotonic_ns()
+        self.clock = parts.clock
+        self._t0_ns = self.clock.now_ns()
         self.player = CuePlayer(Synth.from_config(config.blindaid), sink, chunk_s=config.audio.chunk_ms / 1000,
                                 lead_s=config.audio.lead_ms / 1000 if live else 0.0)
         self._stop = threading.Event()
@@ -80,30 +81,32 @@ class BlindAidRunner:
         self._button = parts.button  # opened with the parts (edge.parts), when wired
         if self._button is not None:
             self._button.when_pressed = self._asked.set
-        self._clock = threading.Thread(target=self._play, name="blind-aid sound", daemon=True)
-        self._clock.start()
+        self._period_ns = round(self.player.chunk_n / self.player.sample_rate / 2 * 1e9)
+        self._ticker = self.clock.timer(self._tick, "blind-aid sound")
+        self._ticker.arm(self._t0_ns + self._period_ns)
 
     @property
     def t0_ns(self) -> int:
-        """The monotonic time (ns) of stream time 0: the origin of `now()` and of the sound."""
+        """The rig's time (ns) of stream time 0: the origin of `now()` and of the sound."""
         return self._t0_ns
 
     def now(self) -> float:
-        return (time.monotonic_ns() - self._t0_ns) / 1e9
+        return (self.clock.now_ns() - self._t0_ns) / 1e9
 
-    def _play(self) -> None:
-        period = self.player.chunk_n / self.player.sample_rate / 2
-        while not self._stop.wait(period):
-            try:
-                t = self.now()
-                with self._lock:
-                    cue = self.aid.tick(t)  # readings age out; no results for too long: blind
-                    if cue is not None:
-                        self._play_cue(cue, t, None)
+    def _tick(self) -> None:
+        try:
+            t = self.now()
+            with self._lock:
+                if self._stop.is_set():
+                    return
+                cue = self.aid.tick(t)  # readings age out; no results for too long: blind
+                if cue is not None:
+                    self._play_cue(cue, t, None)
                 self.player.advance(t)
-            except Exception as exc:  # a sound card gone must not take the ranging with it
-                log.error("blind aid: sound stopped: %s", exc)
-                return
+        except Exception as exc:  # a sound card gone must not take the ranging with it
+            log.error("blind aid: sound stopped: %s", exc)
+            return
+        self._ticker.arm(self.clock.now_ns() + self._period_ns)
 
     def _seen(self, frame: Frame) -> None:
         with self._lock:
@@ -161,7 +164,8 @@ class BlindAidRunner:
     def _say(self, text: str, t: float) -> None:
         def work() -> None:
             frames = speak_to_frames(text, self.player.sample_rate)
-            self.player.say(frames, self.now())
+            # Simulated time does not pass while the computer synthesises: the words follow at once.
+            self.player.say(frames, t if self.clock.simulated else self.now())
 
         threading.Thread(target=work, name="blind-aid speech", daemon=True).start()
 
@@ -174,6 +178,7 @@ class BlindAidRunner:
     def close(self) -> None:
         if self._button is not None:
             self._button.when_pressed = None  # the button stays open with the parts; we stop listening
-        self._stop.set()
-        self._clock.join(timeout=2.0)
+        with self._lock:
+            self._stop.set()
+        self._ticker.close()
         self.player.close(self.now())
