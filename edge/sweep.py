@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -30,6 +31,8 @@ MAX_FAULTS_IN_A_ROW = 3
 class SweepReport:
     results: list[ZoneResult] = field(default_factory=list)
     duration_s: float = 0.0  # on the rig's clock: what the rig took (simulated time on a simulated rig)
+    wall_s: float = 0.0  # what the computer took (on a simulated clock: mostly rendering)
+    simulated_time: bool = False  # duration_s is simulated time
     limit_s: float = 0.0  # what the camera's frame rate and the unit's motion allow at best
     dropped_frames: int = 0  # frames exposed across a laser switch, never used
 
@@ -115,7 +118,7 @@ class Sweeper:
         report.limit_s = sweep_limit_s(self.config, self.ptu, views, start)
         dropped_before = self.capture.dropped
         clock = self.capture.clock  # the rig's: a simulated rig's sweep takes its simulated time
-        started = clock.now_ns()
+        started, wall_started = clock.now_ns(), time.monotonic()
         in_a_row = 0
         for done, index in enumerate(order):
             pan, tilt = poses[index]
@@ -135,6 +138,8 @@ class Sweeper:
                 )
         report.results.sort(key=lambda r: r.index)
         report.duration_s = (clock.now_ns() - started) / 1e9
+        report.wall_s = time.monotonic() - wall_started
+        report.simulated_time = clock.simulated
         report.dropped_frames = self.capture.dropped - dropped_before
         return report
 
