@@ -10,6 +10,9 @@ the laser watchdog, the blind aid's sound, and the service's intervals (``--for`
   settle). A simulated run is then a function of its configuration and seed alone, on any machine
   and under any load, and it runs as fast as the computer can render: faster than real time where a
   frame costs less than a frame period, slower, without distortion, where it costs more.
+  ``paced=True`` keeps it from running ahead of real time (``sim.clock = "paced"``): for a person
+  or a tool that talks to the simulated device live, e.g. carrying the calibration board of the
+  ``bench`` scene while ``edge calibrate`` runs; it may still fall behind, without distortion.
 
 Waiting is the one thing that moves simulated time, so the rig's parts wait through the clock:
 ``sleep_until_ns``/``sleep`` to wait for the rig, :meth:`Clock.timer` for what happens at a time
@@ -159,8 +162,11 @@ class SimClock:
 
     simulated = True
 
-    def __init__(self, start_ns: int = SIM_START_NS) -> None:
+    def __init__(self, start_ns: int = SIM_START_NS, paced: bool = False) -> None:
         self._now = int(start_ns)
+        self._start = int(start_ns)
+        self.paced = paced
+        self._wall_start = time.monotonic_ns()
         self._lock = threading.Lock()  # the time and the timers
         # One mover at a time; re-entrant, as a timer's function may itself wait.
         self._moving = threading.RLock()
@@ -172,6 +178,10 @@ class SimClock:
 
     def sleep_until_ns(self, t_ns: int) -> None:
         with self._moving:
+            if self.paced:  # not ahead of real time
+                ahead = (int(t_ns) - self._start) - (time.monotonic_ns() - self._wall_start)
+                if ahead > 0:
+                    time.sleep(ahead / 1e9)
             while True:
                 with self._lock:
                     due = self._next_due(int(t_ns))

@@ -104,9 +104,9 @@ def all_simulated(config: Config) -> bool:
 
 def rig_clock(config: Config) -> Clock:
     """The rig's clock: simulated for an all-simulated rig under ``sim.clock = "simulated"`` (the
-    default), else real time."""
-    if config.sim.clock == "simulated" and all_simulated(config):
-        return SimClock()
+    default) or ``"paced"``, else real time."""
+    if config.sim.clock != "real" and all_simulated(config):
+        return SimClock(paced=config.sim.clock == "paced")
     return REAL
 
 
@@ -183,7 +183,7 @@ def open_parts(config: Config, clock: Clock | None = None) -> Iterator[Parts]:
     from edge.capture import Capture
 
     clock = clock if clock is not None else rig_clock(config)
-    if config.sim.clock == "simulated" and not clock.simulated and any(
+    if config.sim.clock != "real" and not clock.simulated and any(
             (config.camera.backend == "sim", config.lasers.backend == "sim", config.ptu.port.startswith("sim://"))):
         log.info("the rig has real parts: it runs on real time (sim.clock applies to an all-simulated rig)")
     with contextlib.ExitStack() as stack:

@@ -12,6 +12,7 @@ import contextlib
 import glob
 import json
 import os
+import signal
 import shutil
 import socket
 import subprocess
@@ -631,7 +632,7 @@ def test_the_device_opens_no_listening_port(tmp_path, peers):
                 "--set", 'mqtt.host="127.0.0.1"', "--set", 'device.id="dev1"', "--set", 'mqtt.username="dev1"',
                 "--set", f"mqtt.password_file={json.dumps(password_file(tmp_path, 'dev1'))}",
                 "--set", f"service.state_dir={json.dumps(str(tmp_path / 'state'))}",
-                "--set", 'mode="rangefinder"', "--for", "8"]
+                "--set", 'mode="rangefinder"', "--for", "600"]  # stopped below; --for only if the test fails
         proc = subprocess.Popen(args, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                                 env={**os.environ, "NOTIFY_SOCKET": ""})
         try:
@@ -662,7 +663,8 @@ def test_the_device_opens_no_listening_port(tmp_path, peers):
                  "--set", 'mqtt.password="wrong"'], cwd=REPO, capture_output=True, text=True, timeout=30)
             assert stranger.returncode == 1 and stranger.stderr.strip() == (
                 f"edge: broker 127.0.0.1:{b.port}: refused the connection: Not authorized (as dashboard)")
-            _, err = proc.communicate(timeout=30)
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=60)
         finally:
             if proc.poll() is None:
                 proc.kill()

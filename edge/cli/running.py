@@ -16,7 +16,7 @@ def add_parsers(sub: Any) -> None:
     p = sub.add_parser("run", help="the headless service: run the configured mode with MQTT until stopped")
     add_config_options(p)
     p.add_argument("--for", dest="run_for", type=float, metavar="SECONDS",
-                   help="stop cleanly after this long (for tests and trials)")
+                   help="stop cleanly after this long on the rig's clock (simulated seconds on a simulated rig)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("range", help="show the range finder's ranges live (from the broker)")

@@ -132,9 +132,10 @@ class SimConfig:
     scene: str = "office"
     seed: int = 1
     # The virtual rig's time (edge.clock): "simulated" makes a run a function of its configuration
-    # and seed alone, as fast as the computer renders; "real" runs on the wall clock, for what must
-    # be real (the systemd watchdog, a person watching). A rig with any real part runs on real time.
-    clock: Literal["simulated", "real"] = "simulated"
+    # and seed alone, as fast as the computer renders; "paced" is simulated time never ahead of
+    # real time (a person or a tool talking to it live); "real" runs on the wall clock, for what
+    # must be real (systemd's watchdog, a hang). A rig with any real part runs on real time.
+    clock: Literal["simulated", "paced", "real"] = "simulated"
     sensor: SensorConfig = field(default_factory=SensorConfig)
     optics: OpticsConfig = field(default_factory=OpticsConfig)
     beam: BeamConfig = field(default_factory=BeamConfig)
