@@ -6,6 +6,7 @@ import functools
 import math
 import statistics
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
@@ -150,7 +151,7 @@ class _Stopwatch:
 
 def _without_nudge_views(parts: Parts) -> None:
     """The simulated camera renders the sweep's speckle-nudged views ahead, in a thread of its own;
-    the blind aid takes none, and that rendering would share the cores with
+    the blind aid and the range finder take none, and that rendering would share the cores with
     the work measured."""
     from edge.sim.camera import SimCamera
 
@@ -259,3 +260,98 @@ def measure_blindaid(config: Config, passes: int = 3) -> BlindAidLatency:
 def bench_blindaid(config: Config, repeats: int = 3) -> list[str]:
     """The blind aid's latency, frame end → cue sound: the device's work apart from rendering."""
     return measure_blindaid(config, repeats).lines()
+
+
+@dataclass
+class RangefinderLatency:
+    """Per frame of the range finder: the device's work, and the ranges' rate on the rig's clock."""
+
+    simulated: bool
+    frame_rate_hz: float
+    work_ms: list[float] = field(default_factory=list)  # frame delivered → range ready (wall)
+    cpu_ms: list[float] = field(default_factory=list)
+    as_ran_ms: list[float] = field(default_factory=list)  # frame end → range ready on the rig's clock
+    range_times_ns: list[int] = field(default_factory=list)  # on the rig's clock
+    range_frames: list[int] = field(default_factory=list)  # the camera's number of each range's frame
+    statuses: Counter[str] = field(default_factory=Counter)
+    frames_used: int = 0
+    straddled: int = 0  # frames not used as they were exposed across a laser switch
+    wall_s: float = 0.0
+
+    @property
+    def ranges(self) -> int:
+        return len(self.range_times_ns)
+
+    @property
+    def rig_s(self) -> float:
+        """Rig time from the first range to the last."""
+        return (self.range_times_ns[-1] - self.range_times_ns[0]) / 1e9 if self.range_times_ns else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        return (self.ranges - 1) / self.rig_s if self.rig_s > 0 else math.nan
+
+    @property
+    def dropped(self) -> int:
+        """Frames the camera made between the first range's and the last's that gave no range
+        (before the first, the simulator renders its first view: no device has that wait)."""
+        if not self.range_frames:
+            return 0
+        return self.range_frames[-1] - self.range_frames[0] + 1 - self.ranges
+
+    def lines(self) -> list[str]:
+        statuses = ", ".join(f"{n} {s}" for s, n in self.statuses.most_common())
+        lines = [
+            f"range finder on {_clock_words(self.simulated)}: {self.ranges} ranges ({statuses}) from "
+            f"{self.frames_used} frames in {self.rig_s:.2f} s of rig time ({self.wall_s:.2f} s wall)",
+            f"  device's work, frame delivered → range ready (ranging + filter, wall time, rendering "
+            f"excluded): {Spread.of(self.work_ms)} (CPU time median {Spread.of(self.cpu_ms).median:.1f} ms)",
+            f"  ranges per second of rig time: {self.rate_hz:.2f} (camera {self.frame_rate_hz:g} fps: one range "
+            f"a frame); frames dropped: {self.dropped} ({self.straddled} across a laser switch)",
+        ]
+        if not self.simulated:
+            lines.append(f"  as it ran on the rig's real clock, frame end → range ready (includes rendering the "
+                         f"frame on the same cores): {Spread.of(self.as_ran_ms)}")
+        return lines
+
+
+def measure_rangefinder(config: Config, frames: int = 90) -> RangefinderLatency:
+    """Run the range finder (``[rangefinder]``'s aim) on the configured rig for `frames` ranges."""
+    from edge.calibration.in_use import believed_rig
+    from edge.modes.rangefinder import Filtered, Rangefinder
+    from edge.parts import open_parts
+    from edge.ranging import Ranger, ZoneResult
+
+    pan, tilt = config.rangefinder.pan_deg, config.rangefinder.tilt_deg
+    ranger = Ranger(believed_rig(config).rig, config.ranging)
+    with open_parts(config) as parts:
+        _without_nudge_views(parts)
+        parts.ptu.move(pan, tilt)
+        out = RangefinderLatency(parts.clock.simulated, config.camera.frame_rate_hz)
+        capture, clock = parts.capture, parts.clock
+        watch = _Stopwatch(capture.on_frame)
+        capture.on_frame = watch
+
+        def on_range(result: ZoneResult, filtered: Filtered | None, extra: dict) -> None:
+            work, cpu = watch.since()
+            now = clock.now_ns()
+            out.work_ms.append(work)
+            out.cpu_ms.append(cpu)
+            out.range_times_ns.append(now)
+            out.statuses[result.status] += 1
+            out.range_frames.append(int(extra.get("frame", -1)))
+            if watch.frame is not None:
+                out.as_ran_ms.append((now - watch.frame.t_end_ns) / 1e6)
+
+        finder = Rangefinder(capture, ranger, parts.lasers.names)
+        straddled, began = capture.dropped, time.monotonic()
+        # One frame more than ranges: the first frame has nothing before it to be ranged with.
+        out.frames_used = finder.run(pan, tilt, on_range, lambda: False, max_frames=frames + 1)
+        out.wall_s = time.monotonic() - began
+        out.straddled = capture.dropped - straddled
+    return out
+
+
+def bench_rangefinder(config: Config, repeats: int = 90) -> list[str]:
+    """The range finder's frame → range: the device's work per frame, and one range per frame."""
+    return measure_rangefinder(config, repeats).lines()

@@ -1,4 +1,4 @@
-"""The latency benchmarks (`edge bench blindaid`): their reports' structure and sanity
+"""The latency benchmarks (`edge bench blindaid|rangefinder`): their reports' structure and sanity
 on the simulated rig. Never their speed: the machines that run tests are shared."""
 
 from __future__ import annotations
@@ -8,7 +8,10 @@ import math
 import pytest
 
 from edge import bench
+from edge.cli import main
 from edge.config import load_config
+
+REAL_CLOCK = 'sim.clock="real"'
 
 
 def test_chunk_start_is_the_next_boundary_of_the_players_grid() -> None:
@@ -49,3 +52,25 @@ def test_blindaid_on_real_time_says_its_rig_clock_figures_include_rendering() ->
                                 as_ran_ms=[35.0], changed=[True])
     text = "\n".join(out.lines())
     assert 'real time (sim.clock = "real")' in text and "includes rendering" in text
+
+
+def test_rangefinder_gives_one_range_per_frame_on_simulated_time() -> None:
+    config = load_config(None, [])
+    out = bench.measure_rangefinder(config, frames=12)
+    assert out.simulated
+    assert out.ranges == 12 and out.frames_used == 13  # the first frame has nothing to pair with
+    assert out.dropped == 0 and out.straddled == 0
+    assert out.rate_hz == pytest.approx(config.camera.frame_rate_hz, rel=1e-6)
+    assert all(w > 0 for w in out.work_ms)
+    assert out.statuses["ok"] == 12
+    text = "\n".join(out.lines())
+    for label in ("simulated time", "device's work", "ranges per second of rig time", "frames dropped: 0"):
+        assert label in text
+
+
+def test_rangefinder_on_real_time(capsys: pytest.CaptureFixture[str]) -> None:
+    """Through the command, as run: the wall-clock figure says it includes rendering."""
+    assert main(["bench", "rangefinder", "--repeats", "4", "--set", REAL_CLOCK]) == 0
+    text = capsys.readouterr().out
+    assert "range finder on real time" in text and "includes rendering" in text
+    assert "4 ranges" in text
