@@ -190,7 +190,9 @@ class BlindAidLatency:
             f"blind aid on {_clock_words(self.simulated)}: {len(self.work_ms)} zones over {self.passes} fan "
             f"passes, frames every {self.frame_ms:.1f} ms, sound in chunks of {self.chunk_ms:g} ms",
             f"  device's work, last frame delivered → cue decided (ranging + blind-aid logic, wall time, "
-            f"rendering excluded): {Spread.of(self.work_ms)} (CPU time median {Spread.of(self.cpu_ms).median:.1f} ms)",
+            f"rendering excluded): {Spread.of(self.work_ms)}",
+            f"    the same in the loop thread's CPU time (waiting for a core left out): "
+            f"{Spread.of(self.cpu_ms)}",
             f"  in the stream, frame end → cue sound for a device this fast (frame end + work, up to the next "
             f"chunk): {Spread.of(self.stream_ms)}",
             f"  with a sound card (+ {self.lead_ms:g} ms lead + {self.buffer_ms:g} ms buffer): "
@@ -305,7 +307,9 @@ class RangefinderLatency:
             f"range finder on {_clock_words(self.simulated)}: {self.ranges} ranges ({statuses}) from "
             f"{self.frames_used} frames in {self.rig_s:.2f} s of rig time ({self.wall_s:.2f} s wall)",
             f"  device's work, frame delivered → range ready (ranging + filter, wall time, rendering "
-            f"excluded): {Spread.of(self.work_ms)} (CPU time median {Spread.of(self.cpu_ms).median:.1f} ms)",
+            f"excluded): {Spread.of(self.work_ms)}",
+            f"    the same in the loop thread's CPU time (waiting for a core left out): "
+            f"{Spread.of(self.cpu_ms)}",
             f"  ranges per second of rig time: {self.rate_hz:.2f} (camera {self.frame_rate_hz:g} fps: one range "
             f"a frame); frames dropped: {self.dropped} ({self.straddled} across a laser switch)",
         ]
