@@ -6,14 +6,18 @@ import functools
 import math
 import statistics
 import time
-from collections.abc import Callable
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from edge.config import Config
+from edge.hw.base import Frame
 
 if TYPE_CHECKING:
+    from edge.parts import Parts
     from edge.thesis import ThesisRig
 
 
@@ -51,8 +55,6 @@ def bench_render(config: Config, repeats: int = 20) -> list[str]:
 def bench_ranging(config: Config, repeats: int = 200) -> list[str]:
     """Time ranging one laser-off/laser-on pair, decoded frames in memory, at 640 × 480 and at
     1640 × 1232, beside the thesis' straightforward full-frame numpy pipeline on the same frames."""
-    from dataclasses import replace
-
     from edge import thesis
     from edge.config import CameraConfig
     from edge.ranging import FrameGroup, Ranger
@@ -97,45 +99,263 @@ def _thesis_range(t: ThesisRig, on: np.ndarray, off: np.ndarray, boxes: dict[str
     return thesis.thesis_range(t, pc, pp, ps)
 
 
-def bench_blindaid(config: Config, repeats: int = 3) -> list[str]:
-    """Latency of the blind aid on the simulated rig: from the end of the exposure of the frame
-    that shows an obstacle to the first sample of its cue's sound. Every zone counts as if it
-    changed the cue (the chunk boundary its cue would start at), and the cues that really changed
-    are reported apart. A live sound card adds the lead and its buffer, reported as such."""
-    from dataclasses import replace
+# --- latency on the rig: the device's own work apart from the simulator's -----------------------
+#
+# On the simulated rig the device's work (ranging, the modes' logic) and the simulator's (rendering
+# each frame) run on the same computer. A frame is handed to the code only once it is rendered (the
+# capture's `on_frame` hook), so the wall time from that moment to the result is the device's work
+# alone. On a simulated clock the rig's time stands still meanwhile, so rig-clock latencies hold no
+# computing at all; on the real clock they hold the rendering too. Latency figures are therefore
+# modelled: the frame's end on the rig's clock plus the work measured here, what a device as fast as
+# this computer would take.
 
+
+@dataclass(frozen=True)
+class Spread:
+    """Median, 95th percentile and maximum of some times (ms); nan when there are none."""
+
+    median: float
+    p95: float
+    max: float
+
+    @classmethod
+    def of(cls, values_ms: Sequence[float]) -> Spread:
+        if not len(values_ms):
+            return cls(math.nan, math.nan, math.nan)
+        v = np.asarray(values_ms, dtype=float)
+        return cls(float(np.median(v)), float(np.percentile(v, 95)), float(v.max()))
+
+    def __str__(self) -> str:
+        return f"median {self.median:.1f} ms, p95 {self.p95:.1f} ms, max {self.max:.1f} ms"
+
+
+class _Stopwatch:
+    """Wall and thread CPU time of the newest frame's delivery, taken in the capture's `on_frame`
+    hook (the frame is rendered by then) before passing the frame on to `then`."""
+
+    def __init__(self, then: Callable[[Frame], None] | None = None) -> None:
+        self.then = then
+        self.wall_ns = self.cpu_ns = 0
+        self.frame: Frame | None = None
+
+    def __call__(self, frame: Frame) -> None:
+        self.wall_ns, self.cpu_ns = time.perf_counter_ns(), time.thread_time_ns()
+        self.frame = frame
+        if self.then is not None:
+            self.then(frame)
+
+    def since(self) -> tuple[float, float]:
+        """Wall and CPU time (ms) from the newest delivery to now, on the delivering thread."""
+        return (time.perf_counter_ns() - self.wall_ns) / 1e6, (time.thread_time_ns() - self.cpu_ns) / 1e6
+
+
+def _without_nudge_views(parts: Parts) -> None:
+    """The simulated camera renders the sweep's speckle-nudged views ahead, in a thread of its own;
+    the blind aid and the range finder take none, and that rendering would share the cores with
+    the work measured."""
+    from edge.sim.camera import SimCamera
+
+    if isinstance(parts.camera, SimCamera):
+        parts.camera.nudges_deg = ()
+
+
+def _clock_words(simulated: bool) -> str:
+    return "simulated time" if simulated else "real time (sim.clock = \"real\")"
+
+
+@dataclass
+class BlindAidLatency:
+    """Per zone of the blind aid's fan: the device's work and the latency of its cue's sound."""
+
+    simulated: bool  # the rig ran on simulated time
+    passes: int
+    chunk_ms: float
+    frame_ms: float
+    lead_ms: float  # a live sound card is fed this far ahead of the clock …
+    buffer_ms: float  # … through a buffer this long: both add to the latency
+    work_ms: list[float] = field(default_factory=list)  # last frame delivered → cue decided (wall)
+    cpu_ms: list[float] = field(default_factory=list)  # the same, the loop thread's CPU time
+    stream_ms: list[float] = field(default_factory=list)  # frame end → cue sound, modelled
+    as_ran_ms: list[float] = field(default_factory=list)  # frame end → cue sound on the rig's clock
+    changed: list[bool] = field(default_factory=list)  # the zone changed the cue
+    faults: int = 0  # zones whose parts failed (not measured)
+
+    @property
+    def card_latency_ms(self) -> list[float]:
+        return [s + self.lead_ms + self.buffer_ms for s in self.stream_ms]
+
+    def lines(self) -> list[str]:
+        changed = [s for s, c in zip(self.stream_ms, self.changed) if c]
+        lines = [
+            f"blind aid on {_clock_words(self.simulated)}: {len(self.work_ms)} zones over {self.passes} fan "
+            f"passes, frames every {self.frame_ms:.1f} ms, sound in chunks of {self.chunk_ms:g} ms",
+            f"  device's work, last frame delivered → cue decided (ranging + blind-aid logic, wall time, "
+            f"rendering excluded): {Spread.of(self.work_ms)}",
+            f"    the same in the loop thread's CPU time (waiting for a core left out): "
+            f"{Spread.of(self.cpu_ms)}",
+            f"  in the stream, frame end → cue sound for a device this fast (frame end + work, up to the next "
+            f"chunk): {Spread.of(self.stream_ms)}",
+            f"  with a sound card (+ {self.lead_ms:g} ms lead + {self.buffer_ms:g} ms buffer): "
+            f"{Spread.of(self.card_latency_ms)}",
+            f"  cues that changed ({len(changed)}), in the stream: " + ", ".join(f"{x:.1f}" for x in changed) + " ms",
+        ]
+        if not self.simulated:
+            lines.append(f"  as it ran on the rig's real clock, frame end → cue sound in the stream (includes "
+                         f"rendering the frame on the same cores): {Spread.of(self.as_ran_ms)}")
+        if self.faults:
+            lines.append(f"  {self.faults} zones failed (not counted)")
+        return lines
+
+
+def _chunk_start_s(t_s: float, chunk_n: int, rate: int) -> float:
+    """The first chunk boundary at or after `t_s` (stream seconds): where a cue decided at `t_s`
+    starts sounding (:class:`edge.modes.blindaid.sound.CuePlayer`'s grid)."""
+    sample = max(0, math.ceil(t_s * rate - 1e-6))
+    return -(-sample // chunk_n) * chunk_n / rate
+
+
+def measure_blindaid(config: Config, passes: int = 3) -> BlindAidLatency:
+    """Run the blind aid on the configured (simulated) rig for `passes` passes of its fan, timing
+    every zone (see the notes above)."""
     from edge.modes.blindaid.logic import BlindAid, Cue
     from edge.modes.blindaid.runner import BlindAidRunner
     from edge.parts import open_parts
-    from edge.ranging import ZoneResult
+    from edge.ranging import FAULT, ZoneResult
 
     config = replace(config, audio=replace(config.audio, out=""))
-    chunk = config.audio.chunk_ms / 1000
-    per_zone: list[float] = []
+    lead = config.audio.lead_ms
+    buffer = int(lead * 2) or 40  # the aplay buffer open_audio asks for
     with open_parts(config) as parts:
+        _without_nudge_views(parts)
         runner = BlindAidRunner(config, parts, on_cue=lambda cue: None)
+        runner.sweeper.truth = None  # the simulator's truth of each zone is its work, not the device's
+        watch = _Stopwatch(runner.sweeper.capture.on_frame)
+        runner.sweeper.capture.on_frame = watch
+        out = BlindAidLatency(parts.clock.simulated, passes, config.audio.chunk_ms,
+                              config.camera.frame_ns / 1e6, lead, buffer)
+        grid = (runner.player.chunk_n, runner.player.sample_rate)
 
         class TimedAid(BlindAid):
             def update(self, result: ZoneResult, t_s: float, seen_s: float | None = None) -> Cue | None:
                 cue = super().update(result, t_s, seen_s)
-                frame_t = (runner.sweeper.last_frame_end_ns - runner._t0_ns) / 1e9
-                start = -(-runner.now() // chunk) * chunk  # the chunk boundary its sound would start at
-                per_zone.append(start - frame_t)
+                work, cpu = watch.since()
+                if result.status == FAULT:
+                    out.faults += 1
+                    return cue
+                frame_t = (runner.sweeper.last_frame_end_ns - runner.t0_ns) / 1e9
+                out.work_ms.append(work)
+                out.cpu_ms.append(cpu)
+                out.stream_ms.append((_chunk_start_s(frame_t + work / 1e3, *grid) - frame_t) * 1e3)
+                out.as_ran_ms.append((_chunk_start_s(t_s, *grid) - frame_t) * 1e3)
+                out.changed.append(cue is not None)
                 return cue
 
         runner.aid = TimedAid(config.blindaid)  # as fresh as the runner's own: nothing has run yet
-        for _ in range(repeats):
-            runner.scan(lambda: False)
-        real = runner.sound_latencies_s()
-        runner.close()
-    ms = np.array(per_zone) * 1e3
-    live = config.audio.lead_ms + 2 * config.audio.lead_ms  # lead + the aplay buffer (2 × lead)
-    lines = [
-        f"blind aid, {len(per_zone)} zones over {repeats} fan passes (chunk {config.audio.chunk_ms:g} ms):",
-        f"  frame end → cue sound in the stream: median {np.median(ms):.1f} ms, p95 "
-        f"{np.percentile(ms, 95):.1f} ms, max {ms.max():.1f} ms",
-        f"  on a sound card add the lead and buffer ({live:g} ms): max {ms.max() + live:.1f} ms",
-    ]
-    if real:
-        lines.append(f"  cues that changed ({len(real)}): " + ", ".join(f"{1e3 * x:.1f}" for x in real) + " ms")
-    return lines
+        try:
+            for _ in range(passes):
+                runner.scan(lambda: False)
+        finally:
+            runner.close()
+    return out
+
+
+def bench_blindaid(config: Config, repeats: int = 3) -> list[str]:
+    """The blind aid's latency, frame end → cue sound: the device's work apart from rendering."""
+    return measure_blindaid(config, repeats).lines()
+
+
+@dataclass
+class RangefinderLatency:
+    """Per frame of the range finder: the device's work, and the ranges' rate on the rig's clock."""
+
+    simulated: bool
+    frame_rate_hz: float
+    work_ms: list[float] = field(default_factory=list)  # frame delivered → range ready (wall)
+    cpu_ms: list[float] = field(default_factory=list)
+    as_ran_ms: list[float] = field(default_factory=list)  # frame end → range ready on the rig's clock
+    range_times_ns: list[int] = field(default_factory=list)  # on the rig's clock
+    range_frames: list[int] = field(default_factory=list)  # the camera's number of each range's frame
+    statuses: Counter[str] = field(default_factory=Counter)
+    frames_used: int = 0
+    straddled: int = 0  # frames not used as they were exposed across a laser switch
+    wall_s: float = 0.0
+
+    @property
+    def ranges(self) -> int:
+        return len(self.range_times_ns)
+
+    @property
+    def rig_s(self) -> float:
+        """Rig time from the first range to the last."""
+        return (self.range_times_ns[-1] - self.range_times_ns[0]) / 1e9 if self.range_times_ns else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        return (self.ranges - 1) / self.rig_s if self.rig_s > 0 else math.nan
+
+    @property
+    def dropped(self) -> int:
+        """Frames the camera made between the first range's and the last's that gave no range
+        (before the first, the simulator renders its first view: no device has that wait)."""
+        if not self.range_frames:
+            return 0
+        return self.range_frames[-1] - self.range_frames[0] + 1 - self.ranges
+
+    def lines(self) -> list[str]:
+        statuses = ", ".join(f"{n} {s}" for s, n in self.statuses.most_common())
+        lines = [
+            f"range finder on {_clock_words(self.simulated)}: {self.ranges} ranges ({statuses}) from "
+            f"{self.frames_used} frames in {self.rig_s:.2f} s of rig time ({self.wall_s:.2f} s wall)",
+            f"  device's work, frame delivered → range ready (ranging + filter, wall time, rendering "
+            f"excluded): {Spread.of(self.work_ms)}",
+            f"    the same in the loop thread's CPU time (waiting for a core left out): "
+            f"{Spread.of(self.cpu_ms)}",
+            f"  ranges per second of rig time: {self.rate_hz:.2f} (camera {self.frame_rate_hz:g} fps: one range "
+            f"a frame); frames dropped: {self.dropped} ({self.straddled} across a laser switch)",
+        ]
+        if not self.simulated:
+            lines.append(f"  as it ran on the rig's real clock, frame end → range ready (includes rendering the "
+                         f"frame on the same cores): {Spread.of(self.as_ran_ms)}")
+        return lines
+
+
+def measure_rangefinder(config: Config, frames: int = 90) -> RangefinderLatency:
+    """Run the range finder (``[rangefinder]``'s aim) on the configured rig for `frames` ranges."""
+    from edge.calibration.in_use import believed_rig
+    from edge.modes.rangefinder import Filtered, Rangefinder
+    from edge.parts import open_parts
+    from edge.ranging import Ranger, ZoneResult
+
+    pan, tilt = config.rangefinder.pan_deg, config.rangefinder.tilt_deg
+    ranger = Ranger(believed_rig(config).rig, config.ranging)
+    with open_parts(config) as parts:
+        _without_nudge_views(parts)
+        parts.ptu.move(pan, tilt)
+        out = RangefinderLatency(parts.clock.simulated, config.camera.frame_rate_hz)
+        capture, clock = parts.capture, parts.clock
+        watch = _Stopwatch(capture.on_frame)
+        capture.on_frame = watch
+
+        def on_range(result: ZoneResult, filtered: Filtered | None, extra: dict) -> None:
+            work, cpu = watch.since()
+            now = clock.now_ns()
+            out.work_ms.append(work)
+            out.cpu_ms.append(cpu)
+            out.range_times_ns.append(now)
+            out.statuses[result.status] += 1
+            out.range_frames.append(int(extra.get("frame", -1)))
+            if watch.frame is not None:
+                out.as_ran_ms.append((now - watch.frame.t_end_ns) / 1e6)
+
+        finder = Rangefinder(capture, ranger, parts.lasers.names)
+        straddled, began = capture.dropped, time.monotonic()
+        # One frame more than ranges: the first frame has nothing before it to be ranged with.
+        out.frames_used = finder.run(pan, tilt, on_range, lambda: False, max_frames=frames + 1)
+        out.wall_s = time.monotonic() - began
+        out.straddled = capture.dropped - straddled
+    return out
+
+
+def bench_rangefinder(config: Config, repeats: int = 90) -> list[str]:
+    """The range finder's frame → range: the device's work per frame, and one range per frame."""
+    return measure_rangefinder(config, repeats).lines()

@@ -15,8 +15,9 @@ def add_parsers(sub: Any) -> None:
 
     p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
     add_config_options(p)
-    p.add_argument("what", choices=["render", "ranging", "blindaid"], help="what to time")
-    p.add_argument("--repeats", type=int, help="runs to take the median of")
+    p.add_argument("what", choices=["render", "ranging", "blindaid", "rangefinder"], help="what to time")
+    p.add_argument("--repeats", type=int,
+                   help="runs to take the median of (blindaid: passes of the fan; rangefinder: ranges)")
     p.set_defaults(func=cmd_bench)
 
 
@@ -43,7 +44,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from edge import bench
 
     config = load(args)
-    run = {"render": bench.bench_render, "ranging": bench.bench_ranging, "blindaid": bench.bench_blindaid}[args.what]
+    run = {"render": bench.bench_render, "ranging": bench.bench_ranging, "blindaid": bench.bench_blindaid,
+           "rangefinder": bench.bench_rangefinder}[args.what]
     lines = run(config, **({"repeats": args.repeats} if args.repeats else {}))
     print("\n".join(lines))
     return 0
