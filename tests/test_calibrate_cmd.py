@@ -43,13 +43,13 @@ def test_a_board_carried_to_each_distance_calibrates_the_rig(broker, subscriber,
     # Paced: the operator's tool joins in real time while the board keeps the scene's time; on the
     # unpaced simulated clock the board could pass before the command arrives.
     proc = start(broker, tmp_path, 'sim.scene="bench"', "service.sweep_interval_s=0", 'sim.clock="paced"', *FLAWED,
-                 run_for=90)
+                 run_for=600)  # stopped below; --for only if the test fails
     subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
     # As an operator would: `edge calibrate --device` sends the command and follows the session.
     tool = subprocess.run(
         [sys.executable, "-m", "edge", "calibrate", "--device", DEVICE, "--distances", "2,1.3,0.8,0.5",
          "--set", f"mqtt.port={broker.port}", "--set", 'mqtt.host="127.0.0.1"'],
-        capture_output=True, text=True, timeout=90)
+        capture_output=True, text=True, timeout=300)  # a bound: a loaded machine falls behind real time
     assert tool.returncode == 0, tool.stderr[-2000:]
     said = tool.stdout.splitlines()
     assert said[0].startswith(f"{DEVICE}: calibrating at 2, 1.3, 0.8, 0.5 m.")

@@ -369,7 +369,8 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
               ' {kind="hang", at_s=14.0, seconds=60.0}]')
     # Real time: a hang and systemd's watchdog are (on the simulated clock a hang takes no time).
     proc = start(broker, tmp_path, 'mode="rangefinder"', "rangefinder.pan_deg=-90.0", "camera.timeout_s=0.5", faults,
-                 "mqtt.enabled=true", 'sim.clock="real"', env={"NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"}, config=config)
+                 "mqtt.enabled=true", 'sim.clock="real"', env={"NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"},
+                 config=config)
     feeds: list[float] = []
     try:
         deadline = time.monotonic() + 40
