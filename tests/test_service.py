@@ -211,18 +211,23 @@ def test_systemd_notifications_and_watchdog(broker, tmp_path):
     # Real time: systemd's watchdog is.
     proc = start(broker, tmp_path, "mode=\"rangefinder\"", 'sim.clock="real"', run_for=6, env=env)
     messages: list[str] = []
-    deadline = time.monotonic() + 30
+    heard: list[float] = []
+    deadline = time.monotonic() + 120
     while proc.poll() is None and time.monotonic() < deadline:
         try:
             messages.append(sock.recv(4096).decode())
+            heard.append(time.monotonic())
         except TimeoutError:
             pass
     finish(proc)
     sock.close()
     assert "READY=1" in messages
-    assert messages.index("READY=1") < messages.index("STOPPING=1")
-    feeds = [m for m in messages if m == "WATCHDOG=1"]
-    assert len(feeds) >= 4, messages  # about every 0.5 s over 6 s of running
+    ready, stopping = messages.index("READY=1"), messages.index("STOPPING=1")
+    assert ready < stopping
+    feeds = [t for m, t in zip(messages, heard) if m == "WATCHDOG=1"]
+    # About every 0.5 s while running (6 s of it, less the rig's start on a loaded machine): at
+    # least one a second, counted over the time it really ran.
+    assert len(feeds) >= max(2, (heard[stopping] - heard[ready]) - 1), messages
     assert any(m.startswith("STATUS=running") for m in messages)
 
 
@@ -317,7 +322,7 @@ def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, t
     wav = tmp_path / "cues.wav"
     proc = start(broker, tmp_path, 'mode="blindaid"', "sim.scene=office-approach", "blindaid.speak_new=false",
                  f"audio.out={json.dumps(str(wav))}", run_for=18)
-    finish(proc, timeout=60)
+    finish(proc)
     cues = [payload(m) for m in subscriber.messages(f"{P}/cue")]
     assert len(cues) >= 3
     for c in cues:
