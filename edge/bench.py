@@ -17,7 +17,6 @@ from edge.config import Config
 from edge.hw.base import Frame
 
 if TYPE_CHECKING:
-    from edge.parts import Parts
     from edge.thesis import ThesisRig
 
 
@@ -149,16 +148,6 @@ class _Stopwatch:
         return (time.perf_counter_ns() - self.wall_ns) / 1e6, (time.thread_time_ns() - self.cpu_ns) / 1e6
 
 
-def _without_nudge_views(parts: Parts) -> None:
-    """The simulated camera renders the sweep's speckle-nudged views ahead, in a thread of its own;
-    the blind aid and the range finder take none, and that rendering would share the cores with
-    the work measured."""
-    from edge.sim.camera import SimCamera
-
-    if isinstance(parts.camera, SimCamera):
-        parts.camera.nudges_deg = ()
-
-
 def _clock_words(simulated: bool) -> str:
     return "simulated time" if simulated else "real time (sim.clock = \"real\")"
 
@@ -226,7 +215,6 @@ def measure_blindaid(config: Config, passes: int = 3) -> BlindAidLatency:
     lead = config.audio.lead_ms
     buffer = int(lead * 2) or 40  # the aplay buffer open_audio asks for
     with open_parts(config) as parts:
-        _without_nudge_views(parts)
         runner = BlindAidRunner(config, parts, on_cue=lambda cue: None)
         runner.sweeper.truth = None  # the simulator's truth of each zone is its work, not the device's
         watch = _Stopwatch(runner.sweeper.capture.on_frame)
@@ -329,7 +317,6 @@ def measure_rangefinder(config: Config, frames: int = 90) -> RangefinderLatency:
     pan, tilt = config.rangefinder.pan_deg, config.rangefinder.tilt_deg
     ranger = Ranger(believed_rig(config).rig, config.ranging)
     with open_parts(config) as parts:
-        _without_nudge_views(parts)
         parts.ptu.move(pan, tilt)
         out = RangefinderLatency(parts.clock.simulated, config.camera.frame_rate_hz)
         capture, clock = parts.capture, parts.clock

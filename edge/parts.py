@@ -86,6 +86,14 @@ class Parts:
         self.truths[index] = zone_truth(renderer.rig, spots, renderer.rig.camera_to_base(pan_deg, tilt_deg))
         return self.truths[index]
 
+    def foresee(self, views: list[tuple[float, float]]) -> None:
+        """The views the rig visits next (the sweep's next zone): a simulated camera renders them
+        ahead, on another core; real parts need no such hint."""
+        from edge.sim.camera import SimCamera
+
+        if isinstance(self.camera, SimCamera):
+            self.camera.foresee(views)
+
     def room(self) -> list[Segment]:
         """The simulated room's floor plan in the base frame (empty on real parts)."""
         if self.world is None or self.world.renderer is None:

@@ -90,6 +90,7 @@ class Sweeper:
         ranger: Ranger,
         on_zone: Callable[[ZoneResult], None] | None = None,
         truth: Callable[[int, float, float], dict | None] | None = None,
+        foresee: Callable[[list[tuple[float, float]]], None] | None = None,
     ):
         self.config = config
         self.ptu = ptu
@@ -97,6 +98,7 @@ class Sweeper:
         self.ranger = ranger
         self.on_zone = on_zone
         self.truth = truth  # the simulator's truth for a zone, for recordings and scoring
+        self._foresee = foresee  # a simulated camera renders the next zone's views meanwhile
         self.last_frame_end_ns = 0  # when the newest frame's exposure ended (latency measurements)
         self.lit_when_off: set[str] = set()  # of the last zone: lasers whose spots showed unlit
 
@@ -124,6 +126,8 @@ class Sweeper:
             pan, tilt = poses[index]
             if should_stop is not None and should_stop():
                 break
+            if done + 1 < len(order):
+                self.foresee(*poses[order[done + 1]])
             result = self.zone(index, pan, tilt, recorder)
             in_a_row = in_a_row + 1 if result.status == FAULT else 0
             report.results.append(result)
@@ -142,6 +146,11 @@ class Sweeper:
         report.simulated_time = clock.simulated
         report.dropped_frames = self.capture.dropped - dropped_before
         return report
+
+    def foresee(self, pan: float, tilt: float) -> None:
+        """The zone at (pan, tilt) comes next (a hint: a simulated camera renders it ahead)."""
+        if self._foresee is not None:
+            self._foresee(self.views(pan, tilt))
 
     def views(self, pan: float, tilt: float) -> list[tuple[float, float]]:
         return zone_views(self.config, pan, tilt, self.ptu.limits_deg[0])
@@ -235,7 +244,8 @@ def sweeper_for(parts, on_zone: Callable[[ZoneResult], None] | None = None, conf
         from edge.calibration.in_use import believed_rig
 
         ranger = Ranger(believed_rig(config).rig, config.ranging)
-    return Sweeper(config, parts.ptu, capture or parts.capture, ranger, on_zone=on_zone, truth=truth)
+    return Sweeper(config, parts.ptu, capture or parts.capture, ranger, on_zone=on_zone, truth=truth,
+                   foresee=parts.foresee if parts.simulated else None)
 
 
 def run_configured_sweep(

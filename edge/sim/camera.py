@@ -13,9 +13,11 @@ Rendering takes the computer's time (a new view 50–70 ms, a frame of a known v
 frame times follow the rig's clock regardless: on the real clock a slow computer delivers frames
 late (and drops them), on a simulated one time waits for the renderer. Given ``heading`` (where
 the unit is going: the emulator's), a thread renders the view there while the unit is still
-moving, as a real camera would simply have it. A camera keeps only a short queue of delivered
-frames: a frame delivered more than ``queue_frames`` periods before the request is gone (dropped,
-as a real camera drops frames nobody collects).
+moving, as a real camera would simply have it; ``foresee(views)`` (the sweep's, a zone ahead)
+has it render the views the rig will visit next, so that on a simulated clock, where a move takes
+no time of the computer's, the next zone's view is rendered on another core meanwhile. A camera
+keeps only a short queue of delivered frames: a frame delivered more than ``queue_frames`` periods
+before the request is gone (dropped, as a real camera drops frames nobody collects).
 """
 
 from __future__ import annotations
@@ -86,9 +88,10 @@ class SimCamera:
         height = renderer.rig.camera.height
         self._row_offsets = (np.arange(height, dtype=np.int64) * self.readout_ns) // max(height - 1, 1)
         self.heading = heading
-        self.pose_step_deg = pose_step_deg  # the unit's resolution, to render nudged views ahead
+        self.pose_step_deg = pose_step_deg  # the unit's resolution: views as the unit will report them
         self.faults: tuple[CameraFault, ...] = ()  # played from the first start
-        self.nudges_deg: tuple[float, ...] = ()  # pan offsets worth rendering ahead with a heading
+        self._foreseen: list[tuple[float, float]] = []  # views to render ahead, next first
+        self._wake = threading.Condition()
         self._epoch: int | None = None
         self._corrupted = 0
         self._prefetcher: threading.Thread | None = None
@@ -121,7 +124,6 @@ class SimCamera:
         kwargs.setdefault("seed", config.sim.seed)
         camera = cls(renderer, light, config.camera, **kwargs)
         camera.faults = config.sim.camera_faults
-        camera.nudges_deg = tuple(n for n in config.sweep.nudges_deg() if n)
         return camera
 
     # --- the Camera interface --------------------------------------------------------------------
@@ -142,7 +144,9 @@ class SimCamera:
     def stop(self) -> None:
         self._t0 = None
         if self._prefetcher is not None:
-            self._stopping.set()
+            with self._wake:
+                self._stopping.set()
+                self._wake.notify_all()
             self._prefetcher.join()
             self._prefetcher = None
 
@@ -151,27 +155,32 @@ class SimCamera:
         self.stop()
         self.closed = True
 
+    def foresee(self, views: list[tuple[float, float]]) -> None:
+        """The (pan, tilt) views the rig will visit next, in order: rendered ahead by the prefetch
+        thread, replacing any not yet begun."""
+        step = self.pose_step_deg
+        if step:  # as the unit will report them: whole positions times its resolution
+            views = [(float(round(p / step)) * step, float(round(t / step)) * step) for p, t in views]
+        with self._wake:
+            self._foreseen = list(views)
+            self._wake.notify_all()
+
     def _prefetch(self, heading: Callable[[], tuple[float, float]]) -> None:
         last = None
-        while not self._stopping.wait(0.004):
+        while True:
+            with self._wake:
+                if not self._foreseen and not self._stopping.is_set():
+                    self._wake.wait(0.004)  # the heading is polled: the unit says nothing of a move
+                if self._stopping.is_set():
+                    return
+                foreseen = self._foreseen.pop(0) if self._foreseen else None
             try:
                 pose = heading()
-                if pose != last:
-                    self.renderer.prefetch(*pose)
-                    # A nudge is not a new zone: its own nudges would be views nobody takes.
-                    widest = max(map(abs, self.nudges_deg), default=0)
-                    nudge = last is not None and abs(pose[0] - last[0]) <= widest * 1.5
+                if pose != last:  # where the unit is going first: it is needed soonest
                     last = pose
-                    step = self.pose_step_deg
-                    if nudge or not step:
-                        continue
-                    # The sweep's speckle nudges come right after, too quickly to render then.
-                    for offset in self.nudges_deg:
-                        if heading() != pose:
-                            break
-                        # As the unit will report it: whole positions times its resolution.
-                        pan = float(round(pose[0] / step) + round(offset / step)) * step
-                        self.renderer.prefetch(pan, pose[1])
+                    self.renderer.prefetch(*pose)
+                if foreseen is not None:
+                    self.renderer.prefetch(*foreseen)
             except Exception as exc:  # the frame's own render will meet (and report) it again
                 log.debug("prefetch failed: %s", exc)
                 last = None

@@ -123,9 +123,11 @@ class BlindAidRunner:
 
     def scan(self, should_stop: Callable[[], bool]) -> None:
         """One pass over the fan (there and back), a cue whenever the picture changes."""
-        for k in self.order:
+        for i, k in enumerate(self.order):
             if should_stop():
                 return
+            following = self.order[(i + 1) % len(self.order)]  # the pass repeats
+            self.sweeper.foresee(*self.poses[following])
             pan, tilt = self.poses[k]
             result = self.sweeper.zone(k, pan, tilt)
             t = self.now()
