@@ -45,6 +45,7 @@ def test_a_board_carried_to_each_distance_calibrates_the_rig(broker, subscriber,
     proc = start(broker, tmp_path, 'sim.scene="bench"', "service.sweep_interval_s=0", 'sim.clock="paced"', *FLAWED,
                  run_for=600)  # stopped below; --for only if the test fails
     subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
+    subscriber.wait_count(f"{P}/range", 5, timeout=120)  # the nominal rig at work before the session
     # As an operator would: `edge calibrate --device` sends the command and follows the session.
     tool = subprocess.run(
         [sys.executable, "-m", "edge", "calibrate", "--device", DEVICE, "--distances", "2,1.3,0.8,0.5",
