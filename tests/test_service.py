@@ -202,11 +202,11 @@ def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, s
     # kept sweeping while the broker was away (its loop never waits for the broker).
     proc = start(broker, tmp_path, "sweep.zones=3", "sweep.pan_step_deg=10.0", "service.sweep_interval_s=0.5")
     try:
-        first = subscriber.wait_count(f"{P}/sweep", 2, timeout=30)
+        first = subscriber.wait_count(f"{P}/sweep", 2, timeout=300)  # bounds for a loaded machine
         outages = take_the_broker_away(broker, lambda k: 1.0 + 0.2 * (k % 4))
         outages.append(outage_until_queued(broker, tmp_path / "state", 5))
         mark = subscriber.mark()
-        subscriber.wait_count(f"{P}/sweep", 3, timeout=30, since=mark)
+        subscriber.wait_count(f"{P}/sweep", 3, timeout=300, since=mark)
         proc.send_signal(signal.SIGTERM)
         finish(proc)
     finally:
