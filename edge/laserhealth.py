@@ -22,7 +22,9 @@ in every sweep of a healthy rig. So the judgement takes only evidence that holds
   not in the difference (a red lamp or a glint in the off frame leaves the spot in the difference);
 - hysteresis: a verdict needs that evidence in `enter_dark` (or `enter_stuck`) telling zones in a
   row, and goes only after `leave` zones in a row that show the laser working. Zones that tell
-  nothing (nothing in range, a part's fault) neither count nor break a run.
+  nothing (nothing in range, a part's fault) neither count nor break a run;
+- one view is one piece of evidence: the range finder's frames of one view, over and over, count
+  once (what the room hides there it hides in every frame).
 
 Pure: zone results (and what the off frames showed) in, a typed verdict per laser out; the words
 are made only for people (`LaserVerdict.words`), and nothing decides by them.
@@ -103,25 +105,35 @@ class _Zone(enum.Enum):
         return _Zone.MISSING if seen else _Zone.SILENT  # (`seen` holds only other lasers here)
 
 
+View = tuple[float, float]  # (pan, tilt) of a zone, degrees
+
+
 @dataclass
 class _Judge:
     """One laser's runs of evidence and its verdict. Each run counts its evidence in a row; a zone
-    against it ends the run, one that tells nothing either way leaves it be."""
+    against it ends the run, one that tells nothing either way leaves it be. Evidence from the view
+    the run's last evidence came from counts once: the range finder's frames, one view many times
+    over, see the same room, and a spot the room hides there stays hidden (a dead laser is told
+    from it by other views: a map sweep's, cmd/point's)."""
 
     verdict: LaserVerdict | None = None
     dark: int = 0  # MISSING in a row
     stuck: int = 0  # LIT_OFF in a row
     working: int = 0  # zones in a row that show it working, while a verdict stands
+    dark_view: View | None = None  # where the last MISSING came from
+    stuck_view: View | None = None  # where the last LIT_OFF came from
 
-    def take(self, zone: _Zone, name: str, h: Hysteresis) -> None:
+    def take(self, zone: _Zone, view: View, name: str, h: Hysteresis) -> None:
         if zone is _Zone.MISSING:
-            self.dark += 1
+            self.dark += 1 if view != self.dark_view else 0
+            self.dark_view = view
         elif zone is not _Zone.SILENT:
-            self.dark = 0  # it lit
+            self.dark, self.dark_view = 0, None  # it lit
         if zone is _Zone.LIT_OFF:
-            self.stuck += 1
+            self.stuck += 1 if view != self.stuck_view else 0
+            self.stuck_view = view
         elif zone is _Zone.WORKS:
-            self.stuck = 0  # it went off
+            self.stuck, self.stuck_view = 0, None  # it went off
         if self.verdict is None:
             if self.stuck >= h.enter_stuck:
                 self.verdict = LaserVerdict(name, LaserFault.STUCK_ON, self.stuck, self.stuck)
@@ -140,6 +152,7 @@ class _Judge:
             self.working = 0
         if self.working >= h.leave:
             self.verdict, self.working, self.dark, self.stuck = None, 0, 0, 0
+            self.dark_view = self.stuck_view = None
         elif self.verdict.fault is LaserFault.DARK and self.stuck >= h.enter_stuck:
             self.verdict = LaserVerdict(name, LaserFault.STUCK_ON, self.stuck, self.stuck)
             self.working = 0
@@ -157,9 +170,10 @@ class LaserHealth:
         """Take one zone; True when a verdict changed."""
         seen = set(result.spotted) | set(result.lasers)
         lit_off = set(lit_when_off)
+        view = (round(result.pan_deg, 2), round(result.tilt_deg, 2))
         before = self.verdicts()
         for name, judge in self._judges.items():
-            judge.take(_Zone.of(name, seen, lit_off), name, self.hysteresis)
+            judge.take(_Zone.of(name, seen, lit_off), view, name, self.hysteresis)
         return self.verdicts() != before
 
     def verdicts(self) -> dict[str, LaserVerdict]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -10,12 +12,15 @@ from edge.ranging import NO_SPOT, OK, LaserMeasurement, ZoneResult
 
 NAMES = ("center", "parallel", "sloped")
 QUICK = Hysteresis(enter_dark=4, enter_stuck=2, leave=2)
+_views = itertools.count()
 
 
-def zone(found: tuple[str, ...], spotted: tuple[str, ...] = ()) -> ZoneResult:
-    """A zone whose range used the spots of `found`; `spotted` lasers showed spots it left out."""
+def zone(found: tuple[str, ...], spotted: tuple[str, ...] = (), pan: float | None = None) -> ZoneResult:
+    """A zone whose range used the spots of `found`; `spotted` lasers showed spots it left out.
+    Each at a view of its own, as a sweep's zones, unless `pan` says where."""
     lasers = {n: LaserMeasurement(n, np.zeros(2), 0.1, np.zeros(3), 2.0, 0.01, 30.0, 1) for n in found}
-    return ZoneResult(0, 0.0, 0.0, OK if "center" in found else NO_SPOT, lasers=lasers,
+    pan = next(_views) * 5.625 % 360.0 - 180.0 if pan is None else pan
+    return ZoneResult(0, pan, 0.0, OK if "center" in found else NO_SPOT, lasers=lasers,
                       spotted=frozenset(found) | frozenset(spotted))
 
 
@@ -49,6 +54,25 @@ def test_a_spot_the_range_left_out_is_seen() -> None:
     for _ in range(50):
         health.update(zone(("center", "parallel"), spotted=("sloped",)))
     assert health.verdicts() == {}
+
+
+def test_one_view_over_and_over_is_one_piece_of_evidence() -> None:
+    """The range finder ranges one view frame after frame: a spot the room hides there (a desk top
+    under the beam) stays hidden, and says no more after a thousand frames than after one. Other
+    views tell a dead laser from it."""
+    health = LaserHealth(NAMES, QUICK)
+    for _ in range(1000):
+        health.update(zone(("center", "parallel"), pan=12.5))
+    assert health.verdicts() == {}
+    for k in range(QUICK.enter_dark - 2):
+        assert not health.update(zone(("center", "parallel"), pan=20.0 + k))
+    assert health.update(zone(("center", "parallel"), pan=12.5))  # back where it began: a view anew
+    assert health.verdicts()["sloped"].fault is LaserFault.DARK
+    health = LaserHealth(NAMES, QUICK)  # and stuck on alike
+    for _ in range(100):
+        health.update(zone(("center", "parallel"), pan=12.5), {"sloped"})
+    assert health.verdicts() == {}
+    assert health.update(zone(("center", "parallel"), pan=13.0), {"sloped"})
 
 
 def test_zones_where_no_laser_sees_anything_say_nothing_and_break_no_run() -> None:

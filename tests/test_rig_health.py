@@ -4,6 +4,7 @@ random, and made to name the wrong part, and the routing does not change."""
 
 from __future__ import annotations
 
+import itertools
 import logging
 import random
 import string
@@ -21,6 +22,7 @@ ERRORS = (CameraError, LaserError, PtuError)
 # Words that once decided routing, or that name another part: none may sway it.
 MISLEADING = ("camera", "laser center does not light", "pan-tilt unit", "no frame", "does not go off",
               "fault: lasers", "ptu", "")
+_views = itertools.count()
 
 
 class Camera:
@@ -50,8 +52,10 @@ def odd_message(rng: random.Random) -> str:
 
 
 def zone(found: tuple[str, ...] = NAMES) -> ZoneResult:
+    """A zone of a sweep (each at a view of its own) whose range used the spots of `found`."""
     lasers = {n: LaserMeasurement(n, np.zeros(2), 0.1, np.zeros(3), 2.0, 0.01, 30.0, 1) for n in found}
-    return ZoneResult(0, 0.0, 0.0, OK if "center" in found else NO_SPOT, range_m=2.0, lasers=lasers)
+    pan = next(_views) * 5.625 % 360.0 - 180.0
+    return ZoneResult(0, pan, 0.0, OK if "center" in found else NO_SPOT, range_m=2.0, lasers=lasers)
 
 
 def fault(error: type[HardwareError], message: str) -> ZoneResult:
