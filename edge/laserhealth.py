@@ -24,7 +24,9 @@ in every sweep of a healthy rig. So the judgement takes only evidence that holds
   row, and goes only after `leave` zones in a row that show the laser working. Zones that tell
   nothing (nothing in range, a part's fault) neither count nor break a run;
 - one view is one piece of evidence: the range finder's frames of one view, over and over, count
-  once (what the room hides there it hides in every frame).
+  once (what the room hides there it hides in every frame); and a view where a working laser's
+  spot went missing (it showed again right after) hides it: a miss there tells nothing until the
+  spot shows there again (the next sweep meets the same desk top).
 
 Pure: zone results (and what the off frames showed) in, a typed verdict per laser out; the words
 are made only for people (`LaserVerdict.words`), and nothing decides by them.
@@ -33,8 +35,9 @@ are made only for people (`LaserVerdict.words`), and nothing decides by them.
 from __future__ import annotations
 
 import enum
+from collections import OrderedDict
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from edge.ranging import ZoneResult
 
@@ -48,10 +51,12 @@ class LaserFault(enum.Enum):
 class Hysteresis:
     """How much evidence a verdict takes, in telling zones in a row.
 
-    `enter_dark` is above the longest run of misses a working laser showed over hundreds of sweeps
-    of the shipped scenes (five, its spot on a desk top), and keeps a dead laser reported within
-    eight zones. A stuck laser's evidence is rarer by far in a working one (the off frame showing
-    a spot on its path that the difference does not), so two zones do."""
+    `enter_dark` keeps a dead laser reported within eight zones. A working laser's runs of misses
+    stay well below it: over the shipped scenes' guard sweeps the longest seen was six views (the
+    sloped spot on the office's desk top, and the one view beyond it where the spot is faint),
+    three once the views that hid it before tell nothing. A stuck laser's evidence is rarer by far
+    in a working one (the off frame showing a spot on its path that the difference does not), so
+    two zones do."""
 
     enter_dark: int = 8
     enter_stuck: int = 2
@@ -106,29 +111,52 @@ class _Zone(enum.Enum):
 
 
 View = tuple[float, float]  # (pan, tilt) of a zone, degrees
+# Views remembered, per laser, as hiding its spot (a sweep has 64, the blind aid's fan 7, each
+# cmd/point adds one): the oldest are forgotten past this.
+_HIDING_VIEWS = 256
 
 
 @dataclass
 class _Judge:
     """One laser's runs of evidence and its verdict. Each run counts its evidence in a row; a zone
-    against it ends the run, one that tells nothing either way leaves it be. Evidence from the view
-    the run's last evidence came from counts once: the range finder's frames, one view many times
-    over, see the same room, and a spot the room hides there stays hidden (a dead laser is told
-    from it by other views: a map sweep's, cmd/point's)."""
+    against it ends the run, one that tells nothing either way leaves it be.
+
+    Evidence from the view the run's last evidence came from counts once: the range finder's
+    frames, one view many times over, see the same room, and a spot the room hides there stays
+    hidden (a dead laser is told from it by other views: a map sweep's, cmd/point's). And a view
+    where the spot went missing while the laser worked (it showed in the zones that followed, twice
+    in a row) hides it: a miss there says nothing until the spot shows there again. The guard's
+    sweeps pass the same views again and again, and a desk top that hid the spot in the last sweep
+    hides it in this one; a laser dead from the start has no such views, and one that dies later
+    still misses everywhere else."""
 
     verdict: LaserVerdict | None = None
-    dark: int = 0  # MISSING in a row
+    dark: int = 0  # MISSING in a row, at views that do not hide it
     stuck: int = 0  # LIT_OFF in a row
     working: int = 0  # zones in a row that show it working, while a verdict stands
     dark_view: View | None = None  # where the last MISSING came from
     stuck_view: View | None = None  # where the last LIT_OFF came from
+    shown: int = 0  # zones in a row that showed its spot
+    missed: list[View] = field(default_factory=list)  # MISSING views since it last showed twice
+    hiding: OrderedDict[View, None] = field(default_factory=OrderedDict)  # views that hide its spot
 
     def take(self, zone: _Zone, view: View, name: str, h: Hysteresis) -> None:
         if zone is _Zone.MISSING:
-            self.dark += 1 if view != self.dark_view else 0
-            self.dark_view = view
-        elif zone is not _Zone.SILENT:
+            if view not in self.hiding and view != self.dark_view:
+                self.dark += 1
+            self.dark_view, self.shown = view, 0
+            if len(self.missed) < _HIDING_VIEWS:
+                self.missed.append(view)
+        elif zone in (_Zone.WORKS, _Zone.LEAKS):
             self.dark, self.dark_view = 0, None  # it lit
+            self.hiding.pop(view, None)
+            self.shown += 1
+            if self.shown >= h.leave:
+                if self.verdict is None:  # it worked all along: where it went missing, it was hidden
+                    self._hidden_at(self.missed)
+                self.missed = []
+        elif zone is _Zone.LIT_OFF:
+            self.dark, self.dark_view, self.shown = 0, None, 0  # it lights (and does not go off)
         if zone is _Zone.LIT_OFF:
             self.stuck += 1 if view != self.stuck_view else 0
             self.stuck_view = view
@@ -156,6 +184,13 @@ class _Judge:
         elif self.verdict.fault is LaserFault.DARK and self.stuck >= h.enter_stuck:
             self.verdict = LaserVerdict(name, LaserFault.STUCK_ON, self.stuck, self.stuck)
             self.working = 0
+
+    def _hidden_at(self, views: list[View]) -> None:
+        for view in views:
+            self.hiding[view] = None
+            self.hiding.move_to_end(view)
+        while len(self.hiding) > _HIDING_VIEWS:
+            self.hiding.popitem(last=False)
 
 
 class LaserHealth:
