@@ -20,6 +20,8 @@ in every sweep of a healthy rig. So the judgement takes only evidence that holds
   found the surface its spot must be in view too, unless the room hides it;
 - a zone tells that a laser is stuck on only where its spot showed in the laser-off frames and
   not in the difference (a red lamp or a glint in the off frame leaves the spot in the difference);
+  a zone where it shows in neither, though another laser's spot does, ends such a run (a red thing
+  on a dead laser's path, at a view here and there, is not a laser that stays on);
 - hysteresis: a verdict needs that evidence in `enter_dark` (or `enter_stuck`) telling zones in a
   row, and goes only after `leave` zones in a row that show the laser working. Zones that tell
   nothing (nothing in range, a part's fault) neither count nor break a run;
@@ -160,8 +162,8 @@ class _Judge:
         if zone is _Zone.LIT_OFF:
             self.stuck += 1 if view != self.stuck_view else 0
             self.stuck_view = view
-        elif zone is _Zone.WORKS:
-            self.stuck, self.stuck_view = 0, None  # it went off
+        elif zone in (_Zone.WORKS, _Zone.MISSING):
+            self.stuck, self.stuck_view = 0, None  # it went off, or shows nowhere
         if self.verdict is None:
             if self.stuck >= h.enter_stuck:
                 self.verdict = LaserVerdict(name, LaserFault.STUCK_ON, self.stuck, self.stuck)

@@ -184,6 +184,16 @@ def test_a_glint_in_a_working_lasers_off_frames_is_not_stuck() -> None:
     assert health.verdicts() == {}
 
 
+def test_a_red_thing_on_a_dead_lasers_path_here_and_there_does_not_make_it_stuck() -> None:
+    """The kitchen has something red on the `parallel` path at two views: a working laser's spot
+    shows in the difference there as well; a dead one's does not, and the off frame's red thing
+    would be a stuck laser's evidence. Zones between where it shows nowhere end that run."""
+    health = LaserHealth(NAMES)
+    for k in range(60):
+        health.update(zone(("center", "sloped")), {"parallel"} if k % 17 == 3 else ())
+    assert health.verdicts()["parallel"].fault is LaserFault.DARK
+
+
 def test_a_dark_laser_that_shows_in_the_off_frames_turns_stuck() -> None:
     health = LaserHealth(NAMES, QUICK)
     for _ in range(4):
