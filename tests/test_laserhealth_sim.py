@@ -3,8 +3,9 @@ sloped laser dark in every sweep, and dead and stuck lasers.
 
 The zones are rendered straight from the scene at the guard's poses, one laser-off/laser-on pair a
 zone as the guard takes them, ranged by the rig's Ranger and judged by the service's RigHealth: the
-sweep's own parts without the pan-tilt unit's and the camera's timing, which make a real sweep take
-15-25 s of wall clock. The long soak (100 sweeps of every scene) is a benchmark, not a test.
+sweep's ranging and judging without the pan-tilt unit and the camera, at eight poses each (a whole
+sweep renders 64 views, 15-20 s of a core). The long soak (100 sweeps of every scene) is a
+benchmark, not a test.
 """
 
 from __future__ import annotations
