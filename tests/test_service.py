@@ -164,24 +164,29 @@ def take_the_broker_away(broker: Mosquitto, down_s: Callable[[int], float],
 
 
 def outage_until_queued(broker: Mosquitto, state: Path, count: int, timeout: float = 300.0) -> tuple[float, float]:
-    """Stop the broker until the device has queued `count` messages in its outbox (it makes them
-    while the broker is away: its loop never waits for the broker), then start it again; returns
-    the (stopped, restarted) wall-clock times. The outages of `take_the_broker_away` last a second
-    or two, which a loaded machine may spend without finishing a sweep."""
-    import sqlite3
+    """Stop the broker until the device has queued about `count` messages in its outbox (it makes
+    them while the broker is away: its loop never waits for the broker), then start it again;
+    returns the (stopped, restarted) wall-clock times. The outages of `take_the_broker_away` last
+    a second or two, which a loaded machine may spend without finishing a sweep. The queue is
+    watched from outside (its files changing): the device holds it locked, as it should."""
+    def files() -> tuple:
+        found = []
+        for path in sorted(state.glob("outbox.sqlite3*")):
+            with contextlib.suppress(OSError):
+                st = path.stat()
+                found.append((path.name, st.st_mtime_ns, st.st_size))
+        return tuple(found)
 
     broker.stop()
     down = time.time()
     deadline = time.monotonic() + timeout
     try:
-        while time.monotonic() < deadline:
-            time.sleep(0.5)
-            try:
-                with contextlib.closing(sqlite3.connect(state / "outbox.sqlite3", timeout=5)) as db:
-                    if db.execute("select count(*) from outbox").fetchone()[0] >= count:
-                        break
-            except sqlite3.Error:
-                pass  # being written: look again
+        seen, changes = files(), 0
+        while changes < count and time.monotonic() < deadline:
+            time.sleep(0.05)
+            now = files()
+            if now != seen:
+                seen, changes = now, changes + 1
         time.sleep(0.2)  # made well inside the outage, not at its edge
         return down, time.time()
     finally:
