@@ -23,8 +23,9 @@ in every sweep of a healthy rig. So the judgement takes only evidence that holds
   a zone where it shows in neither, though another laser's spot does, ends such a run (a red thing
   on a dead laser's path, at a view here and there, is not a laser that stays on);
 - hysteresis: a verdict needs that evidence in `enter_dark` (or `enter_stuck`) telling zones in a
-  row, and goes only after `leave` zones in a row that show the laser working. Zones that tell
-  nothing (nothing in range, a part's fault) neither count nor break a run;
+  row, and goes only after `leave` zones in a row that show the laser working. A run of dark
+  evidence ends only where the spot shows in the difference (it lit); zones that tell nothing
+  (nothing in range, a part's fault) neither count nor break a run;
 - one view is one piece of evidence: the range finder's frames of one view, over and over, count
   once (what the room hides there it hides in every frame); and a view where a working laser's
   spot went missing (it showed again right after) hides it: a miss there tells nothing until the
@@ -158,7 +159,9 @@ class _Judge:
                     self._hidden_at(self.missed)
                 self.missed = []
         elif zone is _Zone.LIT_OFF:
-            self.dark, self.dark_view, self.shown = 0, None, 0  # it lights (and does not go off)
+            # Not in the difference: not its spot lighting for the on frame. A stuck laser is told
+            # by the stuck run; a red thing on a dead laser's path must not end its dark run.
+            self.shown = 0
         if zone is _Zone.LIT_OFF:
             self.stuck += 1 if view != self.stuck_view else 0
             self.stuck_view = view

@@ -189,8 +189,9 @@ def test_a_red_thing_on_a_dead_lasers_path_here_and_there_does_not_make_it_stuck
     shows in the difference there as well; a dead one's does not, and the off frame's red thing
     would be a stuck laser's evidence. Zones between where it shows nowhere end that run."""
     health = LaserHealth(NAMES)
-    for k in range(60):
-        health.update(zone(("center", "sloped")), {"parallel"} if k % 17 == 3 else ())
+    changed = [k for k in range(60) if health.update(zone(("center", "sloped")), {"parallel"} if k % 17 == 3 else ())]
+    # Nor does the red thing end its run of dark evidence: eight misses, and the one zone between.
+    assert changed == [health.hysteresis.enter_dark]
     assert health.verdicts()["parallel"].fault is LaserFault.DARK
 
 
