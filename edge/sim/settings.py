@@ -5,7 +5,6 @@ as each driver of :mod:`edge.hw` owns its own; :mod:`edge.config` only gathers t
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, field
 from typing import Literal
 
