@@ -84,7 +84,7 @@ def examine(path: str | None = None, overrides: list[str] | tuple[str, ...] = ()
 
 def _broker(config: object, missing: str | None) -> str:
     if config is None:
-        raise NotRun(f"needs numpy for the configuration's [mqtt], and it cannot be imported ({missing})")
+        raise NotRun("needs numpy (to read [mqtt] as the service does), which cannot be imported (see packages)")
     from edge.doctor.broker import check_broker
 
     return check_broker(config)  # type: ignore[arg-type]

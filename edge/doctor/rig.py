@@ -74,7 +74,7 @@ class RigChecks:
 
     def _typed(self) -> Config:
         if self.config is None:
-            raise NotRun(f"needs numpy, which cannot be imported ({self.missing}; see packages)")
+            raise NotRun("needs numpy, which cannot be imported (see packages)")
         return self.config
 
     # ---- calibration ----
@@ -178,8 +178,11 @@ class RigChecks:
             while len(frames) < FRAMES:
                 frames.append(camera.frame_after(frames[-1].t_start_ns + 1))
         except EdgeError as exc:
-            self.camera_problem = str(exc)
-            raise Problem(str(exc), _camera_remedy(self.settings)) from None
+            # The driver's words carry the time asked for, in ns: of no use to a person here.
+            why = (f"no frame within {config.camera.timeout_s:g} s of asking (camera.timeout_s)"
+                   if str(exc).startswith("camera: no frame") else str(exc))
+            self.camera_problem = why
+            raise Problem(why, _camera_remedy(self.settings)) from None
         try:
             return self._judge_frames(frames, config)
         except Problem as exc:
@@ -230,7 +233,7 @@ class RigChecks:
         config = self._typed()
         if self.lasers_problem is not None:
             raise Problem(self.lasers_problem, "see the pin factory and groups & devices lines")
-        if self.capture is None:
+        if self.capture is None or self.camera_problem is not None:
             raise NotRun(f"needs frames from the camera ({self.camera_problem or 'not opened'})")
         from edge.doctor.spots import judge
 
