@@ -151,3 +151,16 @@ def test_a_spot_lit_while_off_tells_an_active_low_driver(office):
     assert "rig.lasers[0].active_high = false" in inverted.value.remedy
     ok = judge("center", frames["center"], frames[""], rig)
     assert ok.nearest == "center" and ok.from_path_px["center"] < 0.5 and not ok.lit_when_off
+
+
+def test_the_device_configuration_is_accepted_here_and_its_doctor_says_what_to_do():
+    """config/device.toml names real parts this machine does not have: `edge config` reads it all
+    the same, and the doctor fails their lines, each with a remedy, instead of stopping."""
+    done = subprocess.run([sys.executable, "-m", "edge", "config", "--config", "config/device.toml"], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "config/device.toml: ok" in done.stdout, done.stderr
+    result = examine(str(REPO / "config" / "device.toml"), ['mqtt.host="127.0.0.1"', "mqtt.port=1"])
+    assert not result.settings.all_simulated and not result.checks.ok
+    assert [line.check for line in result.checks.lines] == LINES
+    for line in result.checks.lines:
+        assert line.status != "fail" or line.remedy, line

@@ -144,11 +144,12 @@ class RigChecks:
         from edge.capture import Capture
         from edge.parts import laser_factory, open_camera, open_lasers
 
-        pins = laser_factory(config.lasers, self.clock)
+        pins = None
         try:
+            pins = laser_factory(config.lasers, self.clock)
             self.lasers = open_lasers(config, pins, self.clock)
             self.stack.callback(self.lasers.close)
-        except EdgeError as exc:
+        except EdgeError as exc:  # the pin factory's line says why; the camera may still be tried
             self.lasers_problem = str(exc)
         sim: dict[str, Any] = {}
         if self.emulator is not None:
@@ -160,7 +161,8 @@ class RigChecks:
             camera = open_camera(config, pins, self.clock, **sim)
         except EdgeError as exc:
             self.camera_problem = str(exc)
-            raise Problem(str(exc), _camera_remedy(self.settings)) from None
+            remedy = "see packages" if "not installed" in str(exc) else _camera_remedy(self.settings)
+            raise Problem(str(exc), remedy) from None
         self.stack.callback(camera.close)
         if self.lasers is not None:
             self.stack.callback(self.lasers.close)  # runs before the camera closes: lasers off first
@@ -231,10 +233,10 @@ class RigChecks:
 
     def laser(self, name: str, index: int) -> str:
         config = self._typed()
-        if self.lasers_problem is not None:
-            raise Problem(self.lasers_problem, "see the pin factory and groups & devices lines")
-        if self.capture is None or self.camera_problem is not None:
-            raise NotRun(f"needs frames from the camera ({self.camera_problem or 'not opened'})")
+        if self.camera_problem is not None or self.camera is None:
+            raise NotRun("needs frames from the camera (see camera)")
+        if self.capture is None:
+            raise NotRun(f"needs the lasers' pins ({self.lasers_problem}; see pin factory)")
         from edge.doctor.spots import judge
 
         rig = self.rig if self.rig is not None else config.rig.build()
