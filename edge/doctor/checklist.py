@@ -12,8 +12,10 @@ heavy packages are broken.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Literal
@@ -46,6 +48,7 @@ class Line:
     status: Status
     detail: str
     remedy: str = ""
+    seconds: float = 0.0  # what the check took (wall time): a slow part shows here
 
 
 @dataclass
@@ -56,6 +59,7 @@ class Checklist:
 
     def run(self, name: str, check: Callable[[], str]) -> Line:
         """Run `check` and record its line."""
+        started = time.monotonic()
         try:
             line = Line(name, "ok", check())
         except Problem as exc:
@@ -68,6 +72,7 @@ class Checklist:
             log.debug("check %s", name, exc_info=True)
             detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             line = Line(name, "fail", detail, "see `edge doctor -v` for where it came from")
+        line = dataclasses.replace(line, seconds=round(time.monotonic() - started, 3))
         self.lines.append(line)
         return line
 
