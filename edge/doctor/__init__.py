@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from edge.doctor.checklist import Checklist, NotRun
 from edge.doctor.settings import Settings, from_config, from_table, table_of
@@ -35,6 +36,9 @@ from edge.doctor.system import (
     check_state_dir,
     import_problem,
 )
+
+if TYPE_CHECKING:
+    from edge.config import Config
 
 
 @dataclass
@@ -54,7 +58,7 @@ def examine(path: str | None = None, overrides: list[str] | tuple[str, ...] = ()
     started = time.monotonic()
     data, source = table_of(path, list(overrides))
     missing = import_problem("numpy")
-    config = None
+    config: Config | None = None
     if missing is None:
         from edge.config import load_config
 
@@ -82,9 +86,9 @@ def examine(path: str | None = None, overrides: list[str] | tuple[str, ...] = ()
     return Examination(checks, settings, time.monotonic() - started)
 
 
-def _broker(config: object, missing: str | None) -> str:
+def _broker(config: Config | None, missing: str | None) -> str:
     if config is None:
         raise NotRun("needs numpy (to read [mqtt] as the service does), which cannot be imported (see packages)")
     from edge.doctor.broker import check_broker
 
-    return check_broker(config)  # type: ignore[arg-type]
+    return check_broker(config)

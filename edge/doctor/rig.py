@@ -20,6 +20,7 @@ from edge.errors import EdgeError
 if TYPE_CHECKING:
     from edge.capture import Capture
     from edge.config import Config
+    from edge.doctor.spots import SpotReport
     from edge.hw.base import Camera, Frame
     from edge.hw.lasers import Lasers
     from edge.hw.ptu import PanTiltUnit
@@ -252,7 +253,7 @@ class RigChecks:
         return _verdict(report, index, config, self._aim())
 
 
-def _verdict(report: Any, index: int, config: Config, aim: tuple[float, float]) -> str:
+def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, float]) -> str:
     """The laser's line from where its spot was (see :mod:`edge.doctor.spots`)."""
     name = report.laser
     wiring = {w.name: w for w in config.rig.wiring()}
@@ -278,12 +279,11 @@ def _verdict(report: Any, index: int, config: Config, aim: tuple[float, float]) 
     if report.lit_when_off:
         raise Problem(f"{where}, but it also shows with every laser switched off: it does not go off",
                       f"check its driver on GPIO{wiring[name].pin} (a shorted MOSFET?) before running the service")
-    nearest = report.nearest
+    nearest = report.nearest or name
     if nearest != name and report.from_path_px[nearest] <= tolerance < own:
-        other = config.rig.wiring()[[w.name for w in config.rig.wiring()].index(nearest)]
         raise Problem(f"{where} lies on laser {nearest}'s path, {own:.1f} px from its own: switching {name} "
-                      f"lights {nearest}", f"the wires of GPIO{wiring[name].pin} and GPIO{other.pin} are swapped: "
-                      f"swap them, or swap the pins in {key}.pin and the other laser's pin")
+                      f"lights {nearest}", f"the wires of GPIO{wiring[name].pin} and GPIO{wiring[nearest].pin} are "
+                      f"swapped: swap them, or swap the pins in {key}.pin and the other laser's pin")
     if own > tolerance:
         calibrated = config.rig.calibration or "a calibration"
         raise Problem(f"{where} is {own:.1f} px from where the rig says it can be (ranging keeps spots within "

@@ -101,12 +101,21 @@ def check_packages(settings: Settings) -> str:
         if dist in ("picamera2", "lgpio"):
             where = " (system)" if _where(module).startswith(SYSTEM_SITE) else f" ({_where(module)})"
         found.append(f"{dist} {version}{where}")
+    numpy = sys.modules.get("numpy")
+    if settings.camera_backend == "picamera2" and numpy is not None and _version_tuple(numpy.__version__) >= (2,):
+        # apt's picamera2 helpers (simplejpeg, av) are built against Debian's numpy 1.24.
+        problems.append(("numpy", f"{numpy.__version__} in {_where(numpy)} hides the system's numpy 1, which "
+                         "apt's picamera2 helpers are built for"))
     if problems:
         dists = {dist for dist, _ in problems}
         remedy = []
         if dists & {"picamera2", "lgpio"}:
             remedy.append("sudo apt install python3-picamera2 python3-lgpio, and make the venv with "
                           "--system-site-packages (./dev does)")
+        if "numpy" in dists and settings.camera_backend == "picamera2":
+            remedy.append("pip install -c tools/pi-constraints.txt 'numpy<2' 'opencv-python-headless<4.12' in "
+                          "edge's venv (or pip uninstall numpy there, to use the system's)")
+            dists -= {"numpy"}
         if dists - {"picamera2", "lgpio"}:
             remedy.append(f"pip install --force-reinstall {' '.join(sorted(dists - {'picamera2', 'lgpio'}))} "
                           "in edge's venv (or ./dev edge doctor, which installs them)")
