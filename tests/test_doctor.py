@@ -164,3 +164,24 @@ def test_the_device_configuration_is_accepted_here_and_its_doctor_says_what_to_d
     assert [line.check for line in result.checks.lines] == LINES
     for line in result.checks.lines:
         assert line.status != "fail" or line.remedy, line
+
+
+def test_the_broker_line_over_tls(tmp_path):
+    from test_security import _make_pki
+
+    pki = _make_pki(tmp_path / "pki")
+    with Mosquitto(passwords={"dev1": "pw-dev1"}, acl=ACL, tls=(pki.ca, *pki.server)) as b:
+        config = _device(b, "dev1", "pw-dev1", tmp_path)
+
+        def tls(ca: str, enabled: bool = True):
+            return load_config(None, [f'mqtt.host="{b.host}"', f"mqtt.port={b.port}", 'mqtt.username="dev1"',
+                                      f'mqtt.password_file="{config.mqtt.password_file}"', 'device.id="dev1"',
+                                      f"mqtt.tls.enabled={str(enabled).lower()}", f'mqtt.tls.ca_file="{ca}"'])
+
+        assert "(TLS): logged in as dev1" in check_broker(tls(pki.ca))
+        with pytest.raises(Problem, match="certificate is not trusted") as foreign:
+            check_broker(tls(pki.other_ca))
+        assert "mqtt.tls.ca_file" in foreign.value.remedy
+        with pytest.raises(Problem) as plain:  # plain MQTT to a TLS port
+            check_broker(tls("", enabled=False))
+        assert "TLS" in plain.value.remedy or "tls" in plain.value.remedy
