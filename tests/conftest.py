@@ -54,7 +54,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     skip = pytest.mark.skip(reason="needs the rig: run on the device with --hardware (or EDGE_HARDWARE=1) "
                                    "and --hardware-config /etc/edge/edge.toml")
     for item in items:
-        if "hardware" in item.keywords:
+        if item.get_closest_marker("hardware") is not None:
             item.add_marker(skip)
 
 
