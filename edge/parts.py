@@ -118,8 +118,10 @@ def rig_clock(config: Config) -> Clock:
     return REAL
 
 
-def open_ptu(settings: PtuConfig, clock: Clock = REAL) -> tuple[PanTiltUnit, Emulator | None]:
-    """An initialised unit; for ``sim://`` the emulator on a pty, opened through the real driver.
+def open_ptu(settings: PtuConfig, clock: Clock = REAL,
+             faults: tuple[Any, ...] = ()) -> tuple[PanTiltUnit, Emulator | None]:
+    """An initialised unit; for ``sim://`` the emulator on a pty, opened through the real driver,
+    broken from the start as `faults` (``sim.ptu_faults``) say.
 
     The unit owns the emulator it was opened on: ``unit.close()`` stops it too.
     """
@@ -130,6 +132,11 @@ def open_ptu(settings: PtuConfig, clock: Clock = REAL) -> tuple[PanTiltUnit, Emu
     # The emulated unit has the wide pan range (±180°) so that the default 64-zone full turn is
     # reachable; a standard D46-17 stops at ±159° and the sweep marks the zones beyond as faults.
     emulator = Emulator(pan_limits=(-3500, 3500), clock=clock)
+    for fault in faults:  # edge.sim.settings.PtuFault: a unit without power, or at another baud rate
+        if fault.kind == "silent":
+            emulator.inject("hang")
+        else:
+            emulator.inject("garble", count=1 << 30)
     try:
         unit = PanTiltUnit.open(dataclasses.replace(settings, port=emulator.port), on_close=emulator.close,
                                 clock=clock)
@@ -195,7 +202,7 @@ def open_parts(config: Config, clock: Clock | None = None) -> Iterator[Parts]:
             (config.camera.backend == "sim", config.lasers.backend == "sim", config.ptu.port.startswith("sim://"))):
         log.info("the rig has real parts: it runs on real time (sim.clock applies to an all-simulated rig)")
     with contextlib.ExitStack() as stack:
-        unit, emulator = open_ptu(config.ptu, clock)
+        unit, emulator = open_ptu(config.ptu, clock, config.sim.ptu_faults)
         stack.callback(unit.close)
         pins = laser_factory(config.lasers, clock)  # the rig's GPIO: real, or the simulator's mock pins
         lasers = open_lasers(config, pins, clock)

@@ -14,7 +14,7 @@ import logging
 import sys
 
 from edge import __version__
-from edge.cli import calibrate, info, lasers, ptu, recordings, running, sweeps
+from edge.cli import calibrate, doctor, info, lasers, ptu, recordings, running, sweeps
 from edge.cli.common import Parser
 from edge.errors import EdgeError
 
@@ -30,6 +30,7 @@ def build_parser() -> Parser:
     calibrate.add_parser(sub)
     ptu.add_parser(sub)
     lasers.add_parser(sub)
+    doctor.add_parser(sub)
     return parser
 
 

@@ -129,6 +129,15 @@ class LaserFault:
 
 
 @dataclass(frozen=True)
+class PtuFault:
+    """A broken emulated pan-tilt unit from the start (``[[sim.ptu_faults]]``): ``silent`` never
+    answers (no power, a cut cable, the wrong port); ``garbled`` answers with line noise (a wrong
+    ``ptu.baudrate``)."""
+
+    kind: Literal["silent", "garbled"] = "silent"
+
+
+@dataclass(frozen=True)
 class SimConfig:
     scene: str = "office"
     seed: int = 1
@@ -147,6 +156,7 @@ class SimConfig:
     rig_error: RigErrorConfig = field(default_factory=RigErrorConfig)
     camera_faults: tuple[CameraFault, ...] = ()  # for trying the service's fault handling
     laser_faults: tuple[LaserFault, ...] = ()  # broken lasers, for trying fault reporting
+    ptu_faults: tuple[PtuFault, ...] = ()  # a unit that does not answer, for trying `edge doctor`
 
     def __post_init__(self) -> None:
         require(self.pace > 0 and math.isfinite(self.pace), "pace", "must be a positive number")

@@ -1,0 +1,293 @@
+"""The doctor's checks of the rig's parts, each tried the way the service uses it: the pan-tilt
+unit, the camera, each laser (switched alone, seen by the camera), the calibration.
+
+The parts are opened one by one (not through :func:`edge.parts.open_parts`, which stops at the first
+that fails): a silent pan-tilt unit must not keep the camera and the lasers from being checked.
+Everything opened is closed by the caller's exit stack, the lasers first. On a simulated rig the
+parts are the simulator's, wired together as ``open_parts`` wires them, on the rig's clock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import statistics
+from typing import TYPE_CHECKING, Any
+
+from edge.doctor.checklist import NotRun, Problem
+from edge.doctor.settings import Settings
+from edge.errors import EdgeError
+
+if TYPE_CHECKING:
+    from edge.capture import Capture
+    from edge.config import Config
+    from edge.doctor.spots import SpotReport
+    from edge.hw.base import Camera, Frame
+    from edge.hw.lasers import Lasers
+    from edge.hw.ptu import PanTiltUnit
+    from edge.rig import Rig
+    from edge.sim.ptu_emulator import Emulator
+
+FRAMES = 8  # frames taken to measure the camera's rate and exposure
+RATE_TOLERANCE = 0.03  # the shortest frame interval within 3 % of the configured period
+WEBCAM_RATE_TOLERANCE = 0.25  # a webcam's frames are dated on delivery: they jitter
+EXPOSURE_TOLERANCE = 0.05  # sensors round the exposure to whole lines
+
+
+def _ptu_remedy(message: str) -> str:
+    if "garbled" in message:
+        return ("set ptu.baudrate to the unit's rate (9600 from the factory), check the cable's "
+                "wiring; `edge ptu status` talks to the unit alone")
+    if "cannot open" in message:
+        return "check ptu.port (ls /dev/ttyUSB* /dev/serial/by-id/), the adapter, and group dialout"
+    if "speed" in message:
+        return "set ptu.speed_deg_s within what the unit allows"
+    return ("check the unit's power supply (12-30 V), the serial cable and adapter, ptu.port and ptu.baudrate "
+            "(9600 from the factory); `edge ptu status` talks to the unit alone")
+
+
+def _camera_remedy(settings: Settings) -> str:
+    if settings.camera_backend == "picamera2":
+        return ("check the ribbon cable (contacts towards the board on a Pi 4), that nothing else holds the "
+                "camera (sudo systemctl stop edge), and rpicam-hello --list-cameras; camera.timeout_s")
+    if settings.camera_backend == "opencv":
+        return "check the webcam's cable and camera.device (v4l2-ctl --list-devices); camera.timeout_s"
+    return "the simulated camera's faults: remove [[sim.camera_faults]]"
+
+
+class RigChecks:
+    """The rig's checks on one configuration; parts opened are closed by `stack`."""
+
+    def __init__(self, config: Config | None, settings: Settings, stack: contextlib.ExitStack,
+                 missing: str | None = None) -> None:
+        self.config = config
+        self.settings = settings
+        self.stack = stack
+        self.missing = missing  # why the typed configuration (and so numpy's checks) is unavailable
+        self.clock = settings.clock()
+        self.unit: PanTiltUnit | None = None
+        self.emulator: Emulator | None = None
+        self.camera: Camera | None = None
+        self.camera_problem: str | None = None
+        self.lasers: Lasers | None = None
+        self.lasers_problem: str | None = None
+        self.capture: Capture | None = None
+        self.rig: Rig | None = None  # the rig ranging believes (calibrated, if it is)
+
+    def _typed(self) -> Config:
+        if self.config is None:
+            raise NotRun("needs numpy, which cannot be imported (see packages)")
+        return self.config
+
+    # ---- calibration ----
+
+    def calibration(self) -> str:
+        config = self._typed()
+        from edge.calibration.in_use import NOMINAL, believed_rig, calibration_file
+
+        self.rig = config.rig.build()
+        try:
+            believed = believed_rig(config, service=True)
+        except EdgeError as exc:
+            raise Problem(str(exc), "run `edge calibrate` again, or fix rig.calibration's path") from None
+        self.rig = believed.rig
+        if believed.health.startswith("fault"):
+            raise Problem(believed.health.removeprefix("fault: "),
+                          "calibrate again (cmd/calibrate or `edge calibrate`): the rig changed since")
+        if believed.health == NOMINAL:
+            return (f"none ({calibration_file(config, service=True)} does not exist): ranging uses the "
+                    "configured rig; the laser lines show whether the rig is built as configured")
+        return believed.health
+
+    # ---- the pan-tilt unit ----
+
+    def ptu(self) -> str:
+        from edge.parts import open_ptu
+
+        settings = self.settings
+        try:
+            unit, emulator = open_ptu(settings.ptu, self.clock, settings.sim.ptu_faults)
+        except EdgeError as exc:
+            raise Problem(str(exc), _ptu_remedy(str(exc))) from None
+        self.stack.callback(unit.close)
+        self.unit, self.emulator = unit, emulator
+        (pn, px), (tn, tx) = unit.limits_deg
+        step_pan, step_tilt = unit.resolution_deg
+        pan, tilt = min(10.0, 0.5 * px, -0.5 * pn), min(5.0, 0.5 * tx, -0.5 * tn)
+        reached = []
+        try:
+            for target in ((pan, tilt), (-pan, 0.0)):
+                unit.move(*target)
+                at = unit.position()
+                if abs(at[0] - target[0]) > step_pan or abs(at[1] - target[1]) > step_tilt:
+                    raise Problem(f"sent to pan {target[0]:+g}°, tilt {target[1]:+g}°, it reports "
+                                  f"pan {at[0]:+.3f}°, tilt {at[1]:+.3f}°",
+                                  "check that nothing blocks the head and that its supply holds under load")
+                reached.append(f"{target[0]:+g}°/{target[1]:+g}°")
+            aim = self._aim()
+            unit.move(*aim)
+        except EdgeError as exc:
+            raise Problem(str(exc), _ptu_remedy(str(exc))) from None
+        where = " (emulated)" if emulator is not None else ""
+        return (f"{unit.model} on {settings.ptu.port}{where}: {unit.res_arcsec[0]:.4f}″ a position, "
+                f"pan {pn:+.2f}…{px:+.2f}°, tilt {tn:+.2f}…{tx:+.2f}°; reached pan/tilt {' and '.join(reached)}, "
+                f"now aimed at {aim[0]:+g}°/{aim[1]:+g}° for the laser checks")
+
+    def _aim(self) -> tuple[float, float]:
+        """Where the lasers are checked: where the range finder points (``[rangefinder]``)."""
+        if self.config is None:
+            return 0.0, 0.0
+        return self.config.rangefinder.pan_deg, self.config.rangefinder.tilt_deg
+
+    # ---- the camera and the lasers ----
+
+    def _open_camera_and_lasers(self) -> None:
+        config = self._typed()
+        from edge.capture import Capture
+        from edge.parts import laser_factory, open_camera, open_lasers
+
+        pins = None
+        try:
+            pins = laser_factory(config.lasers, self.clock)
+            self.lasers = open_lasers(config, pins, self.clock)
+            self.stack.callback(self.lasers.close)
+        except EdgeError as exc:  # the pin factory's line says why; the camera may still be tried
+            self.lasers_problem = str(exc)
+        sim: dict[str, Any] = {}
+        if self.emulator is not None:
+            sim = {"pose_at": self.emulator.pose, "heading": self.emulator.heading,
+                   "pose_step_deg": self.emulator.resolution_arcsec / 3600.0, "scene_epoch_ns": self.clock.now_ns()}
+        elif config.camera.backend == "sim":
+            sim = {"pose_deg": self._aim(), "scene_epoch_ns": self.clock.now_ns()}
+        try:
+            camera = open_camera(config, pins, self.clock, **sim)
+        except EdgeError as exc:
+            self.camera_problem = str(exc)
+            remedy = "see packages" if "not installed" in str(exc) else _camera_remedy(self.settings)
+            raise Problem(str(exc), remedy) from None
+        self.stack.callback(camera.close)
+        if self.lasers is not None:
+            self.stack.callback(self.lasers.close)  # runs before the camera closes: lasers off first
+            self.capture = Capture(camera, self.lasers, config, clock=self.clock)
+        self.camera = camera
+
+    def camera_check(self) -> str:
+        config = self._typed()
+        self._open_camera_and_lasers()
+        camera = self.camera
+        assert camera is not None
+        try:
+            camera.start()
+            frames = [camera.frame_after(self.clock.now_ns())]
+            while len(frames) < FRAMES:
+                frames.append(camera.frame_after(frames[-1].t_start_ns + 1))
+        except EdgeError as exc:
+            # The driver's words carry the time asked for, in ns: of no use to a person here.
+            why = (f"no frame within {config.camera.timeout_s:g} s of asking (camera.timeout_s)"
+                   if str(exc).startswith("camera: no frame") else str(exc))
+            self.camera_problem = why
+            raise Problem(why, _camera_remedy(self.settings)) from None
+        try:
+            return self._judge_frames(frames, config)
+        except Problem as exc:
+            self.camera_problem = exc.detail
+            raise
+
+    def _judge_frames(self, frames: list[Frame], config: Config) -> str:
+        settings = config.camera
+        model = config.rig.build().camera
+        shape = frames[0].image.shape
+        if (shape[1], shape[0]) != (model.width, model.height):
+            raise Problem(f"frames are {shape[1]}x{shape[0]}, the rig's camera is {model.width}x{model.height}",
+                          "set rig.camera.model (or width and height) to the camera's mode")
+        intervals = [(b.t_start_ns - a.t_start_ns) / 1e6 for a, b in zip(frames, frames[1:])]
+        period = 1e3 / settings.frame_rate_hz
+        # The shortest interval is the sensor's cadence: a frame we were too slow to collect doubles one.
+        shortest = min(intervals)
+        tolerance = WEBCAM_RATE_TOLERANCE if settings.backend == "opencv" else RATE_TOLERANCE
+        if abs(shortest / period - 1) > tolerance:
+            raise Problem(f"frames every {shortest:.1f} ms at best, not {period:.1f} ms "
+                          f"({settings.frame_rate_hz:g} fps as camera.frame_rate_hz says)",
+                          "the sensor mode cannot keep that rate: shorten camera.exposure_us below the frame "
+                          "period, or lower camera.frame_rate_hz")
+        exposures = [f.exposure_us for f in frames]
+        got = statistics.median(exposures)
+        if max(exposures) - min(exposures) > EXPOSURE_TOLERANCE * got:
+            raise Problem(f"the exposure changes from frame to frame ({min(exposures):.0f}–{max(exposures):.0f} µs): "
+                          "auto exposure is on", "the camera must take AeEnable = False: update picamera2 "
+                          "(sudo apt full-upgrade) or, for a webcam, v4l2-ctl -c auto_exposure=1")
+        if abs(got / settings.exposure_us - 1) > EXPOSURE_TOLERANCE:
+            raise Problem(f"the exposure came back as {got:.0f} µs, not {settings.exposure_us:g} µs",
+                          "the sensor mode limits it: keep camera.exposure_us below the frame period")
+        gains = [float(f.metadata["AnalogueGain"]) for f in frames if "AnalogueGain" in f.metadata]
+        gain = ""
+        if gains:
+            g = statistics.median(gains)
+            if max(gains) - min(gains) > 0.05 * g or abs(g / settings.analogue_gain - 1) > 0.05:
+                raise Problem(f"the analogue gain came back as {min(gains):.2f}–{max(gains):.2f}, not "
+                              f"{settings.analogue_gain:g}", "the camera must take a fixed AnalogueGain: "
+                              "update picamera2 (sudo apt full-upgrade)")
+            gain = f", gain {g:.2f}"
+        median = statistics.median(intervals)
+        return (f"{config.camera.backend} {shape[1]}x{shape[0]}: {len(frames)} frames every {median:.1f} ms "
+                f"({1e3 / median:.1f} fps; {settings.frame_rate_hz:g} configured), exposure {got:.0f} µs fixed "
+                f"({settings.exposure_us:g} asked){gain}")
+
+    def laser(self, name: str, index: int) -> str:
+        config = self._typed()
+        if self.camera_problem is not None or self.camera is None:
+            raise NotRun("needs frames from the camera (see camera)")
+        if self.capture is None:
+            raise NotRun(f"needs the lasers' pins ({self.lasers_problem}; see pin factory)")
+        from edge.doctor.spots import judge
+
+        rig = self.rig if self.rig is not None else config.rig.build()
+        try:
+            off = self.capture.take(())
+            on = self.capture.take((name,))
+        except EdgeError as exc:
+            raise Problem(str(exc), _camera_remedy(self.settings)) from None
+        finally:
+            assert self.lasers is not None
+            self.lasers.off()
+        report = judge(name, on.frame.image, off.frame.image, rig)
+        return _verdict(report, index, config, self._aim())
+
+
+def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, float]) -> str:
+    """The laser's line from where its spot was (see :mod:`edge.doctor.spots`)."""
+    name = report.laser
+    wiring = {w.name: w for w in config.rig.wiring()}
+    key = f"rig.lasers[{index}]"
+    tolerance = config.ranging.path_tolerance_px
+    if report.pixel is None:
+        if report.inverted:
+            raise Problem("lit while its pin is off and dark while it is on: the driver is active-low",
+                          f"set {key}.active_high = {str(not wiring[name].active_high).lower()} "
+                          "(then `edge lasers off` keeps it dark too)")
+        if report.lit_when_off:
+            raise Problem("does not go off: its spot shows with every laser switched off",
+                          "a shorted MOSFET or a pin driven by something else: power the lasers down and "
+                          f"check its driver on GPIO{wiring[name].pin} before running the service (eye safety)")
+        lo, hi = config.rig.range_limits_m
+        raise Problem(f"no spot: it does not light (strongest change {report.snr:.1f}× the noise)",
+                      f"check its supply, its MOSFET and the wire from GPIO{wiring[name].pin} ({key}.pin); or "
+                      f"nothing lies {lo:g}–{hi:g} m in front of it at pan {aim[0]:+g}°, tilt {aim[1]:+g}°: "
+                      "aim the unit at a matte wall ([rangefinder] pan_deg, tilt_deg)")
+    u, v = report.pixel
+    own = report.from_path_px[name]
+    where = f"spot at ({u:.1f}, {v:.1f})"
+    if report.lit_when_off:
+        raise Problem(f"{where}, but it also shows with every laser switched off: it does not go off",
+                      f"check its driver on GPIO{wiring[name].pin} (a shorted MOSFET?) before running the service")
+    nearest = report.nearest or name
+    if nearest != name and report.from_path_px[nearest] <= tolerance < own:
+        raise Problem(f"{where} lies on laser {nearest}'s path, {own:.1f} px from its own: switching {name} "
+                      f"lights {nearest}", f"the wires of GPIO{wiring[name].pin} and GPIO{wiring[nearest].pin} are "
+                      f"swapped: swap them, or swap the pins in {key}.pin and the other laser's pin")
+    if own > tolerance:
+        calibrated = config.rig.calibration or "a calibration"
+        raise Problem(f"{where} is {own:.1f} px from where the rig says it can be (ranging keeps spots within "
+                      f"{tolerance:g} px, ranging.path_tolerance_px)",
+                      "the rig is not built as configured: calibrate it (`edge calibrate`, or cmd/calibrate), "
+                      f"or, if it had {calibrated}, a laser moved since: fix it and calibrate again")
+    return f"{where}, {own:.2f} px from its path (at about {report.depth_m:.1f} m), SNR {report.snr:.0f}; off: dark"

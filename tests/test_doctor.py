@@ -1,0 +1,187 @@
+"""`edge doctor` on the simulated rig: all ok with a broker; each simulator fault switch makes its
+own line fail (with a remedy) and no other; without numpy it still runs what needs none and says
+what it could not run. Real Mosquitto for the broker line, with the shipped ACL and passwords."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from broker import Mosquitto
+
+from edge.config import load_config
+from edge.doctor import examine
+from edge.doctor.broker import check_broker
+from edge.doctor.checklist import Problem
+from edge.doctor.rig import _verdict
+from edge.doctor.spots import judge
+
+REPO = Path(__file__).resolve().parents[1]
+ACL = (REPO / "config" / "mosquitto-acl.conf").read_text()
+LINES = ["python", "packages", "pin factory", "groups & devices", "state folder", "clock", "calibration",
+         "pan-tilt unit", "camera", "laser center", "laser parallel", "laser sloped", "broker"]
+# No broker (its line is tried on its own below); a silent unit is given up on sooner.
+NO_BROKER = ["mqtt.enabled=false", "ptu.timeout_s=0.2"]
+
+
+def _by_status(result, status: str) -> list[str]:
+    return [line.check for line in result.checks.lines if line.status == status]
+
+
+def test_the_simulated_rig_is_all_ok_and_exits_0(broker):
+    done = subprocess.run([sys.executable, "-m", "edge", "doctor", "--json", "--set", f"mqtt.port={broker.port}",
+                           "--set", f'mqtt.host="{broker.host}"'], cwd=REPO, capture_output=True, text=True,
+                          timeout=120)
+    report = json.loads(done.stdout)
+    assert done.returncode == 0, done.stdout
+    assert report["ok"] and report["simulated"]
+    assert [c["check"] for c in report["checks"]] == LINES
+    statuses = {c["check"]: c["status"] for c in report["checks"]}
+    assert statuses.pop("groups & devices") == "skip"  # simulated parts need no device nodes
+    assert set(statuses.values()) == {"ok"}, report
+    assert "acknowledged" in report["checks"][-1]["detail"]
+
+
+@pytest.mark.parametrize("fault, line, words", [
+    ('sim.laser_faults=[{laser="sloped", kind="dead"}]', "laser sloped", "does not light"),
+    ('sim.laser_faults=[{laser="center", kind="stuck"}]', "laser center", "does not go off"),
+    ('sim.ptu_faults=[{kind="silent"}]', "pan-tilt unit", "does not answer"),
+    ('sim.ptu_faults=[{kind="garbled"}]', "pan-tilt unit", "garbled"),
+    ('sim.rig_error={laser_angle_deg=0.5, seed=3}', "laser parallel", "from where the rig says"),
+    ('sim.camera_faults=[{kind="stall", at_s=0, seconds=60}]', "camera", "no frame within 1 s"),
+])
+def test_each_simulated_fault_fails_its_own_line_with_a_remedy(fault, line, words):
+    result = examine(None, [*NO_BROKER, fault])
+    assert not result.checks.ok
+    assert _by_status(result, "fail") == [line]
+    failed = next(x for x in result.checks.lines if x.check == line)
+    assert words in failed.detail and failed.remedy
+    # A stalled camera leaves the lasers unseen: not run (and said why), not failed.
+    unseen = ["laser center", "laser parallel", "laser sloped"] if line == "camera" else []
+    assert _by_status(result, "not run") == unseen
+
+
+# Makes numpy and OpenCV unimportable in the process it is loaded into (as sitecustomize), the way a
+# broken install would: every import of them raises ImportError.
+_BLOCKER = """
+import sys
+class _Broken:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("numpy", "cv2"):
+            raise ImportError(f"{name} is broken here (test blocker)")
+        return None
+sys.meta_path.insert(0, _Broken())
+"""
+
+
+def test_without_numpy_it_runs_what_needs_none_and_names_what_it_could_not(tmp_path):
+    (tmp_path / "sitecustomize.py").write_text(_BLOCKER)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO)])}
+    done = subprocess.run([sys.executable, "-m", "edge", "doctor", "--json", "--set", "mqtt.enabled=false"],
+                          cwd=REPO, capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode == 1, done.stderr
+    report = json.loads(done.stdout)
+    status = {c["check"]: c for c in report["checks"]}
+    assert "numpy" in status["packages"]["detail"] and status["packages"]["status"] == "fail"
+    assert status["packages"]["remedy"]
+    for name in ("python", "pin factory", "state folder", "pan-tilt unit"):
+        assert status[name]["status"] == "ok", status[name]
+    for name in ("calibration", "camera", "laser center", "laser parallel", "laser sloped", "broker"):
+        assert status[name]["status"] == "not run" and "numpy" in status[name]["detail"], status[name]
+
+
+def _device(b: Mosquitto, user: str, password: str, tmp_path: Path, device: str | None = None):
+    secret = tmp_path / f"{user}.password"
+    secret.write_text(password + "\n")
+    return load_config(None, [f'mqtt.host="{b.host}"', f"mqtt.port={b.port}", f'mqtt.username="{user}"',
+                              f'mqtt.password_file="{secret}"', f'device.id="{device or user}"'])
+
+
+def test_the_broker_line_against_the_site_acl_and_passwords(tmp_path):
+    with Mosquitto(passwords={"dev1": "pw-dev1", "dev2": "pw-dev2"}, acl=ACL) as b:
+        ok = check_broker(_device(b, "dev1", "pw-dev1", tmp_path))
+        assert "logged in as dev1" in ok and "acknowledged" in ok and "not read back" in ok
+        with pytest.raises(Problem, match="refuses the device's login") as wrong:
+            check_broker(_device(b, "dev1", "not-the-password", tmp_path))
+        assert "mqtt.password_file" in wrong.value.remedy
+        # An account that is not the device's: the ACL denies its publishes to the device's topics.
+        with pytest.raises(Problem, match="refuses the device's publish") as denied:
+            check_broker(_device(b, "dev2", "pw-dev2", tmp_path, device="dev1"))
+        assert "mosquitto-acl.conf" in denied.value.remedy
+        port = b.port
+    with pytest.raises(Problem, match="nothing listens"):
+        check_broker(load_config(None, [f"mqtt.port={port}", 'mqtt.host="127.0.0.1"']))
+
+
+@pytest.fixture(scope="module")
+def office():
+    """The office seen straight ahead: a laser-off frame and renders with each laser lit alone."""
+    from edge.sim.record import scene_for, true_rig
+    from edge.sim.render import Renderer
+
+    config = load_config()
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+    rng = np.random.default_rng(1)
+    frames = {name: renderer.render(0.0, 0.0, {name: 1.0} if name else {}, 0.0, rng)
+              for name in ("", "center", "parallel")}
+    return config.rig.build(), frames
+
+
+def test_a_spot_on_another_lasers_path_tells_swapped_pins(office):
+    """The simulator wires each pin to its own laser; a swap is a render of the other one."""
+    rig, frames = office
+    report = judge("center", frames["parallel"], frames[""], rig)
+    assert report.nearest == "parallel" and report.from_path_px["parallel"] < 0.5 < 3 < report.from_path_px["center"]
+    with pytest.raises(Problem, match="lies on laser parallel's path") as swapped:
+        _verdict(report, 0, load_config(), (0.0, 0.0))
+    assert "GPIO17 and GPIO27 are swapped" in swapped.value.remedy
+
+
+def test_a_spot_lit_while_off_tells_an_active_low_driver(office):
+    rig, frames = office
+    report = judge("center", frames[""], frames["center"], rig)  # "on" frame dark, "off" frame lit
+    assert report.pixel is None and report.inverted and report.lit_when_off
+    with pytest.raises(Problem, match="active-low") as inverted:
+        _verdict(report, 0, load_config(), (0.0, 0.0))
+    assert "rig.lasers[0].active_high = false" in inverted.value.remedy
+    ok = judge("center", frames["center"], frames[""], rig)
+    assert ok.nearest == "center" and ok.from_path_px["center"] < 0.5 and not ok.lit_when_off
+
+
+def test_the_device_configuration_is_accepted_here_and_its_doctor_says_what_to_do():
+    """config/device.toml names real parts this machine does not have: `edge config` reads it all
+    the same, and the doctor fails their lines, each with a remedy, instead of stopping."""
+    done = subprocess.run([sys.executable, "-m", "edge", "config", "--config", "config/device.toml"], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "config/device.toml: ok" in done.stdout, done.stderr
+    result = examine(str(REPO / "config" / "device.toml"), ['mqtt.host="127.0.0.1"', "mqtt.port=1"])
+    assert not result.settings.all_simulated and not result.checks.ok
+    assert [line.check for line in result.checks.lines] == LINES
+    for line in result.checks.lines:
+        assert line.status != "fail" or line.remedy, line
+
+
+def test_the_broker_line_over_tls(tmp_path):
+    from test_security import _make_pki
+
+    pki = _make_pki(tmp_path / "pki")
+    with Mosquitto(passwords={"dev1": "pw-dev1"}, acl=ACL, tls=(pki.ca, *pki.server)) as b:
+        config = _device(b, "dev1", "pw-dev1", tmp_path)
+
+        def tls(ca: str, enabled: bool = True):
+            return load_config(None, [f'mqtt.host="{b.host}"', f"mqtt.port={b.port}", 'mqtt.username="dev1"',
+                                      f'mqtt.password_file="{config.mqtt.password_file}"', 'device.id="dev1"',
+                                      f"mqtt.tls.enabled={str(enabled).lower()}", f'mqtt.tls.ca_file="{ca}"'])
+
+        assert "(TLS): logged in as dev1" in check_broker(tls(pki.ca))
+        with pytest.raises(Problem, match="certificate is not trusted") as foreign:
+            check_broker(tls(pki.other_ca))
+        assert "mqtt.tls.ca_file" in foreign.value.remedy
+        with pytest.raises(Problem) as plain:  # plain MQTT to a TLS port
+            check_broker(tls("", enabled=False))
+        assert "TLS" in plain.value.remedy or "tls" in plain.value.remedy
