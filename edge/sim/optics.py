@@ -27,8 +27,8 @@ import numpy as np
 SUPERSAMPLE = 5
 # Speckle: number of random phasors and the highest spatial frequency (rad/px) of the field; the
 # contrast below was tuned (tests/test_render.py measures it) for ~0.1 px centroid jitter at f/2.
-_SPECKLE_WAVES = 48
-_SPECKLE_KMAX = 2.2
+SPECKLE_WAVES = 48
+SPECKLE_KMAX = 2.2
 SPECKLE_CONTRAST_F2 = 0.45
 
 
@@ -120,12 +120,12 @@ def speckle_field(
     """
     if contrast <= 0.0:
         return np.ones_like(x)
-    k = (_SPECKLE_KMAX / grain) * np.sqrt(rng.random(_SPECKLE_WAVES))
-    angle = rng.random(_SPECKLE_WAVES) * 2.0 * math.pi
-    phase = rng.random(_SPECKLE_WAVES) * 2.0 * math.pi
+    k = (SPECKLE_KMAX / grain) * np.sqrt(rng.random(SPECKLE_WAVES))
+    angle = rng.random(SPECKLE_WAVES) * 2.0 * math.pi
+    phase = rng.random(SPECKLE_WAVES) * 2.0 * math.pi
     kx, ky = k * np.cos(angle), k * np.sin(angle)
     arg = x[..., None] * kx + y[..., None] * ky + phase
-    field = np.abs(np.exp(1j * arg).sum(axis=-1)) ** 2 / _SPECKLE_WAVES
+    field = np.abs(np.exp(1j * arg).sum(axis=-1)) ** 2 / SPECKLE_WAVES
     return 1.0 + contrast * (field - 1.0)
 
 
