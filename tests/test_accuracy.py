@@ -49,7 +49,8 @@ def test_conditions_cover_what_the_issue_asks_within_its_ranges() -> None:
     assert {c.scene for c in family} == set(cond.SCENES)
     for key, lo, hi in [("laser_power", 0.25, 4), ("room_light", 0.25, 4), ("albedo_scale", 0.1, 1.2),
                         ("texture_scale", 0.3, 3), ("extra_gloss", 0, 0.3), ("laser_angle_deg", 0, 0.3),
-                        ("focus_m", 0.5, 3), ("f_number", 1.8, 2.8), ("read_noise_e", 1.5, 15)]:
+                        ("focus_m", 0.5, 3), ("f_number", 1.8, 2.8), ("read_noise_e", 1.5, 15),
+                        ("fill", 0.25, 0.8)]:
         values = [getattr(c, key) for c in family]
         assert lo <= min(values) and max(values) <= hi, key
         assert max(values) - min(values) > 0.5 * (hi - lo), f"{key} does not spread over its range"
@@ -70,6 +71,9 @@ def test_a_condition_is_a_valid_configuration_of_what_it_says() -> None:
         assert config.sim.sensor.bayer == c.bayer and config.sim.sensor.jpeg_quality == c.jpeg_quality
         assert config.sim.surfaces.albedo_scale == c.albedo_scale
         assert config.sweep.poses() == c.poses(5)
+        white = 600.0 * c.room_light * config.camera.exposure_us / 1000.0  # e of a white wall
+        assert 500.0 <= config.camera.exposure_us <= 30000.0
+        assert white == pytest.approx(c.fill * c.full_well_e, rel=1e-3) or config.camera.exposure_us in (500, 30000)
         assert c.name in c.describe() or c.scene in c.describe()
     c = cond.condition("tuning", 0)
     assert c.poses(12)[:5] == c.poses(5)  # a short run is a prefix of a long one

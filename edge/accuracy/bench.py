@@ -29,7 +29,9 @@ from pathlib import Path
 
 from edge.accuracy.conditions import Condition
 from edge.accuracy.score import Figures, ZoneOutcome, targets
-from edge.config import load_config
+from edge.config import Config, load_config
+from edge.ranging import ZoneResult
+from edge.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +66,8 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
 
     began = time.monotonic()
     base = load_config(config_path, list(overrides))
-    extra = cond.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones)
+    extra = cond.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones,
+                           base.camera.frame_rate_hz)
     config = load_config(config_path, [*overrides, *extra])
     out = folder / cond.name
     record_sweep(config, out, extra_truth=floor_truth(config))
@@ -87,7 +90,7 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     return Run(cond, tuple(outcomes), said, time.monotonic() - began, tuple(rows))
 
 
-def _calibrated(config, nominal, out: Path):
+def _calibrated(config: Config, nominal: Rig, out: Path) -> tuple[Rig, str]:
     """The rig fitted from a simulated white board at CALIBRATION_DISTANCES_M (the room's surfaces
     do not matter: a user calibrates with a matte white board), or the nominal rig if it fails."""
     from edge.calibration.fit import fit_calibration
@@ -105,7 +108,8 @@ def _calibrated(config, nominal, out: Path):
     return cal.apply(nominal), "calibrated"
 
 
-def _row(cond: Condition, pan: float, tilt: float, z: ZoneOutcome, result, truth: dict, reference: str) -> dict:
+def _row(cond: Condition, pan: float, tilt: float, z: ZoneOutcome, result: ZoneResult, truth: dict,
+         reference: str) -> dict:
     floor = truth.get("floor") or {}
     mine = result.lasers.get(reference)
     return {
@@ -200,7 +204,7 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
         f"(worst condition {_pct(min((f.within_2sigma for f in per if f.scored), default=math.nan))})",
         f"  observable zones not ok: {missed}",
         f"  time: {sum(r.seconds for r in runs):.0f} s of work",
-        "targets (evaluation family):",
+        "targets (to be met on the evaluation family):",
     ]
     for t in targets(per, pooled):
         value = _pct(t.value) if "%" in t.what else _num(t.value, "g" if t.what.startswith("wrong") else ".2f")

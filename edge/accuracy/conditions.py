@@ -7,7 +7,9 @@ A condition draws, from its seed, everything the simulator can vary that real se
   barrel distortion; the sensor's full well, read noise and ADC; grey or colour, with an ideal
   3-colour sensor or a Bayer filter and one of OpenCV's demosaicing methods; lossless frames
   (8- or 16-bit) or JPEG of quality 50–95 with 4:2:0 or 4:4:4 chroma;
-- the light: laser power and room light each ¼–4 × the configured;
+- the light: laser power and room light each ¼–4 × the configured, and the exposure someone (or an
+  auto-exposure) chose for the room: a white wall under its light fills 25–80 % of the full well,
+  within 0.5–30 ms (a fixed exposure in a bright room would clip every wall: nothing to measure);
 - the room: the scene (office, kitchen), every surface's albedo ×0.1–1.2 (so about 0.03–0.9 for the
   usual materials) and texture contrast ×0.3–3, extra gloss on half of the rooms;
 - the optics: f-number, focus distance (defocus), lens blur; the speckle's contrast and grain and
@@ -71,6 +73,7 @@ class Condition:
     read_noise_e: float
     laser_power: float  # ×
     room_light: float  # ×
+    fill: float  # the exposure fills this much of the full well with a white wall's room light
     albedo_scale: float
     texture_scale: float
     extra_gloss: float
@@ -98,11 +101,19 @@ class Condition:
             out.append((round(float(pan), 4), round(float(tilt), 4)))
         return out
 
-    def overrides(self, beam_e_per_ms_at_1m: float, white_e_per_ms: float, zones: int) -> tuple[str, ...]:
-        """``--set`` overrides that make this condition of a base configuration whose beam and room
-        light are these (the scales multiply them)."""
+    def exposure_us(self, white_e_per_ms: float, frame_rate_hz: float = 30.0) -> float:
+        """The exposure in a room whose white wall sends `white_e_per_ms` (× the room light)."""
+        light = white_e_per_ms * self.room_light
+        wanted = 1000.0 * self.fill * self.full_well_e / light if light > 0 else math.inf
+        return round(min(max(wanted, 500.0), 30000.0, 0.9e6 / frame_rate_hz), 1)
+
+    def overrides(self, beam_e_per_ms_at_1m: float, white_e_per_ms: float, zones: int,
+                  frame_rate_hz: float = 30.0) -> tuple[str, ...]:
+        """``--set`` overrides that make this condition of a base configuration whose beam, room
+        light and frame rate are these (the scales multiply them)."""
         poses = json.dumps([list(p) for p in self.poses(zones)])
         return (
+            f"camera.exposure_us={self.exposure_us(white_e_per_ms, frame_rate_hz)!r}",
             f"sim.scene={json.dumps(self.scene)}",
             f"sim.seed={self.seed}",
             f"rig.camera.width={self.width}",
@@ -143,8 +154,8 @@ class Condition:
         sensor = "grey" if not self.colour else ("3-colour" if self.bayer == "none" else f"bayer-{self.bayer}")
         frames = f"jpeg{self.jpeg_quality} {self.jpeg_chroma}" if self.jpeg_quality else f"png{self.output_bits}"
         return (f"{self.scene} {self.width}x{self.height} {sensor} {frames}, laser ×{self.laser_power:.2g} "
-                f"light ×{self.room_light:.2g} albedo ×{self.albedo_scale:.2g} gloss +{self.extra_gloss:.2f} "
-                f"f/{self.f_number:.1f}@{self.focus_m:.1f}m speckle ×{self.speckle:.2g}")
+                f"light ×{self.room_light:.2g} fill {self.fill:.2f} albedo ×{self.albedo_scale:.2g} "
+                f"gloss +{self.extra_gloss:.2f} f/{self.f_number:.1f}@{self.focus_m:.1f}m speckle ×{self.speckle:.2g}")
 
     def to_json(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -161,6 +172,8 @@ def condition(family: Family | str, index: int) -> Condition:
     if not 0 <= index < FAMILY_SIZE:
         raise ValueError(f"a condition's index must be 0-{FAMILY_SIZE - 1}, got {index}")
     seed = FAMILIES[family] + index
+    # The draws below are in a fixed order: a new knob must be drawn after all of them, so that
+    # every condition keeps what it was (and figures measured on it stay comparable).
     rng = np.random.default_rng([seed, _SALT])
     width, height = RESOLUTIONS[int(rng.choice(len(RESOLUTIONS), p=RESOLUTION_WEIGHTS))]
     hfov = math.radians(rng.uniform(50.0, 75.0))
@@ -203,6 +216,7 @@ def condition(family: Family | str, index: int) -> Condition:
         read_noise_e=read_noise,
         laser_power=round(_log_uniform(rng, 0.25, 4.0), 4),
         room_light=round(_log_uniform(rng, 0.25, 4.0), 4),
+        fill=round(float(rng.uniform(0.25, 0.8)), 3),
         albedo_scale=round(_log_uniform(rng, 0.1, 1.2), 4),
         texture_scale=round(_log_uniform(rng, 0.3, 3.0), 4),
         extra_gloss=round(float(rng.uniform(0.0, 0.3)), 4) if rng.random() < 0.5 else 0.0,
