@@ -202,3 +202,16 @@ def test_the_command_refuses_what_it_cannot_run(capsys: pytest.CaptureFixture[st
     assert "--conditions: must be 1-1000" in capsys.readouterr().err
     assert main(["bench", "accuracy", "--zones", "0"]) != 0
     assert "--zones" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # a calibration recording: six distances of four nudged pairs
+def test_the_calibrated_rig_is_fitted_from_a_simulated_board(tmp_path: Path) -> None:
+    from edge.accuracy.bench import CALIBRATION_DISTANCES_M, run_condition
+    from edge.recording import read_recording
+
+    c = replace(cond.condition("tuning", 0), width=320, height=240, fx=265.0, cx=159.5, cy=119.5, k1=0.0,
+                jpeg_quality=0, bayer="none", colour=True, laser_angle_deg=0.3)
+    run = run_condition(None, [], c, 2, "calibrated", tmp_path)
+    assert run.rig == "calibrated" and len(run.outcomes) == 2
+    board = read_recording(tmp_path / "tuning-0-calibration")
+    assert [z.truth["range_m"] for z in board.zones if z.truth] == pytest.approx(CALIBRATION_DISTANCES_M, abs=0.01)
