@@ -104,6 +104,10 @@ class ZoneResult:
     # A fault's part to blame (a HardwareError's `part`), for health and recovery; not published: the
     # detail says it in words.
     part: str | None = None
+    # Every laser whose spot the frames showed on its path, whether or not the range used it (one
+    # on a nearer surface, a desk top below a wall, is left out of `lasers` but lit): what the
+    # health judges a laser by. Not published: `lasers` says what the range is made of.
+    spotted: frozenset[str] = frozenset()
 
     def to_json(self) -> dict:
         def vec(v: np.ndarray | None, nd: int = 5) -> list[float] | None:
@@ -328,6 +332,10 @@ def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
     return False
 
 
+def _spotted(cands: Mapping[str, Sequence[LaserMeasurement]]) -> frozenset[str]:
+    return frozenset(name for name, ms in cands.items() if ms)
+
+
 def _same_blob(a: LaserMeasurement, b: LaserMeasurement) -> bool:
     return math.hypot(float(a.pixel[0] - b.pixel[0]), float(a.pixel[1] - b.pixel[1])) < 1.5
 
@@ -429,12 +437,12 @@ class Ranger:
         base = rig.camera_to_base(pan_deg, tilt_deg).apply(fusion.point_m)
         return ZoneResult(
             index, pan_deg, tilt_deg, OK, fusion.range_m, fusion.sigma_m, fusion.point_m, base,
-            fusion.normal, {m.laser: m for m in fusion.used},
+            fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),
         )
 
     def _result(self, index, pan, tilt, status, cands, detail="") -> ZoneResult:
         lasers = {n: ms[0] for n, ms in cands.items() if len(ms) == 1}
-        return ZoneResult(index, pan, tilt, status, lasers=lasers, detail=detail)
+        return ZoneResult(index, pan, tilt, status, lasers=lasers, detail=detail, spotted=_spotted(cands))
 
     def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[_Track]]:
         tracks: dict[str, list[_Track]] = {name: [] for name in self.rig.laser_names}

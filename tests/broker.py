@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import random
 import shutil
 import socket
 import subprocess
@@ -51,10 +52,39 @@ def require_mosquitto() -> str:
     return path
 
 
+# Ports for the tests' brokers: below Linux's ephemeral range (32768-60999), which the kernel hands
+# out for bind(port 0) and for every outgoing connection. A port taken from that range and given to
+# Mosquitto a moment later could meanwhile become a client socket's local port (ours, another
+# worker's); and the same port again at the broker's restart. Under pytest-xdist each worker
+# (PYTEST_XDIST_WORKER=gw0, gw1, ...) has a block of its own, so two workers never pick the same
+# port; inside its block a process starts at a random place (another run of the suite on the same
+# machine is elsewhere, most likely) and goes round, so a port comes back only after the whole
+# block, long after the previous test's clients gave up on it.
+PORT_BASE, PORT_BLOCK, PORT_BLOCKS = 20000, 500, 25  # 20000-32499
+
+
+def _port_block() -> range:
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")  # gw<N>; unset without xdist
+    index = int(worker[2:]) + 1 if worker.startswith("gw") and worker[2:].isdigit() else 0
+    start = PORT_BASE + (index % PORT_BLOCKS) * PORT_BLOCK
+    return range(start, start + PORT_BLOCK)
+
+
+_block = _port_block()
+_next_port = itertools.count(random.randrange(PORT_BLOCK))
+
+
 def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A loopback port nobody listens on, from this process's block (see PORT_BASE)."""
+    for _ in range(PORT_BLOCK):
+        port = _block[next(_next_port) % PORT_BLOCK]
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError(f"no free port in {_block.start}-{_block.stop - 1}")
 
 
 class Mosquitto:
@@ -73,7 +103,10 @@ class Mosquitto:
         self.log_path = self.dir / "mosquitto.log"
         self.conf_path = self.dir / "mosquitto.conf"
         self._proc: subprocess.Popen | None = None
-        self._write_conf(passwords, acl, tls, extra)
+        self._started = False  # once it ran, its port is the broker's address: restart() keeps it
+        self._settings = (passwords, acl, tls, extra)
+        self._write_conf(*self._settings)
+        self._own_conf = self.conf_path
 
     def _write_conf(self, passwords: dict[str, str] | None, acl: str | None,
                     tls: tuple[str, str, str] | None, extra: str) -> None:
@@ -113,25 +146,72 @@ class Mosquitto:
     # ---- life cycle ----
 
     def start(self, timeout_s: float = 5.0) -> Mosquitto:
+        """Start and wait until it accepts connections. If its port was taken between
+        :func:`free_port` and Mosquitto's bind (another process's socket), the first start moves to
+        another free port; a restart, or a start with a config file of the test's own, whose port
+        clients already know, tries the same port again until `timeout_s`."""
         if self.running:
             return self
-        self._proc = subprocess.Popen([self.executable, "-c", str(self.conf_path)],
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         deadline = time.monotonic() + timeout_s
+        attempts = 0
+        while not self._start_once(deadline, timeout_s):
+            attempts += 1
+            if time.monotonic() > deadline or attempts >= 20:
+                raise RuntimeError(f"mosquitto could not listen on port {self.port}: address already in use "
+                                   f"({attempts} attempt(s))")
+            if not self._started and self.conf_path == self._own_conf:
+                self.port = free_port()
+                self._write_conf(*self._settings)
+            else:
+                time.sleep(0.1)
+        self._started = True
+        return self
+
+    def _start_once(self, deadline: float, timeout_s: float) -> bool:
+        """One Mosquitto process: True once it accepts connections, False if its port was in use."""
+        log_from = self._log_size()
+        proc = self._proc = subprocess.Popen([self.executable, "-c", str(self.conf_path)],
+                                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         while True:
-            if self._proc.poll() is not None:
-                err = self._proc.stderr.read().decode(errors="replace") if self._proc.stderr else ""
-                raise RuntimeError(f"mosquitto exited with status {self._proc.returncode}: "
+            if proc.poll() is not None:
+                self._proc = None
+                err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+                if proc.stderr:
+                    proc.stderr.close()
+                if "Address already in use" in err + self._log_since(log_from):
+                    return False
+                raise RuntimeError(f"mosquitto exited with status {proc.returncode}: "
                                    f"{err.strip() or self.log_tail()}")
             try:
                 with socket.create_connection((self.host, self.port), timeout=0.2):
-                    return self
+                    pass
+                # Something accepts: ours once its log says it runs (its listener is open), not
+                # another process's listener on the same port while ours is still starting. (A
+                # config of the test's own may log elsewhere: then the connection has to do.)
+                if " running" in self._log_since(log_from) or (
+                        self.conf_path != self._own_conf and not self.log_path.exists()):
+                    return True
             except OSError:
-                if time.monotonic() > deadline:
-                    self.stop()
-                    raise RuntimeError(f"mosquitto did not accept connections on port {self.port} "
-                                       f"within {timeout_s} s: {self.log_tail()}") from None
-                time.sleep(0.02)
+                pass
+            if time.monotonic() > deadline:
+                self.stop()
+                raise RuntimeError(f"mosquitto did not accept connections on port {self.port} "
+                                   f"within {timeout_s} s: {self.log_tail()}")
+            time.sleep(0.02)
+
+    def _log_size(self) -> int:
+        try:
+            return self.log_path.stat().st_size
+        except OSError:
+            return 0
+
+    def _log_since(self, offset: int) -> str:
+        try:
+            with open(self.log_path, "rb") as fh:
+                fh.seek(offset)
+                return fh.read().decode(errors="replace")
+        except OSError:
+            return ""
 
     def stop(self) -> None:
         """SIGTERM, as systemd does: Mosquitto saves its database on the way out."""

@@ -135,8 +135,8 @@ def test_await_timeout_grows_with_the_distance_slow_long_move(emu, caplog):
         elapsed = time.monotonic() - started
     assert reached == pytest.approx((778 * RES_DEG, 194 * RES_DEG))
     assert emu.last_motion_s == pytest.approx(predicted, rel=0.2)
-    assert 0.5 * predicted < elapsed < 3 * predicted  # generous: it waited for the motion, no retries
-    assert not warnings(caplog)
+    assert elapsed > 0.5 * predicted  # it waited for the motion (real time: the emulator's clock is)
+    assert not warnings(caplog)  # and did not take the long wait for a lost reply: no retries
 
 
 def test_position_mid_move_is_where_the_head_is(unit, emu):

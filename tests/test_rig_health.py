@@ -4,6 +4,7 @@ random, and made to name the wrong part, and the routing does not change."""
 
 from __future__ import annotations
 
+import itertools
 import logging
 import random
 import string
@@ -21,6 +22,7 @@ ERRORS = (CameraError, LaserError, PtuError)
 # Words that once decided routing, or that name another part: none may sway it.
 MISLEADING = ("camera", "laser center does not light", "pan-tilt unit", "no frame", "does not go off",
               "fault: lasers", "ptu", "")
+_views = itertools.count()
 
 
 class Camera:
@@ -50,8 +52,10 @@ def odd_message(rng: random.Random) -> str:
 
 
 def zone(found: tuple[str, ...] = NAMES) -> ZoneResult:
+    """A zone of a sweep (each at a view of its own) whose range used the spots of `found`."""
     lasers = {n: LaserMeasurement(n, np.zeros(2), 0.1, np.zeros(3), 2.0, 0.01, 30.0, 1) for n in found}
-    return ZoneResult(0, 0.0, 0.0, OK if "center" in found else NO_SPOT, range_m=2.0, lasers=lasers)
+    pan = next(_views) * 5.625 % 360.0 - 180.0
+    return ZoneResult(0, pan, 0.0, OK if "center" in found else NO_SPOT, range_m=2.0, lasers=lasers)
 
 
 def fault(error: type[HardwareError], message: str) -> ZoneResult:
@@ -130,27 +134,48 @@ def test_a_part_that_fails_for_good_is_blamed_by_its_type(seed: int) -> None:
 def test_a_dark_laser_is_a_typed_verdict_worded_in_state() -> None:
     changes: list = []
     rig = health(calibrated=True, changes=changes)
-    for _ in range(rig.lasers.window):
+    for _ in range(rig.lasers.hysteresis.enter_dark):
         rig.zone(zone(("parallel", "sloped")))
     verdicts = rig.lasers.verdicts()
     assert set(verdicts) == {"center"} and verdicts["center"].fault is LaserFault.DARK
     assert rig.parts["lasers"] == "fault: " + verdicts["center"].words(calibrated=True)
     assert "calibrate it" not in rig.parts["lasers"]
-    assert changes  # `state` went out
+    assert len(changes) == 1  # `state` went out, once
+    for _ in range(3 * rig.lasers.hysteresis.enter_dark):
+        rig.zone(zone(("parallel", "sloped")))  # nor again while the verdict only stands
+    assert len(changes) == 1
+    rig.zone(zone())  # one spot could be a stray light on its path
+    assert rig.lasers.verdicts() and len(changes) == 1
     rig.zone(zone())
-    assert rig.parts["lasers"] == "ok" and rig.lasers.verdicts() == {}
+    assert rig.parts["lasers"] == "ok" and rig.lasers.verdicts() == {} and len(changes) == 2
+
+
+def test_each_verdict_is_logged_once_and_its_end_too(caplog) -> None:
+    rig = health()
+    with caplog.at_level(logging.INFO, logger="edge.service.health"):
+        for _ in range(3 * rig.lasers.hysteresis.enter_dark):
+            rig.zone(zone(("center", "parallel")))
+        for _ in range(rig.lasers.hysteresis.enter_dark):
+            rig.zone(zone(("center",)))  # now parallel as well
+        for _ in range(rig.lasers.hysteresis.leave):
+            rig.zone(zone(("center", "sloped")))  # sloped is back
+        for _ in range(rig.lasers.hysteresis.leave):
+            rig.zone(zone())
+    said = [r.getMessage() for r in caplog.records]
+    assert [m[:24] for m in said] == ["laser sloped does not li", "laser parallel does not ",
+                                      "laser sloped: working ag", "lasers: all working agai"]
 
 
 def test_on_an_uncalibrated_rig_a_dark_laser_may_be_misaimed() -> None:
     rig = health(calibrated=False)
-    for _ in range(rig.lasers.window):
+    for _ in range(rig.lasers.hysteresis.enter_dark):
         rig.zone(zone(("parallel", "sloped")))
     assert "does not light" in rig.parts["lasers"] and "calibrate it (cmd/calibrate)" in rig.parts["lasers"]
 
 
 def test_a_laser_stuck_on_and_a_new_calibration_that_judges_afresh() -> None:
     rig = health(calibrated=False)
-    for _ in range(rig.lasers.window):
+    for _ in range(rig.lasers.hysteresis.enter_stuck):
         rig.zone(zone(("parallel", "sloped")), frozenset({"center"}))
     assert rig.lasers.verdicts()["center"].fault is LaserFault.STUCK_ON
     assert "does not go off" in rig.parts["lasers"]

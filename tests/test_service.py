@@ -3,6 +3,7 @@ NOTIFY_SOCKET. Topics and payloads are checked against ../shared/spec/mqtt.md.""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -162,6 +163,36 @@ def take_the_broker_away(broker: Mosquitto, down_s: Callable[[int], float],
     return outages
 
 
+def outage_until_queued(broker: Mosquitto, state: Path, count: int, timeout: float = 300.0) -> tuple[float, float]:
+    """Stop the broker until the device has queued about `count` messages in its outbox (it makes
+    them while the broker is away: its loop never waits for the broker), then start it again;
+    returns the (stopped, restarted) wall-clock times. The outages of `take_the_broker_away` last
+    a second or two, which a loaded machine may spend without finishing a sweep. The queue is
+    watched from outside (its files changing): the device holds it locked, as it should."""
+    def files() -> tuple:
+        found = []
+        for path in sorted(state.glob("outbox.sqlite3*")):
+            with contextlib.suppress(OSError):
+                st = path.stat()
+                found.append((path.name, st.st_mtime_ns, st.st_size))
+        return tuple(found)
+
+    broker.stop()
+    down = time.time()
+    deadline = time.monotonic() + timeout
+    try:
+        seen, changes = files(), 0
+        while changes < count and time.monotonic() < deadline:
+            time.sleep(0.05)
+            now = files()
+            if now != seen:
+                seen, changes = now, changes + 1
+        time.sleep(0.2)  # made well inside the outage, not at its edge
+        return down, time.time()
+    finally:
+        broker.restart()
+
+
 def made_while_down(docs: list[dict], outages: list[tuple[float, float]]) -> list[dict]:
     """The published documents whose `ts` falls inside an outage."""
     def made(doc: dict) -> float:  # to the millisecond: outages last a second or two
@@ -176,10 +207,11 @@ def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, s
     # kept sweeping while the broker was away (its loop never waits for the broker).
     proc = start(broker, tmp_path, "sweep.zones=3", "sweep.pan_step_deg=10.0", "service.sweep_interval_s=0.5")
     try:
-        first = subscriber.wait_count(f"{P}/sweep", 2, timeout=30)
+        first = subscriber.wait_count(f"{P}/sweep", 2, timeout=300)  # bounds for a loaded machine
         outages = take_the_broker_away(broker, lambda k: 1.0 + 0.2 * (k % 4))
+        outages.append(outage_until_queued(broker, tmp_path / "state", 5))
         mark = subscriber.mark()
-        subscriber.wait_count(f"{P}/sweep", 3, timeout=30, since=mark)
+        subscriber.wait_count(f"{P}/sweep", 3, timeout=300, since=mark)
         proc.send_signal(signal.SIGTERM)
         finish(proc)
     finally:
@@ -226,8 +258,8 @@ def test_systemd_notifications_and_watchdog(broker, tmp_path):
     assert ready < stopping
     feeds = [t for m, t in zip(messages, heard) if m == "WATCHDOG=1"]
     # About every 0.5 s while running (6 s of it, less the rig's start on a loaded machine): at
-    # least one a second, counted over the time it really ran.
-    assert len(feeds) >= max(2, (heard[stopping] - heard[ready]) - 1), messages
+    # least one every 2 s, counted over the time it really ran (a loaded machine starves it).
+    assert len(feeds) >= max(2, (heard[stopping] - heard[ready]) / 2), messages
     assert any(m.startswith("STATUS=running") for m in messages)
 
 
@@ -268,6 +300,7 @@ def test_guard_alerts_survive_ten_broker_outages_exactly_as_raised_and_in_order(
                             timeout=300)
         subscriber.wait_for(f"{P}/alert", lambda m: json.loads(m.payload)["event"] == "intrusion", timeout=300)
         outages = take_the_broker_away(broker, lambda k: 1.5 + 0.3 * (k % 3))
+        outages.append(outage_until_queued(broker, tmp_path / "state", 1))
         subscriber.wait_for(f"{P}/alert", lambda m: json.loads(m.payload)["event"] == "cleared", timeout=300)
         proc.send_signal(signal.SIGTERM)
         err = finish(proc)
@@ -370,15 +403,16 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(str(path))
     sock.settimeout(0.2)
-    faults = ('sim.camera_faults=[{kind="stall", at_s=4.0, seconds=3.0}, {kind="corrupt", at_s=9.0, count=3},'
-              ' {kind="hang", at_s=14.0, seconds=60.0}]')
+    # Late enough that a loaded machine has started the rig and ranged before the first fault.
+    faults = ('sim.camera_faults=[{kind="stall", at_s=8.0, seconds=3.0}, {kind="corrupt", at_s=13.0, count=3},'
+              ' {kind="hang", at_s=18.0, seconds=60.0}]')
     # Real time: a hang and systemd's watchdog are (on the simulated clock a hang takes no time).
     proc = start(broker, tmp_path, 'mode="rangefinder"', "rangefinder.pan_deg=-90.0", "camera.timeout_s=0.5", faults,
                  "mqtt.enabled=true", 'sim.clock="real"', env={"NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"},
                  config=config)
     feeds: list[float] = []
     try:
-        deadline = time.monotonic() + 40
+        deadline = time.monotonic() + 90
         while time.monotonic() < deadline:
             try:
                 if sock.recv(4096) == b"WATCHDOG=1":
@@ -412,7 +446,7 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
     states = [json.loads(m.payload) for m in subscriber.messages(f"{P}/state")]
     assert any(s["health"]["camera"].startswith("fault") for s in states)
     assert states[-1]["camera_restarts"] >= 2
-    # Fed about every 0.5 s until the hang at ~14 s, then never again.
+    # Fed about every 0.5 s until the hang at ~18 s, then never again.
     assert len(feeds) >= 10
     assert max(b - a for a, b in zip(feeds, feeds[1:])) < 4.0
     assert time.monotonic() - feeds[-1] > 8

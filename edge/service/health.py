@@ -51,11 +51,13 @@ class RigHealth:
 
     def zone(self, result: ZoneResult, lit_when_off: Sequence[str] | frozenset[str] = frozenset()) -> None:
         """Take one zone's or frame's outcome: conditions, laser verdicts, a camera restart."""
-        changed = self._zone_parts(result)
-        if self.lasers.update(result, lit_when_off) or changed:
-            self._word_laser_verdicts()
-            changed = True
-        if changed:
+        before = dict(self._parts)
+        self._zone_parts(result)
+        self.lasers.update(result, lit_when_off)
+        self._word_laser_verdicts()
+        # Compared whole: a zone that went through sets "lasers" to "ok" and a standing verdict sets
+        # it back, which is no change and must not send `state` again at every zone.
+        if self._parts != before:
             self._changed()
         blames_camera = result.status == FAULT and result.part == "camera"
         self._camera_faults = self._camera_faults + 1 if blames_camera else 0
@@ -84,32 +86,34 @@ class RigHealth:
         """A new calibration is in use: the lasers are judged afresh with its rays."""
         self._parts["calibration"] = calibration
         self.calibrated = True
-        self.lasers = LaserHealth(laser_names, self.lasers.window)
+        self.lasers = LaserHealth(laser_names, self.lasers.hysteresis)
         if self._laser_verdicts:
             self._laser_verdicts = {}
             self._parts["lasers"] = "ok"
 
-    def _zone_parts(self, result: ZoneResult) -> bool:
-        before = dict(self._parts)
+    def _zone_parts(self, result: ZoneResult) -> None:
         if result.status == FAULT:
             if result.part is not None:
                 self._parts[result.part] = f"fault: {result.detail}"
         else:
             for name in _ZONE_PARTS:  # a zone went through all three
                 self._parts[name] = "ok"
-        return before != self._parts
 
     def _word_laser_verdicts(self) -> None:
         verdicts = self.lasers.verdicts()
-        words = [v.words(self.calibrated) for v in verdicts.values()]
         if verdicts:
-            self._parts["lasers"] = "fault: " + "; ".join(words)
-        if verdicts != self._laser_verdicts:
-            for text in words:
-                log.error("%s", text)
-            if not verdicts:
-                log.info("lasers: all working again")
-            self._laser_verdicts = verdicts
+            self._parts["lasers"] = "fault: " + "; ".join(v.words(self.calibrated) for v in verdicts.values())
+        if verdicts == self._laser_verdicts:
+            return
+        for name, verdict in verdicts.items():  # each new verdict once, not the standing ones again
+            if self._laser_verdicts.get(name) != verdict:
+                log.error("%s", verdict.words(self.calibrated))
+        if not verdicts:
+            log.info("lasers: all working again")
+        else:
+            for name in self._laser_verdicts.keys() - verdicts.keys():
+                log.info("laser %s: working again", name)
+        self._laser_verdicts = verdicts
 
     def _restart_camera(self) -> None:
         self._camera_faults = 0

@@ -25,6 +25,7 @@ from __future__ import annotations
 import inspect
 import logging
 import threading
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -199,7 +200,10 @@ class SimCamera:
         timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
         fault = self._fault_now()
         if fault is not None and fault.kind == "hang":
-            self.clock.sleep_until_ns(self._fault_end_ns(fault))  # no timeout: that is what a hang is
+            end = self._fault_end_ns(fault)
+            if self.clock.simulated:  # a hung call holds the computer too: systemd's watchdog must see it
+                time.sleep(max(end - self.clock.now_ns(), 0) / 1e9)
+            self.clock.sleep_until_ns(end)  # no timeout: that is what a hang is
         elif fault is not None and fault.kind == "stall":
             self.clock.sleep_until_ns(min(self._fault_end_ns(fault), self.clock.now_ns() + int(timeout_s * 1e9)))
             if self.clock.now_ns() < self._fault_end_ns(fault):
