@@ -461,7 +461,10 @@ class SpotFinder:
         box_level = flt.mean(axis=1, keepdims=True)
         box_noise = 1.2533 * np.minimum(np.abs(flt - box_level), 4.0 * box_floor).mean(axis=1)
         which = np.minimum(np.arange(n) // block, nb - 1)
-        local_pix = np.maximum(pix_noise[which], np.float32(noise))
+        # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
+        # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
+        # own neighbourhood hides it.
+        local_pix = np.sqrt(np.maximum(pix_noise[which], np.float32(noise)) * np.float32(noise))
         local_box = np.maximum(box_noise[which], box_floor)
         best = box.argmax(axis=1)
         score = (box[np.arange(n), best] - box_level[which, 0]) / local_box
