@@ -585,7 +585,10 @@ class SpotFinder:
                 cu, cv = u0 + du, v0 + dv
                 cov = cov * texture.sites * misfit
         else:
-            use = ~saturated & mine & (above > 3.0 * noise)
+            # The spot's core only: a neighbouring spot's wing (the centre and parallel spots are
+            # 4 px apart at 5 m) is not this spot's misfit.
+            core = ((offs[None, :] - du) ** 2 + (offs[:, None] - dv) ** 2) <= (2.5 * max(size, 0.7)) ** 2
+            use = ~saturated & mine & core & (above > 3.0 * noise)
             coef = _fit_gaussian(above, use, offs)
             if coef is not None:
                 resid = (above - _model(coef, offs))[use]
