@@ -595,10 +595,9 @@ class SpotFinder:
                 dof = int(use.sum()) - 6
                 if dof >= 3:
                     misfit = max(1.0, float((resid * resid / var_all[use]).sum()) / dof)
-            if saturated.any() and coef is not None:
-                # The same fit locates a clipped spot: its wings still carry the position.
-                fitted = _centre(coef)
-                if abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
+            if saturated.any():
+                fitted = _fit_unsaturated(signal, saturated, offs, 3.0 * noise)
+                if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
                     du, dv = fitted
                     cu, cv = u0 + du, v0 + dv
         if cov is not None:
