@@ -29,6 +29,8 @@ OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT = "ok", "no_spot", "ambiguous", "out
 STATUSES = (OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT)
 # χ² acceptance at 99 % for 1…6 degrees of freedom.
 _CHI2_99 = (6.63, 9.21, 11.34, 13.28, 15.09, 16.81)
+# A faint reference spot (found by the matched filter alone) must be placed at least this well (px).
+FAINT_MAX_SIGMA_PX = 0.5
 # Two spots' depths may differ across their separation by at most this slope (tan of the surface's
 # angle from facing the lasers squarely): 75° still counts as one surface.
 _MAX_SLOPE = math.tan(math.radians(75.0))
@@ -234,7 +236,7 @@ def fuse(
     cov = np.linalg.inv(AtW @ A)
     params = cov @ (AtW @ z)
     resid = z - A @ params
-    chi2 = float((w * resid**2).sum())
+    chi2 = max(float((w * resid**2).sum()), _chi2_inverse(z, A @ params, w))
     dof = len(ms) - A.shape[1]
     g = float(params[1]) if use_g else 0.0
     h = float(params[1 + use_g]) if use_h else 0.0
@@ -272,8 +274,20 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
     total = sum(weights)
     z = sum(w * m.depth_m for w, m in zip(weights, ms)) / total
     chi2 = sum(w * (m.depth_m - z) ** 2 for w, m in zip(weights, ms))
+    if len(ms) > 1:
+        chi2 = max(chi2, _chi2_inverse(np.array([m.depth_m for m in ms]), np.full(len(ms), z), np.array(weights)))
     point = reference.point_m if len(ms) == 1 else _point_at_depth(reference, z)
     return Fusion(z, math.sqrt(1.0 / total), point, None, chi2, len(ms) - 1, tuple(ms))
+
+
+def _chi2_inverse(z: np.ndarray, fitted: np.ndarray, w: np.ndarray) -> float:
+    """χ² of measured depths `z` against `fitted` ones in inverse depth, where a spot's pixel error
+    acts linearly (depth's σ, from the derivative at the measured depth, becomes z²-scaled): far or
+    weak spots, whose depth is very non-linear in the pixel, are then judged by what their pixels
+    say. A spot whose depth 9.7 ± 2.7 m looks consistent with 3.9 m is 5 σ off in its pixels."""
+    z = np.maximum(np.abs(z), 1e-6)
+    fitted = np.maximum(np.abs(fitted), 1e-6)
+    return float((w * z**4 * (1.0 / z - 1.0 / fitted) ** 2).sum())
 
 
 def _point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
@@ -394,6 +408,12 @@ class Ranger:
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         refs = cands.get(ref, [])
+        if any(m.snr >= self.config.min_snr for m in refs):
+            # Faint blobs (found by the matched filter alone) count only where nothing brighter is,
+            refs = [m for m in refs if m.snr >= self.config.min_snr]
+        # and only where they are a spot's size and shape: a faint blob placed to worse than half a
+        # pixel is noise that the filter lined up, or a JPEG ghost.
+        refs = [m for m in refs if m.snr >= self.config.min_snr or m.sigma_px <= FAINT_MAX_SIGMA_PX]
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
         others = {n: ms for n, ms in cands.items() if n != ref}
@@ -428,6 +448,13 @@ class Ranger:
                     index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                     detail=f"no other laser confirms the {ref} spot and {why}",
                 )
+        if len(fusion.used) == 1 and chosen.snr < self.config.min_snr:
+            # Found by the matched filter alone, and no other laser on its surface: a dim spot
+            # must be confirmed, for noise and glare make blobs as faint as it.
+            return self._result(
+                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                detail=f"the {ref} spot is faint (SNR {chosen.snr:.1f}) and no other laser confirms it",
+            )
         lo, hi = rig.range_limits_m
         if not lo <= fusion.range_m <= hi:
             return self._result(

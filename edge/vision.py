@@ -34,8 +34,107 @@ FAR_FACTOR = 1.6
 CHANNEL_WEIGHTS = {"red": (0.0, 0.0, 1.0), "luma": (0.114, 0.587, 0.299)}
 
 
+# Offsets (du, dv) of the neighbours of each background sample that are read too: the noise's
+# correlation at lags 1 and 2 along rows and columns, and (with (1, 1)) all four Bayer phases.
+NEIGHBOURS = ((1, 0), (2, 0), (0, 1), (0, 2), (1, 1))
+# A spot whose detection needs this matched-filter SNR (box filter about a spot's size, against the
+# noise measured along the same stretch of its path) is a seed even when its brightest pixel is
+# below `min_snr`: a dim spot is found where the noise allows, a bright window's glare is not.
+MATCHED_SNR = 5.0
+# Red's noise differs this much between the four pixels of a 2 × 2 block only behind a Bayer filter
+# (demosaicing interpolates red at three of them, which averages their noise).
+BAYER_CONTRAST = 1.6
+
+
 # A pixel at this fraction of full scale in a laser-on frame is taken as clipped.
 _SATURATED = 0.985
+
+
+def _fit_gaussian(signal: np.ndarray, use: np.ndarray, offs: np.ndarray, round_: bool = False) -> np.ndarray | None:
+    """A Gaussian fitted to the pixels `use` of `signal` (window offsets `offs` from its centre):
+    the coefficients (a, b, c, d, e, f) of ln I = a + b·u + c·v + d·u² + e·v² + f·u·v, weighted by I²
+    (the variance of ln I is σ²/I²), or None when too few pixels are usable or the fit is not a peak.
+    `round_` fits a round spot (d = e, f = 0): fewer unknowns, for few pixels."""
+    need = 6 if round_ else 10
+    if int(use.sum()) < need:
+        return None
+    gv, gu = np.meshgrid(offs, offs, indexing="ij")
+    u, v, val = gu[use], gv[use], signal[use].astype(np.float64)
+    if round_:
+        design = np.stack([np.ones_like(u), u, v, u * u + v * v], axis=1) * val[:, None]
+    else:
+        design = np.stack([np.ones_like(u), u, v, u * u, v * v, u * v], axis=1) * val[:, None]
+    try:
+        coef = np.linalg.solve(design.T @ design, design.T @ (np.log(val) * val))
+    except np.linalg.LinAlgError:
+        return None
+    if round_:
+        coef = np.array([coef[0], coef[1], coef[2], coef[3], coef[3], 0.0])
+    _, _, _, d, e, f = coef
+    if d >= 0 or e >= 0 or 4.0 * d * e - f * f <= 0:
+        return None
+    return np.asarray(coef, dtype=np.float64)
+
+
+def _centre(coef: np.ndarray) -> tuple[float, float]:
+    """The peak (du, dv) of a fitted Gaussian (`_fit_gaussian`'s coefficients)."""
+    _, b, c, d, e, f = coef
+    du, dv = np.linalg.solve(np.array([[2.0 * d, f], [f, 2.0 * e]]), [-b, -c])
+    return float(du), float(dv)
+
+
+def _model(coef: np.ndarray, offs: np.ndarray) -> np.ndarray:
+    """The fitted Gaussian over the window (rows v, columns u)."""
+    a, b, c, d, e, f = coef
+    v, u = offs[:, None].astype(np.float64), offs[None, :].astype(np.float64)
+    return np.exp(np.minimum(a + b * u + c * v + d * u * u + e * v * v + f * u * v, 60.0))
+
+
+def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.ndarray, du: float, dv: float,
+               size: float) -> tuple[float, float, np.ndarray, float] | None:
+    """A round Gaussian fitted by weighted least squares (Gauss–Newton) to the pixels `sites` of
+    `above` (their noise variances `var`), started at (du, dv) with width `size`: its centre, the
+    centre's covariance (2, 2) and χ² per degree of freedom; None when it does not converge to a
+    spot. For the red pixels of a Bayer filter, 2 px apart: too few above the noise for a fit of
+    logarithms, and the demosaiced pixels between them lock a centroid onto them."""
+    y, x = np.nonzero(sites)
+    if y.size < 8:
+        return None
+    xs, ys = offs[x].astype(np.float64), offs[y].astype(np.float64)
+    val = above[y, x].astype(np.float64)
+    w = 1.0 / var[y, x]
+    amp = max(float(val.max()), 1e-9)
+    u, v, t = du, dv, math.log(max(size, 0.5))
+    for _ in range(8):
+        s2 = math.exp(2.0 * t)
+        r2 = (xs - u) ** 2 + (ys - v) ** 2
+        g = np.exp(-0.5 * r2 / s2)
+        m = amp * g
+        jac = np.stack([g, m * (xs - u) / s2, m * (ys - v) / s2, m * r2 / s2], axis=1)
+        jw = jac * w[:, None]
+        try:
+            step = np.linalg.solve(jw.T @ jac, jw.T @ (val - m))
+        except np.linalg.LinAlgError:
+            return None
+        amp += float(step[0])
+        u += float(np.clip(step[1], -0.5, 0.5))
+        v += float(np.clip(step[2], -0.5, 0.5))
+        t += float(np.clip(step[3], -0.3, 0.3))
+        if abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3:
+            break
+    if amp <= 0 or not 0.3 < math.exp(t) < 6.0 or abs(u - du) > 1.0 or abs(v - dv) > 1.0:
+        return None
+    s2 = math.exp(2.0 * t)
+    r2 = (xs - u) ** 2 + (ys - v) ** 2
+    m = amp * np.exp(-0.5 * r2 / s2)
+    jac = np.stack([m / amp, m * (xs - u) / s2, m * (ys - v) / s2, m * r2 / s2], axis=1)
+    info = (jac * w[:, None]).T @ jac
+    try:
+        cov = np.linalg.inv(info)[1:3, 1:3]
+    except np.linalg.LinAlgError:
+        return None
+    chi2 = float((w * (val - m) ** 2).sum()) / max(y.size - 4, 1)
+    return u, v, cov, chi2
 
 
 def _fit_unsaturated(
@@ -44,23 +143,11 @@ def _fit_unsaturated(
     """Centre of a spot whose core is clipped, from a Gaussian fitted to its unclipped pixels.
 
     The centroid of a clipped, pixel-sampled spot is biased by up to ~0.07 px depending on where
-    the spot falls within a pixel ("pixel locking"); the wings still carry the position. The fit is
-    of ln I = a + b·u + c·v + d·u² + e·v² + f·u·v, weighted by I² (the variance of ln I is σ²/I²).
+    the spot falls within a pixel ("pixel locking"); the wings still carry the position.
     Returns (du, dv) relative to the window centre, or None when the fit is not a peak.
     """
-    use = ~saturated & (signal > floor)
-    if int(use.sum()) < 10:
-        return None
-    gv, gu = np.meshgrid(offs, offs, indexing="ij")
-    u, v, val = gu[use], gv[use], signal[use].astype(np.float64)
-    design = np.stack([np.ones_like(u), u, v, u * u, v * v, u * v], axis=1) * val[:, None]
-    coef = np.linalg.lstsq(design, np.log(val) * val, rcond=None)[0]
-    _, b, c, d, e, f = coef
-    hessian = np.array([[2.0 * d, f], [f, 2.0 * e]])
-    if d >= 0 or e >= 0 or np.linalg.det(hessian) <= 0:
-        return None
-    du, dv = np.linalg.solve(hessian, [-b, -c])
-    return float(du), float(dv)
+    coef = _fit_gaussian(signal, ~saturated & (signal > floor), offs)
+    return None if coef is None else _centre(coef)
 
 
 @functools.lru_cache(maxsize=16)
@@ -82,6 +169,17 @@ class Candidate:
     size_px: float  # RMS radius of the spot
     along: float  # inverse depth at the nearest path sample (1/m)
     cross_px: float  # distance from the path, px
+    matched_snr: float = 0.0  # the seed's matched-filter SNR against the noise along its path
+    misfit: float = 1.0  # χ² per degree of freedom of a Gaussian fitted to the spot (1: it fits)
+
+
+@dataclass(frozen=True)
+class _Texture:
+    """How the difference image's noise is structured (:meth:`SpotFinder._texture`)."""
+
+    area: float  # Σ of its correlation over neighbouring pixels: a centroid's variance grows by it
+    sites: float  # the same over a Bayer filter's red pixels alone (2 px apart)
+    bayer: int | None  # the (row, column) parity of red pixels, 2·row + column; None: no filter seen
 
 
 @dataclass(frozen=True)
@@ -126,10 +224,17 @@ class SpotFinder:
         for band in self.bands.values():
             for (pu, pv) in band.path[:: max(1, len(band.path) // 64)]:
                 keep &= (np.abs(gu - pu) > 12) | (np.abs(gv - pv) > 12)
+        keep &= (gu + 2 < cam.width) & (gv + 2 < cam.height)
         self._bg_v, self._bg_u = gv[keep], gu[keep]
+        # Each background sample's neighbours at NEIGHBOURS: how the noise is correlated (JPEG,
+        # demosaicing) and which pixels of a Bayer filter saw red.
+        # (A few hundred samples tell a correlation to ±0.05: enough, and cheap.)
+        self._near_n = near = min(self._bg_v.size, 400)
+        near_v = [self._bg_v[:near] + dv for _, dv in NEIGHBOURS]
+        near_u = [self._bg_u[:near] + du for du, _ in NEIGHBOURS]
         # Every strip pixel in one gather: cheaper than one gather per laser.
-        self._all_v = np.concatenate([b.v.ravel() for b in self.bands.values()] + [self._bg_v])
-        self._all_u = np.concatenate([b.u.ravel() for b in self.bands.values()] + [self._bg_u])
+        self._all_v = np.concatenate([b.v.ravel() for b in self.bands.values()] + [self._bg_v] + near_v)
+        self._all_u = np.concatenate([b.u.ravel() for b in self.bands.values()] + [self._bg_u] + near_u)
         self._strip_width = next(iter(self.bands.values())).v.shape[1]
         self._rows: dict[str, slice] = {}  # each laser's path samples among all strips' rows
         start = 0
@@ -138,6 +243,10 @@ class SpotFinder:
             start += band.v.shape[0]
         start *= self._strip_width
         self._bg_slice = slice(start, start + self._bg_v.size)
+        start += self._bg_v.size
+        self._near_slices = [slice(start + k * near, start + (k + 1) * near) for k in range(len(NEIGHBOURS))]
+        # (row, column) parity of each sample that has neighbours
+        self._bg_phase = (self._bg_v[:near] % 2) * 2 + self._bg_u[:near] % 2
         # Window half-size for localisation; it grows for big spots.
         self._radius = 4
         self._flat: dict[int, list[tuple[np.ndarray, float]]] = {}
@@ -250,6 +359,7 @@ class SpotFinder:
         diff = on_vals - np.float32(gain) * off_vals
         # Pixel noise of the difference, robustly (MAD), from the background sample.
         bg = diff[self._bg_slice]
+        centre = 0.0
         if bg.size:
             mid = bg.size // 2
             centre = float(np.partition(bg, mid)[mid])
@@ -261,49 +371,133 @@ class SpotFinder:
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
         shot = noise**2 / (2.0 * max(float(boff.mean()) if boff.size else 0.0, 1e-3))
+        texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
         width = self._strip_width
         strips = diff[: self._bg_slice.start].reshape(-1, width)
         best = strips.argmax(axis=1)
         profile = strips[np.arange(strips.shape[0]), best]
+        local_noise, matched, where, _ = self._local(strips, noise)
         seeds = {}
         for name in names:
             rows = self._rows[name]
             seeds[name] = self._seeds(
-                self.bands[name], profile[rows], best[rows], on, off, gain, noise, max_candidates
+                self.bands[name], strips[rows], profile[rows], best[rows], local_noise[rows], matched[rows],
+                where[rows], on, off, gain, max_candidates,
             )
         # Every seed of every laser: a neighbouring spot, whichever laser's, must not pull a
         # spot's centroid (the centre and parallel spots are 4 px apart at 5 m).
-        everywhere = [(u, v) for ss in seeds.values() for u, v, _, _ in ss]
+        everywhere = [(u, v) for ss in seeds.values() for u, v, _, _, _, _ in ss]
         found: dict[str, list[Candidate]] = {}
         for name, ss in seeds.items():
             out = []
-            for u, v, peak, row in ss:
+            for u, v, peak, row, mf, here in ss:
                 others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius]
-                cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, noise, shot, peak)
+                cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
+                                    mf, texture)
                 if cand is not None:
                     out.append(cand)
             found[name] = out
         return found
 
-    def _seeds(self, band, profile, best, on, off, gain, noise, max_candidates) -> list[tuple[int, int, float, int]]:
-        """Peaks along a laser's strip above the detection threshold, strongest first, one per
-        blob: (u, v, peak, strip row). `profile` is each path sample's brightest value across the
-        strip and `best` where across it that is."""
-        above = profile > self.min_snr * noise
+    def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:
+        """How the difference image's noise is correlated, from the background samples and their
+        neighbours: JPEG's blocks and a demosaicing's interpolation spread one pixel's noise over
+        its neighbours, so that a spot's position is less certain than white noise would make it;
+        and behind a Bayer filter, which pixels saw red (their noise is the sensor's; demosaicing
+        averages the others')."""
+        if not self._bg_v.size or noise <= 0.0:
+            return _Texture(1.0, 1.0, None)
+        lim = np.float32(5.0 * noise)
+        first = slice(self._bg_slice.start, self._bg_slice.start + self._near_n)
+        samples = [np.clip(diff[sl] - np.float32(centre), -lim, lim) for sl in (first, *self._near_slices)]
+        d0 = samples[0]
+        var0 = float(d0 @ d0)
+        if var0 <= 0.0:
+            return _Texture(1.0, 1.0, None)
+        rho = dict(zip(NEIGHBOURS, (float(d0 @ dk) / var0 for dk in samples[1:])))
+        along_u = 1.0 + 2.0 * rho[(1, 0)] + 2.0 * rho[(2, 0)]
+        along_v = 1.0 + 2.0 * rho[(0, 1)] + 2.0 * rho[(0, 2)]
+        area = min(max(along_u * along_v, 1.0), 25.0)
+        bayer = None
+        if colour and self._weights == CHANNEL_WEIGHTS["red"] and max(rho[(1, 0)], rho[(0, 1)]) > 0.15:
+            # The four (row, column) parities: the sample's own and its neighbours' flips.
+            power = np.zeros(4)
+            count = np.zeros(4)
+            for flip, dk in ((0, d0), (1, samples[1 + NEIGHBOURS.index((1, 0))]),
+                             (2, samples[1 + NEIGHBOURS.index((0, 1))]), (3, samples[1 + NEIGHBOURS.index((1, 1))])):
+                phase = self._bg_phase ^ flip
+                power += np.bincount(phase, weights=dk.astype(np.float64) ** 2, minlength=4)
+                count += np.bincount(phase, minlength=4)
+            power /= np.maximum(count, 1)
+            if power.min() > 0 and power.max() > BAYER_CONTRAST * float(np.median(power)):
+                bayer = int(power.argmax())
+        # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
+        sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
+        return _Texture(area, sites, bayer)
+
+    def _local(self, strips: np.ndarray, noise: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Along every path, in stretches of about 24 px: the level and noise (median, MAD) of the
+        strip's pixels and of a box filter of 3 columns × 5 samples (about a spot's size: a
+        matched filter). A textured surface leaves more of JPEG's and the room's noise in the
+        difference than the flat background does, and a bright window's glare more still: each
+        stretch is judged by its own. Returns, per path sample, the pixel noise (at least
+        `noise`), the box's SNR at its best column, that column, and the box's noise."""
+        n, width = strips.shape
+        cols = strips[:, :-2] + strips[:, 1:-1] + strips[:, 2:]
+        box = np.zeros((n, width - 2), np.float32)
+        box[2:-2] = cols[:-4] + cols[1:-3] + cols[2:-2] + cols[3:-1] + cols[4:]
+        block = 48
+        nb = max(1, n // block)
+        cut = nb * block
+        # Mean absolute deviation, each value clipped at 4 × the flat background's: a robust and
+        # cheap scale (a spot's own pixels barely move it); × 1.2533 is σ for Gaussian noise.
+        # The pixel noise from the strip's outermost columns, 3 px from the path: beside a spot,
+        # not on it, so that a spot does not raise its own threshold.
+        pix = np.abs(strips[:cut, :: width - 1]).reshape(nb, -1)
+        flt = box[:cut].reshape(nb, -1)
+        pix_noise = 1.2533 * np.minimum(pix, np.float32(6.0 * noise)).mean(axis=1)
+        box_floor = np.float32(noise * 15.0**0.5)
+        box_level = flt.mean(axis=1, keepdims=True)
+        box_noise = 1.2533 * np.minimum(np.abs(flt - box_level), 4.0 * box_floor).mean(axis=1)
+        which = np.minimum(np.arange(n) // block, nb - 1)
+        # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
+        # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
+        # own neighbourhood hides it.
+        local_pix = np.sqrt(np.maximum(pix_noise[which], np.float32(noise)) * np.float32(noise))
+        local_box = np.maximum(box_noise[which], box_floor)
+        best = box.argmax(axis=1)
+        score = (box[np.arange(n), best] - box_level[which, 0]) / local_box
+        return local_pix, score, best + 1, local_box
+
+    def _seeds(self, band, strip, profile, best, local_noise, matched, where, on, off, gain, max_candidates
+               ) -> list[tuple[int, int, float, int, float, float]]:
+        """Peaks along a laser's strip above the detection thresholds, strongest first, one per
+        blob: (u, v, peak, strip row, matched-filter SNR, the noise there). `profile` is each
+        path sample's brightest value across the strip and `best` where across it that is. A seed
+        is a bright pixel (`min_snr` over the noise along that stretch of the path), or a dim spot
+        that the matched filter finds (MATCHED_SNR)."""
+        bright = profile / (np.float32(self.min_snr) * local_noise)
+        dim = matched / np.float32(MATCHED_SNR)
+        score = np.maximum(bright, dim)
+        above = score > 1.0
         if not above.any():
             return []
         # Local maxima inside the path (its ends lie beyond the working range's margins).
-        mid = profile[1:-1]
-        peaks = 1 + np.flatnonzero(above[1:-1] & (mid >= profile[:-2]) & (mid > profile[2:]))
-        peaks = peaks[np.argsort(profile[peaks])[::-1]]
-        seeds: list[tuple[int, int, float, int]] = []
+        mid = score[1:-1]
+        peaks = 1 + np.flatnonzero(above[1:-1] & (mid >= score[:-2]) & (mid > score[2:]))
+        peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
+        seeds: list[tuple[int, int, float, int, float, float]] = []
         for i in peaks:
-            j = int(best[i])
-            u, v, peak = int(band.u[i, j]), int(band.v[i, j]), float(profile[i])
-            if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain) for su, sv, sp, _ in seeds):
+            j = int(best[i]) if bright[i] >= dim[i] else int(where[i])
+            u, v = int(band.u[i, j]), int(band.v[i, j])
+            peak = float(max(profile[i], strip[i, j]))
+            if bright[i] < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius for su, sv, _, _, _, _ in seeds):
+                continue  # a faint blob beside a spot: its shoulder or ghost, and no spot of its own
+            if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
+                   for su, sv, sp, _, _, _ in seeds):
                 continue  # the same blob seen from another path sample
-            seeds.append((u, v, peak, int(i)))
+            seeds.append((u, v, peak, int(i), float(matched[i]), float(local_noise[i])))
             if len(seeds) >= max_candidates:
                 break
         return seeds
@@ -322,11 +516,19 @@ class SpotFinder:
         line = self._window(on, v, u) - np.float32(gain) * self._window(off, v, u)
         return float(line.min()) < 0.5 * peak
 
-    def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak) -> Candidate | None:
+    def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak, matched=0.0,
+                texture: _Texture | None = None) -> Candidate | None:
         """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
         thresholded difference in a window, which is unbiased for a symmetric spot; the window
         grows for big (near, defocused, saturated) spots so that it never clips one, and pixels
-        nearer another candidate are left to that one."""
+        nearer another candidate are left to that one. Behind a Bayer filter, a Gaussian fitted to
+        the red pixels alone (a centroid of the demosaiced red locks onto them).
+
+        Its σ comes from the noise measured around it: the pixel noise and the spot's own shot
+        noise, grown by the noise's correlation (`texture`), and by the χ² of a Gaussian fitted to
+        the spot when the spot is not the smooth blob that the noise alone would leave (speckle,
+        JPEG's blocks, demosaicing)."""
+        texture = texture or _Texture(1.0, 1.0, None)
         cam = self.rig.camera
         r = self._radius
         cu, cv = float(seed[0]), float(seed[1])
@@ -343,11 +545,13 @@ class SpotFinder:
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
             signal = np.maximum(win - np.float32(level + 2.0 * noise), 0.0)
             offs = np.arange(-r, r + 1, dtype=np.float32)
+            mine = np.ones(signal.shape, bool)
             if others:
                 gu, gv = np.meshgrid(offs + u0, offs + v0)
-                mine = (gu - seed[0]) ** 2 + (gv - seed[1]) ** 2
+                dist = (gu - seed[0]) ** 2 + (gv - seed[1]) ** 2
                 for ou, ov in others:
-                    signal = np.where((gu - ou) ** 2 + (gv - ov) ** 2 < mine, 0.0, signal)
+                    mine &= (gu - ou) ** 2 + (gv - ov) ** 2 >= dist
+                signal = np.where(mine, signal, 0.0)
             col, line = signal.sum(axis=0), signal.sum(axis=1)
             mass = float(col.sum())
             if mass <= 0.0:
@@ -364,18 +568,48 @@ class SpotFinder:
         if size > self.max_spot_px:
             return None  # a lamp or a screen, not a pointer's spot
         saturated = lit >= _SATURATED
-        if saturated.any():
-            fitted = _fit_unsaturated(signal, saturated, offs, 3.0 * noise)
-            if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
-                du, dv = fitted
+        above = win - np.float32(level)  # background-subtracted, not thresholded
+        var_all = noise**2 + np.maximum(above, 0.0) * shot  # each pixel's noise variance
+        misfit = 1.0
+        cov = None
+        if texture.bayer is not None:
+            rr, rc = divmod(texture.bayer, 2)
+            red = (((v0 - r + np.arange(2 * r + 1)) % 2 == rr)[:, None]
+                   & ((u0 - r + np.arange(2 * r + 1)) % 2 == rc)[None, :])
+            fit = _fit_sites(above, red & ~saturated & mine, var_all, offs, du, dv, size)
+            # A fit that leaves far more than noise, or knows the centre to worse than a pixel, has
+            # not found the spot's shape: the centroid then.
+            if fit is not None and fit[3] < 10.0 and float(np.trace(fit[2])) < 1.0:
+                du, dv, cov, misfit = fit
+                misfit = max(misfit, 1.0)
                 cu, cv = u0 + du, v0 + dv
-        # Position variance from pixel noise: Σ (x − x̄)² σ² / (Σ I)² over the pixels used, σ²
-        # including the spot's own shot noise.
-        # The difference's noise already holds the background's shot noise; the spot adds its own
-        # (`shot` is per unit of the averaged frames' signal).
-        var_pix = np.where(signal > 0, noise**2 + signal * shot, 0.0)
-        var_u = float(((offs - du) ** 2) @ var_pix.sum(axis=0)) / mass**2
-        var_v = float(((offs - dv) ** 2) @ var_pix.sum(axis=1)) / mass**2
+                cov = cov * texture.sites * misfit
+        else:
+            # The spot's core only: a neighbouring spot's wing (the centre and parallel spots are
+            # 4 px apart at 5 m) is not this spot's misfit.
+            core = ((offs[None, :] - du) ** 2 + (offs[:, None] - dv) ** 2) <= (2.5 * max(size, 0.7)) ** 2
+            use = ~saturated & mine & core & (above > 3.0 * noise)
+            coef = _fit_gaussian(above, use, offs)
+            if coef is not None:
+                resid = (above - _model(coef, offs))[use]
+                dof = int(use.sum()) - 6
+                if dof >= 3:
+                    misfit = max(1.0, float((resid * resid / var_all[use]).sum()) / dof)
+            if saturated.any():
+                fitted = _fit_unsaturated(signal, saturated, offs, 3.0 * noise)
+                if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
+                    du, dv = fitted
+                    cu, cv = u0 + du, v0 + dv
+        if cov is not None:
+            var_u, var_v = float(cov[0, 0]), float(cov[1, 1])
+        else:
+            # Position variance from pixel noise: Σ (x − x̄)² σ² / (Σ I)² over the pixels used, σ²
+            # including the spot's own shot noise (`shot` is per unit of the averaged frames'
+            # signal), grown by the noise's correlation and the fit's misfit.
+            var_pix = np.where(signal > 0, noise**2 + signal * shot, 0.0)
+            grow = texture.area * misfit
+            var_u = grow * float(((offs - du) ** 2) @ var_pix.sum(axis=0)) / mass**2
+            var_v = grow * float(((offs - dv) ** 2) @ var_pix.sum(axis=1)) / mass**2
         # Where along the path, and how far from it, from the strip row the seed came from.
         pu, pv = float(band.path[row, 0]), float(band.path[row, 1])
         tu, tv = float(band.tangent[row, 0]), float(band.tangent[row, 1])
@@ -392,4 +626,6 @@ class SpotFinder:
             size,
             float(band.inv_depth[k]),
             cross,
+            matched,
+            misfit,
         )

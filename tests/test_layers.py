@@ -28,6 +28,9 @@ CORE = (
     "modes/guard.py",
     "modes/blindaid/logic.py",
     "laserhealth.py",
+    "accuracy/conditions.py",
+    "accuracy/floor.py",
+    "accuracy/score.py",
 )
 CORE_FORBIDDEN = ("edge.hw", "edge.mqtt", "edge.service", "edge.sim", "time", "threading", "subprocess")
 

@@ -38,7 +38,7 @@ def _laser(ox: float, oy: float, ax: float, ay: float, name: str = "l") -> Laser
     return Laser(name, (ox, oy, 0.0), tuple(d))
 
 
-@settings(max_examples=200)
+@settings(max_examples=200, deadline=None)  # a loaded machine can take 200 ms for one
 @given(
     ox=st.floats(-0.1, 0.1), oy=st.floats(-0.1, 0.1), ax=st.floats(-0.3, 0.3), ay=st.floats(-0.3, 0.3),
     z=st.floats(0.25, 5.0), k1=st.floats(-0.15, 0.05),

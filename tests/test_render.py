@@ -259,3 +259,87 @@ def test_a_mover_is_patched_into_the_cached_view_exactly() -> None:
     assert len(changed) > 1000  # the person covers a good part of the frame
     # Their spots land on the person, nearer than the wall behind.
     assert renderer.spots(-11.0, 0.0, t)["center"].depth_m < renderer.spots(-11.0, 0.0, 0.0)["center"].depth_m - 0.5
+
+
+# --- the knobs that real cameras and rooms turn (edge.accuracy's conditions) ---------------------
+
+_SMALL = ["rig.camera.width=160", "rig.camera.height=120", "rig.camera.fx=132.5", "rig.camera.fy=132.5",
+          "rig.camera.cx=79.5", "rig.camera.cy=59.5"]
+
+
+def _small(*overrides: str) -> Renderer:
+    """A 160 × 120 camera facing a flat wall 1.2 m away: a view costs a few tens of ms."""
+    from edge.sim.record import flat_target_scene
+
+    config = load_config(None, [*_SMALL, *overrides])
+    return Renderer(flat_target_scene(1.2, "cardboard"), config.rig.build(), config.sim, config.camera)
+
+
+def test_a_bayer_sensor_sees_one_colour_a_pixel_and_the_camera_fills_in_the_rest() -> None:
+    from edge.sim.render import _mosaic
+
+    bgr = np.zeros((4, 4, 3), np.float32)
+    bgr[..., 0], bgr[..., 1], bgr[..., 2] = 1.0, 2.0, 3.0
+    raw = _mosaic(bgr)
+    assert raw[0, 0] == 3.0 and raw[1, 1] == 1.0 and raw[0, 1] == raw[1, 0] == 2.0  # RGGB
+    plain_wall = ("sim.surfaces.texture_scale=0", "sim.beam.speckle=0")
+    ideal, bayer = _small(*plain_wall), _small('sim.sensor.bayer="ea"', *plain_wall)
+    e = ideal.render_electrons(0.0, 0.0, {})
+    plain, demosaiced = ideal.digitise(e, None).astype(float), bayer.digitise(e, None).astype(float)
+    # A smooth wall survives demosaicing: its borders aside, within a level.
+    assert np.abs(plain - demosaiced)[4:-4, 4:-4].mean() < 1.0
+    # A spot wider than the filter's 2-px pitch is found where it is (a sharper one is undersampled
+    # in red: that is what the floor's one-colour-a-pixel information counts).
+    blurred = _small('sim.sensor.bayer="bilinear"', "sim.optics.psf_sigma_px=1.2", "sim.beam.e_per_ms_at_1m=5000",
+                     *plain_wall)
+    truth = blurred.spots(0.0, 0.0)["center"]
+    e = blurred.render_electrons(0.0, 0.0, {})
+    spot = blurred.digitise(blurred.render_electrons(0.0, 0.0, {"center": 1.0}), None).astype(float)
+    spot -= blurred.digitise(e, None)
+    assert np.linalg.norm(_centroid(spot[..., 2], truth.pixel, 5) - truth.pixel) < 0.1
+
+
+def test_jpeg_chroma_subsampling_smears_a_red_spot_more_than_full_chroma() -> None:
+    frames = {}
+    wall = ("sim.surfaces.texture_scale=0", "sim.ambient.white_e_per_ms=60")
+    for chroma in ("4:2:0", "4:4:4"):
+        r = _small("sim.sensor.jpeg_quality=90", f'sim.sensor.jpeg_chroma="{chroma}"', *wall)
+        frames[chroma] = r.render(0.0, 0.0, {"center": 1.0}, 0.0, np.random.default_rng(0), noise=False)
+    renderer = _small(*wall)
+    lossless = renderer.render(0.0, 0.0, {"center": 1.0}, 0.0, np.random.default_rng(0), noise=False)
+    u, v = (int(round(c)) for c in renderer.spots(0.0, 0.0)["center"].pixel)
+    near = (slice(v - 4, v + 5), slice(u - 4, u + 5), 2)
+    loss = {c: np.abs(f[near].astype(float) - lossless[near]).sum() for c, f in frames.items()}
+    assert loss["4:4:4"] < 0.6 * loss["4:2:0"], loss
+    assert not np.array_equal(frames["4:2:0"], frames["4:4:4"])
+
+
+def test_surfaces_change_every_material_at_once() -> None:
+    base = _small("sim.beam.speckle=0")
+    models = {
+        "base": base.spot_model(0.0, 0.0, "center"),
+        "dark": _small("sim.beam.speckle=0", "sim.surfaces.albedo_scale=0.5").spot_model(0.0, 0.0, "center"),
+        "glossy": _small("sim.beam.speckle=0", "sim.surfaces.extra_gloss=0.2").spot_model(0.0, 0.0, "center"),
+    }
+    assert all(m is not None for m in models.values())
+    total = {k: m.total_e for k, m in models.items() if m is not None}
+    assert total["dark"] == pytest.approx(0.5 * total["base"], rel=1e-6)
+    assert total["glossy"] > 2.0 * total["base"]  # seen squarely, a glossy wall flashes back
+    room = base.render_electrons(0.0, 0.0, {})
+    dark = _small("sim.surfaces.albedo_scale=0.5").render_electrons(0.0, 0.0, {})
+    assert dark.sum() == pytest.approx(0.5 * room.sum(), rel=1e-5)
+    textured = _small("sim.optics.vignetting=false").render_electrons(0.0, 0.0, {})
+    flat = _small("sim.optics.vignetting=false", "sim.surfaces.texture_scale=0").render_electrons(0.0, 0.0, {})
+    assert flat[..., 2].std() < 1e-3 * textured[..., 2].std()
+
+
+def test_spot_model_is_what_the_frames_hold() -> None:
+    renderer = _small("sim.beam.speckle=0")
+    model = renderer.spot_model(0.0, 0.0, "center")
+    assert model is not None and model.truth.visible
+    spot = renderer.render_electrons(0.0, 0.0, {"center": 1.0}) - renderer.render_electrons(0.0, 0.0, {})
+    assert spot.sum(axis=(0, 1)) == pytest.approx(model.total_e * model.response, rel=1e-3)
+    bg = model.background
+    h, w, _ = bg.electrons.shape
+    room = renderer.render_electrons(0.0, 0.0, {})[bg.y0 : bg.y0 + h, bg.x0 : bg.x0 + w]
+    assert np.allclose(bg.electrons, room, rtol=1e-5)

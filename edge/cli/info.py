@@ -13,11 +13,24 @@ def add_parsers(sub: Any) -> None:
     add_config_options(p)
     p.set_defaults(func=cmd_config)
 
-    p = sub.add_parser("bench", help="measure speed (prints figures, asserts nothing)")
+    p = sub.add_parser("bench", help="measure speed or accuracy (prints figures, asserts nothing)")
     add_config_options(p)
-    p.add_argument("what", choices=["render", "ranging", "blindaid", "rangefinder"], help="what to time")
+    p.add_argument("what", choices=["render", "ranging", "blindaid", "rangefinder", "accuracy"],
+                   help="what to time, or accuracy: ranging on a family of simulated conditions against the floor")
     p.add_argument("--repeats", type=int,
                    help="runs to take the median of (blindaid: passes of the fan; rangefinder: ranges)")
+    a = p.add_argument_group("accuracy")
+    a.add_argument("--conditions", type=int, default=8, help="conditions of the family to run (default 8)")
+    a.add_argument("--seed", type=int, default=0, help="the first condition's index in its family (default 0)")
+    a.add_argument("--zones", type=int, default=16, help="zones per condition (default 16)")
+    a.add_argument("--family", choices=["tuning", "evaluation"], default="tuning",
+                   help="tuning (default) for work on the estimator; evaluation, which no tuning may see, to report")
+    a.add_argument("--rig", choices=["true", "calibrated", "nominal"], default="true",
+                   help="what ranging is given: the simulated rig as built (default), one fitted from a "
+                        "simulated calibration, or the nominal one")
+    a.add_argument("--jobs", type=int, default=0, help="conditions run at once (default: one per core)")
+    a.add_argument("--keep", metavar="DIR", help="keep the recordings in DIR")
+    a.add_argument("--json", metavar="FILE", help="also write every zone's result, truth and floor (JSON)")
     p.set_defaults(func=cmd_bench)
 
 
@@ -41,6 +54,8 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "accuracy":
+        return cmd_bench_accuracy(args)
     from edge import bench
 
     config = load(args)
@@ -48,4 +63,44 @@ def cmd_bench(args: argparse.Namespace) -> int:
            "rangefinder": bench.bench_rangefinder}[args.what]
     lines = run(config, **({"repeats": args.repeats} if args.repeats else {}))
     print("\n".join(lines))
+    return 0
+
+
+def cmd_bench_accuracy(args: argparse.Namespace) -> int:
+    import json
+    import os
+    import sys
+    from pathlib import Path
+
+    from edge.accuracy.bench import condition_line, report, run_family
+    from edge.accuracy.conditions import FAMILY_SIZE, family
+    from edge.errors import UsageError
+
+    if not 1 <= args.conditions <= 1000:
+        raise UsageError("--conditions: must be 1-1000")
+    if not 0 <= args.seed <= FAMILY_SIZE - args.conditions:
+        raise UsageError(f"--seed: must be 0-{FAMILY_SIZE - args.conditions}")
+    if not 1 <= args.zones <= 1024:
+        raise UsageError("--zones: must be 1-1024")
+    if args.json:
+        from edge.fsutil import check_output
+
+        check_output(args.json, "--json", error=UsageError)
+    load(args)  # a bad configuration is reported before any work
+    conditions = family(args.family, args.conditions, args.seed)
+    jobs = args.jobs or min(len(conditions), os.cpu_count() or 1)
+
+    def done(run) -> None:
+        print(condition_line(run), file=sys.stderr, flush=True)
+
+    runs = run_family(args.config, args.set, conditions, args.zones, args.rig, jobs,
+                      Path(args.keep) if args.keep else None, done)
+    print("\n".join(report(runs, args.family, args.zones, args.rig)))
+    if args.json:
+        from edge.fsutil import atomic_write_bytes
+
+        doc = {"family": args.family, "zones": args.zones, "rig": args.rig,
+               "conditions": [r.condition.to_json() | {"rig": r.rig} for r in runs],
+               "rows": [row for r in runs for row in r.rows]}
+        atomic_write_bytes(Path(args.json), json.dumps(doc, indent=1).encode())
     return 0

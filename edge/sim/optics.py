@@ -27,8 +27,8 @@ import numpy as np
 SUPERSAMPLE = 5
 # Speckle: number of random phasors and the highest spatial frequency (rad/px) of the field; the
 # contrast below was tuned (tests/test_render.py measures it) for ~0.1 px centroid jitter at f/2.
-_SPECKLE_WAVES = 48
-_SPECKLE_KMAX = 2.2
+SPECKLE_WAVES = 48
+SPECKLE_KMAX = 2.2
 SPECKLE_CONTRAST_F2 = 0.45
 
 
@@ -122,7 +122,7 @@ def speckle_field(
         return np.ones_like(x)
     kx, ky, phase = _speckle_waves(rng, grain)
     arg = x[..., None] * kx + y[..., None] * ky + phase
-    field = np.abs(np.exp(1j * arg).sum(axis=-1)) ** 2 / _SPECKLE_WAVES
+    field = np.abs(np.exp(1j * arg).sum(axis=-1)) ** 2 / SPECKLE_WAVES
     return 1.0 + contrast * (field - 1.0)
 
 
@@ -138,15 +138,15 @@ def speckle_grid(
     kx, ky, phase = _speckle_waves(rng, grain)
     rows = np.exp(1j * (np.asarray(ys)[:, None] * ky + phase))
     columns = np.exp(1j * (np.asarray(xs)[:, None] * kx))
-    field = np.abs(rows @ columns.T) ** 2 / _SPECKLE_WAVES
+    field = np.abs(rows @ columns.T) ** 2 / SPECKLE_WAVES
     return 1.0 + contrast * (field - 1.0)
 
 
 def _speckle_waves(rng: np.random.Generator, grain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The phasors' spatial frequencies (kx, ky, rad/px) and phases, drawn in this order."""
-    k = (_SPECKLE_KMAX / grain) * np.sqrt(rng.random(_SPECKLE_WAVES))
-    angle = rng.random(_SPECKLE_WAVES) * 2.0 * math.pi
-    phase = rng.random(_SPECKLE_WAVES) * 2.0 * math.pi
+    k = (SPECKLE_KMAX / grain) * np.sqrt(rng.random(SPECKLE_WAVES))
+    angle = rng.random(SPECKLE_WAVES) * 2.0 * math.pi
+    phase = rng.random(SPECKLE_WAVES) * 2.0 * math.pi
     return k * np.cos(angle), k * np.sin(angle), phase
 
 

@@ -23,6 +23,10 @@ from edge.sim.scene import DevicePlacement, Scene, SceneSpec, load_scene, scene_
 
 log = logging.getLogger(__name__)
 
+# More truth for a zone: given the renderer, the views of the zone's frame pairs (pan, tilt) and the
+# zone's time, a dict merged into the zone's `truth` (e.g. the physical floor, edge.accuracy.truth).
+ExtraTruth = Callable[[Renderer, list[tuple[float, float]], float], dict]
+
 # The lasers switch this long before a frame's exposure starts (they settle well within it).
 _SWITCH_LEAD_NS = 2_000_000
 
@@ -80,6 +84,7 @@ def record_sweep(
     zones: int | None = None,
     pairs: int | None = None,
     progress: Callable[[int, int], None] | None = None,
+    extra_truth: ExtraTruth | None = None,
 ) -> Path:
     """Simulate one sweep of `config` and write it to `out`. Returns `out`."""
     sweep = config.sweep
@@ -88,7 +93,7 @@ def record_sweep(
     scene = scene_for(config)
     renderer = Renderer(scene, true_rig(config), config.sim, config.camera)
     views = [(renderer, pan, tilt) for pan, tilt in sweep.poses()]
-    return _record(config, out, views, pairs or sweep.pairs_per_zone, f"sim-{scene.name}", progress)
+    return _record(config, out, views, pairs or sweep.pairs_per_zone, f"sim-{scene.name}", progress, extra_truth)
 
 
 def record_targets(
@@ -98,12 +103,13 @@ def record_targets(
     pairs: int | None = None,
     material: str = "paint-white",
     progress: Callable[[int, int], None] | None = None,
+    extra_truth: ExtraTruth | None = None,
 ) -> Path:
     """Zone i shows a flat target squarely at distances_m[i] (pan 0, tilt 0): what `edge calibrate`
     takes, and the wall test of the ranging targets."""
     rig = true_rig(config)
     views = [(Renderer(flat_target_scene(d, material), rig, config.sim, config.camera), 0.0, 0.0) for d in distances_m]
-    return _record(config, out, views, pairs or config.sweep.pairs_per_zone, "sim-target", progress)
+    return _record(config, out, views, pairs or config.sweep.pairs_per_zone, "sim-target", progress, extra_truth)
 
 
 def _record(
@@ -113,6 +119,7 @@ def _record(
     pairs: int,
     device: str,
     progress: Callable[[int, int], None] | None,
+    extra_truth: ExtraTruth | None = None,
 ) -> Path:
     camera = config.camera
     frame_ns = camera.frame_ns
@@ -142,6 +149,9 @@ def _record(
                     clock_ns += frame_ns
             spots = renderer.spots(pan, tilt, zone_t_s)
             truth = zone_truth(renderer.rig, spots, renderer.rig.camera_to_base(pan, tilt))
+            if extra_truth is not None:
+                pair_views = [(pan + nudge, tilt) for nudge in config.sweep.nudges_deg(pairs)]
+                truth.update(extra_truth(renderer, pair_views, zone_t_s))
             writer.add_zone(index, pan, tilt, frames, truth)
             clock_ns += exposure_ns  # the unit moves between zones; the clock only needs to advance
             if progress:

@@ -25,6 +25,7 @@ from edge.errors import CameraError
 from edge.hw.camera import CameraSettings
 from edge.rig import Laser, Pose, Rig
 from edge.sim import optics
+from edge.sim.materials import TEXTURE_FLOOR
 from edge.sim.scene import Scene, SceneGeometry
 from edge.sim.settings import RigErrorConfig, SimConfig
 
@@ -34,6 +35,10 @@ _AMBIENT_BY_NORMAL_Z = (0.8, 0.2)  # factor = a + b · n_z
 _GREY_WEIGHTS_RGB = np.array([0.299, 0.587, 0.114])
 _MAX_LASER_DISTANCE_M = 50.0
 _CACHE_VIEWS = 8
+# OpenCV's demosaicing of an RGGB sensor (R at even rows and columns), by `sensor.bayer`.
+_DEMOSAIC = {"bilinear": cv2.COLOR_BayerRGGB2BGR, "vng": cv2.COLOR_BayerRGGB2BGR_VNG,
+             "ea": cv2.COLOR_BayerRGGB2BGR_EA}
+_JPEG_CHROMA = {"4:2:0": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420, "4:4:4": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444}
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,21 @@ class SpotTruth:
     @property
     def depth_m(self) -> float | None:
         return None if self.point_camera is None else float(self.point_camera[2])
+
+
+@dataclass(frozen=True)
+class SpotModel:
+    """One laser's spot in one view as the renderer puts it on the sensor, before noise and
+    speckle: what the physical floor of locating it needs (:mod:`edge.accuracy.floor`)."""
+
+    truth: SpotTruth
+    covariance: np.ndarray  # (2, 2) px²: the Gaussian spot's footprint and blur in the image
+    total_e: float  # the spot's photo-electrons at the configured exposure, vignetting included
+    response: np.ndarray  # (C,) relative response of each channel to the laser (B, G, R; or grey)
+    speckle_contrast: float  # as optics.speckle_field takes them
+    speckle_grain: float
+    speckle_key: tuple[int, ...]  # the speckle pattern's seed: equal keys, equal patterns
+    background: optics.SpotImage  # room light (h, w, C) electrons around the spot, no flicker
 
 
 @dataclass
@@ -235,13 +255,22 @@ class Renderer:
         """Room light at the configured exposure for the `hits` of camera `rays` (N, 3, unit):
         (N, C) float32 photo-electrons, vignetting included."""
         albedo, _, _ = geometry.material(hits.face)
-        texture = geometry.texture(hits.face, hits.surface_uv)
+        albedo, texture = self._surface(albedo, geometry.texture(hits.face, hits.surface_uv))
         light = _AMBIENT_BY_NORMAL_Z[0] + _AMBIENT_BY_NORMAL_Z[1] * hits.normal[:, 2]
         radiance = albedo * (texture * np.where(hits.hit, light, 0.0))[:, None]  # (N, 3) RGB
         img = radiance[:, ::-1] if self.channels == 3 else (radiance @ _GREY_WEIGHTS_RGB)[:, None]
         # cos⁴ fall-off of a simple lens: a unit ray's camera-frame z is its cosine.
         fall_off = rays[:, 2] ** 4 if self.sim.optics.vignetting else np.ones(len(rays))
         return (img * (self._ambient_e * fall_off)[:, None]).astype(np.float32)
+
+    def _surface(self, albedo: np.ndarray, texture: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Albedo and texture as ``sim.surfaces`` changes every surface's."""
+        change = self.sim.surfaces
+        if change.texture_scale != 1.0:
+            texture = np.maximum(TEXTURE_FLOOR, 1.0 + change.texture_scale * (texture - 1.0))
+        if change.albedo_scale != 1.0:
+            albedo = np.minimum(albedo * change.albedo_scale, 1.0)
+        return albedo, texture
 
     def spots(self, pan_deg: float, tilt_deg: float, t_s: float = 0.0) -> dict[str, SpotTruth]:
         """Where each laser meets the scene in this view, and whether the camera sees it."""
@@ -291,6 +320,26 @@ class Renderer:
     # --- photometry ---------------------------------------------------------------------------
 
     def _spot_image(self, view: _View, truth: SpotTruth) -> optics.SpotImage | None:
+        cov, total, key = self._spot_params(view, truth)
+        cam = self.rig.camera
+        assert truth.pixel is not None  # `_spot_params` checked that the spot is visible
+        rng = None if key is None else np.random.default_rng([w & 0xFFFFFFFF for w in key])
+        return optics.render_spot(
+            truth.pixel, cov, total, cam.width, cam.height, rng, self._speckle_contrast,
+            self._speckle_grain,
+        )
+
+    @property
+    def _speckle_contrast(self) -> float:
+        return optics.SPECKLE_CONTRAST_F2 * self.sim.beam.speckle
+
+    @property
+    def _speckle_grain(self) -> float:
+        return self.sim.optics.f_number / 2.0 * self.sim.beam.speckle_grain
+
+    def _spot_params(self, view: _View, truth: SpotTruth) -> tuple[np.ndarray, float, tuple[int, ...] | None]:
+        """A visible spot's image covariance (2, 2) px², its photo-electrons, and the seed of its
+        speckle (None without speckle)."""
         # Only visible spots are imaged, and `_spot` gives a visible one all of its geometry.
         assert (truth.point_world is not None and truth.point_camera is not None and truth.pixel is not None
                 and truth.surface_uv is not None and truth.normal_world is not None)
@@ -303,9 +352,11 @@ class Renderer:
         dist = float(np.linalg.norm(to_camera))
         travelled = float(np.linalg.norm(truth.point_world - pose.apply(laser.o)))
         albedo, gloss, shininess = view.geometry.material(np.array([truth.face]))
-        texture = float(view.geometry.texture(np.array([truth.face]), truth.surface_uv[None])[0])
+        albedo, texture_ = self._surface(albedo, view.geometry.texture(np.array([truth.face]), truth.surface_uv[None]))
+        texture = float(texture_[0])
+        gloss_ = min(1.0, float(gloss[0]) + sim.surfaces.extra_gloss)
         fraction = optics.reflected_fraction(
-            float(albedo[0, 0]) * texture, float(gloss[0]), float(shininess[0]), beam, normal, to_camera / dist
+            float(albedo[0, 0]) * texture, gloss_, float(shininess[0]), beam, normal, to_camera / dist
         )
         u, v = truth.pixel
         row, col = min(max(int(round(v)), 0), cam.height - 1), min(max(int(round(u)), 0), cam.width - 1)
@@ -322,22 +373,28 @@ class Renderer:
             cam.fx, sim.optics.focal_length_mm, sim.optics.f_number, sim.optics.focus_m, float(p_cam[2])
         )
         cov = optics.image_covariance(np.stack([j1, j2], axis=1), sigmas, sim.optics.psf_sigma_px, defocus)
-        rng = None
+        key = None
         if sim.beam.speckle > 0:
             cell = sim.beam.speckle_cell_m
             q = np.floor(truth.surface_uv / cell).astype(np.int64)
-            words = (sim.seed, truth.face_key, int(q[0]), int(q[1]))
-            rng = np.random.default_rng([w & 0xFFFFFFFF for w in words])
-        return optics.render_spot(
-            truth.pixel,
-            cov,
-            total,
-            cam.width,
-            cam.height,
-            rng,
-            optics.SPECKLE_CONTRAST_F2 * sim.beam.speckle,
-            sim.optics.f_number / 2.0,
-        )
+            key = (sim.seed, truth.face_key, int(q[0]), int(q[1]))
+        return cov, total, key
+
+    def spot_model(self, pan_deg: float, tilt_deg: float, laser: str, t_s: float = 0.0) -> SpotModel | None:
+        """`laser`'s spot in this view as the sensor receives it, or None when it is not visible."""
+        view = self._view(pan_deg, tilt_deg, t_s)
+        truth = self._lit_spot(view, laser)[0]
+        if not truth.visible or truth.pixel is None:
+            return None
+        cov, total, key = self._spot_params(view, truth)
+        cam = self.rig.camera
+        radius = int(math.ceil(4.0 * math.sqrt(float(np.linalg.eigvalsh(cov)[-1])))) + 1
+        cu, cv = int(round(float(truth.pixel[0]))), int(round(float(truth.pixel[1])))
+        x0, x1 = max(0, cu - radius), min(cam.width, cu + radius + 1)
+        y0, y1 = max(0, cv - radius), min(cam.height, cv + radius + 1)
+        room = np.array(view.electrons[y0:y1, x0:x1], dtype=np.float64)
+        return SpotModel(truth, cov, total, self._laser_response.copy(), self._speckle_contrast,
+                         self._speckle_grain, key or (), optics.SpotImage(x0, y0, room))
 
     def render_electrons(
         self,
@@ -399,6 +456,9 @@ class Renderer:
         """Photo-electrons → the frame the camera delivers (noise when `rng` is given)."""
         sensor = self.sim.sensor
         e = np.array(electrons, dtype=np.float32)  # a copy, worked on in place from here
+        mosaic = sensor.bayer != "none" and e.ndim == 3 and e.shape[-1] == 3
+        if mosaic:
+            e = _mosaic(e)
         if rng is not None:
             # Shot noise (Gaussian approximation of Poisson: the counts here are large) + read noise.
             sd = np.maximum(e, 0.0)
@@ -416,13 +476,26 @@ class Renderer:
         e *= np.float32(full / top)
         np.rint(e, out=e)
         out: np.ndarray = e.astype(np.uint8 if sensor.output_bits == 8 else np.uint16)
-        if out.shape[-1] == 1:
+        if mosaic:
+            out = cv2.cvtColor(out, _DEMOSAIC[sensor.bayer])
+        elif out.shape[-1] == 1:
             out = out[..., 0]
         if sensor.jpeg_quality:
             # 8-bit only: the config refuses jpeg_quality with 16-bit output.
-            ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, sensor.jpeg_quality])
+            params = [cv2.IMWRITE_JPEG_QUALITY, sensor.jpeg_quality]
+            if out.ndim == 3:
+                params += [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, _JPEG_CHROMA[sensor.jpeg_chroma]]
+            ok, buf = cv2.imencode(".jpg", out, params)
             decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if ok else None
             if decoded is None:
                 raise CameraError(f"simulated camera: OpenCV could not round-trip a {out.shape} frame through JPEG")
             out = decoded
         return out
+
+
+def _mosaic(bgr: np.ndarray) -> np.ndarray:
+    """What an RGGB Bayer sensor measures of a (H, W, 3) BGR image: (H, W), one colour a pixel."""
+    raw = bgr[..., 1].copy()  # green on the other diagonal
+    raw[0::2, 0::2] = bgr[0::2, 0::2, 2]
+    raw[1::2, 1::2] = bgr[1::2, 1::2, 0]
+    return raw

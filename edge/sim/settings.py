@@ -21,6 +21,13 @@ class SensorConfig:
     output_bits: Literal[8, 16] = 8
     colour: bool = True
     jpeg_quality: int = 0  # 0: lossless PNG; 1-100: what a webcam's JPEG stream does to frames
+    # JPEG's colour resolution: "4:2:0" halves it both ways (MJPEG webcams; OpenCV's default),
+    # "4:4:4" keeps it whole. A small red spot lives mostly in the chroma.
+    jpeg_chroma: Literal["4:2:0", "4:4:4"] = "4:2:0"
+    # A colour sensor sees one colour per pixel through its Bayer filter (RGGB) and the camera
+    # interpolates the other two: "none" is an ideal sensor that sees all three everywhere;
+    # "bilinear", "vng" and "ea" (edge-aware) are OpenCV's demosaicing methods.
+    bayer: Literal["none", "bilinear", "vng", "ea"] = "none"
     # Rolling shutter: row 0's exposure start to the last row's. The IMX219's 640×480 mode runs at
     # up to 206 fps, so it reads out in under 5 ms; a webcam takes most of its frame period.
     readout_ms: float = 5.0
@@ -36,6 +43,8 @@ class SensorConfig:
             "jpeg_quality",
             "JPEG frames are 8-bit; set output_bits = 8",
         )
+        require(self.bayer == "none" or self.colour, "bayer", "a grey sensor has no colour filter; set colour = true")
+        require(self.bayer != "vng" or self.output_bits == 8, "bayer", "OpenCV's vng demosaics 8-bit frames only")
 
 
 @dataclass(frozen=True)
@@ -66,6 +75,9 @@ class BeamConfig:
     response_bgr: tuple[float, float, float] = (0.03, 0.10, 1.0)
     speckle: float = 1.0  # 0: no speckle; 1: the modelled speckle of a pointer at f/2
     speckle_cell_m: float = 0.0002  # how far the spot must move on the surface for new speckle
+    # Speckle grain relative to that of a 650 nm pointer seen at f/2 by the Pi camera's pixels
+    # (the grain grows with the f-number and the wavelength, and shrinks with bigger pixels).
+    speckle_grain: float = 1.0
 
     def __post_init__(self) -> None:
         require(self.e_per_ms_at_1m >= 0, "e_per_ms_at_1m", "must be >= 0")
@@ -73,6 +85,7 @@ class BeamConfig:
         require(self.divergence_mrad >= 0, "divergence_mrad", "must be >= 0")
         require(self.speckle >= 0, "speckle", "must be >= 0")
         require(self.speckle_cell_m > 0, "speckle_cell_m", "must be positive")
+        require(0.1 <= self.speckle_grain <= 10, "speckle_grain", "must be 0.1-10")
 
 
 @dataclass(frozen=True)
@@ -86,6 +99,21 @@ class AmbientConfig:
     def __post_init__(self) -> None:
         require(self.white_e_per_ms >= 0, "white_e_per_ms", "must be >= 0")
         require(0 <= self.flicker < 1, "flicker", "must be in [0, 1)")
+
+
+@dataclass(frozen=True)
+class SurfacesConfig:
+    """Every surface of the scene changed at once (``[sim.surfaces]``): rooms darker, brighter,
+    plainer or shinier than their scene file, without writing another."""
+
+    albedo_scale: float = 1.0  # diffuse reflectance × this (capped at 1)
+    texture_scale: float = 1.0  # the procedural texture's contrast × this
+    extra_gloss: float = 0.0  # added to every material's specular fraction (capped at 1)
+
+    def __post_init__(self) -> None:
+        require(0 < self.albedo_scale <= 100, "albedo_scale", "must be in (0, 100]")
+        require(0 <= self.texture_scale <= 10, "texture_scale", "must be 0-10")
+        require(0 <= self.extra_gloss <= 1, "extra_gloss", "must be 0-1")
 
 
 @dataclass(frozen=True)
@@ -153,6 +181,7 @@ class SimConfig:
     optics: OpticsConfig = field(default_factory=OpticsConfig)
     beam: BeamConfig = field(default_factory=BeamConfig)
     ambient: AmbientConfig = field(default_factory=AmbientConfig)
+    surfaces: SurfacesConfig = field(default_factory=SurfacesConfig)
     rig_error: RigErrorConfig = field(default_factory=RigErrorConfig)
     camera_faults: tuple[CameraFault, ...] = ()  # for trying the service's fault handling
     laser_faults: tuple[LaserFault, ...] = ()  # broken lasers, for trying fault reporting

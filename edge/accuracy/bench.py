@@ -1,0 +1,212 @@
+"""``edge bench accuracy``: ranging on a family of simulated conditions, against the physical floor.
+
+Per condition (:mod:`edge.accuracy.conditions`) the simulator records a sweep whose zones carry their
+truth and their floor (:mod:`edge.accuracy.truth`) into a scratch folder; the current estimator
+ranges it again as ``edge replay`` does; :mod:`edge.accuracy.score` compares. Conditions run in
+parallel processes, one per core by default. A benchmark: it prints figures and asserts nothing.
+
+What the estimator is given as the rig (``rig``):
+
+- ``true``: the simulated rig as built, mounting errors and all — the estimator's own accuracy,
+  which is what the floor bounds (the default);
+- ``calibrated``: the rig fitted, as a user would (``edge calibrate``), from a recording of a white
+  board at 0.4–3 m taken by the same camera in the same light; a fit that fails leaves the nominal
+  rig, and says so;
+- ``nominal``: the rig as configured, as if never calibrated.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import multiprocessing
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from edge.accuracy.conditions import Condition
+from edge.accuracy.score import Figures, ZoneOutcome, targets
+from edge.config import Config, load_config
+from edge.ranging import ZoneResult
+from edge.rig import Rig
+
+log = logging.getLogger(__name__)
+
+RIGS = ("true", "calibrated", "nominal")
+CALIBRATION_DISTANCES_M = (0.4, 0.6, 0.9, 1.3, 2.0, 3.0)
+CALIBRATION_PAIRS = 4  # as cmd/calibrate takes them: nudged, so that speckle averages out
+
+
+@dataclass(frozen=True)
+class Run:
+    """What one condition gave."""
+
+    condition: Condition
+    outcomes: tuple[ZoneOutcome, ...]
+    rig: str  # what ranging was given, in words
+    seconds: float
+    rows: tuple[dict, ...] = ()  # per zone: result, truth and floor, for a closer look
+
+    @property
+    def figures(self) -> Figures:
+        return Figures.of(self.outcomes)
+
+
+def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condition, zones: int,
+                  rig: str, folder: Path) -> Run:
+    """Record condition `cond` of the configuration (`config_path` with `overrides`), range it with
+    the `rig` asked for (one of RIGS) and score it. Recordings go to `folder`."""
+    from edge.accuracy.truth import floor_truth
+    from edge.recording import read_recording
+    from edge.replay import Replayer
+    from edge.sim.record import record_sweep, true_rig
+
+    began = time.monotonic()
+    base = load_config(config_path, list(overrides))
+    extra = cond.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones,
+                           base.camera.frame_rate_hz)
+    config = load_config(config_path, [*overrides, *extra])
+    out = folder / cond.name
+    record_sweep(config, out, extra_truth=floor_truth(config))
+    recording = read_recording(out)
+    if rig == "true":
+        ranging_rig, said = true_rig(config), "true"
+    elif rig == "calibrated":
+        ranging_rig, said = _calibrated(config, recording.rig, folder / f"{cond.name}-calibration")
+    elif rig == "nominal":
+        ranging_rig, said = recording.rig, "nominal"
+    else:
+        raise ValueError(f"rig must be one of {', '.join(RIGS)}, got {rig!r}")
+    replayer = Replayer(ranging_rig, "triangulate", config.ranging)
+    reference = recording.rig.reference.name
+    outcomes, rows = [], []
+    for zone, result in zip(recording.zones, replayer.zones(recording)):
+        outcome = ZoneOutcome.of(result, zone.truth, reference)
+        outcomes.append(outcome)
+        rows.append(_row(cond, zone.pan_deg, zone.tilt_deg, outcome, result, zone.truth or {}, reference))
+    return Run(cond, tuple(outcomes), said, time.monotonic() - began, tuple(rows))
+
+
+def _calibrated(config: Config, nominal: Rig, out: Path) -> tuple[Rig, str]:
+    """The rig fitted from a simulated white board at CALIBRATION_DISTANCES_M (the room's surfaces
+    do not matter: a user calibrates with a matte white board), or the nominal rig if it fails."""
+    from edge.calibration.fit import fit_calibration
+    from edge.errors import CalibrationError
+    from edge.recording import read_recording
+    from edge.sim.record import record_targets
+    from edge.sim.settings import SurfacesConfig
+
+    board = replace(config, sim=replace(config.sim, surfaces=SurfacesConfig()))
+    record_targets(board, list(CALIBRATION_DISTANCES_M), out, pairs=CALIBRATION_PAIRS)
+    try:
+        cal = fit_calibration(read_recording(out), CALIBRATION_DISTANCES_M)
+    except CalibrationError as exc:
+        return nominal, f"nominal (calibration failed: {exc})"
+    return cal.apply(nominal), "calibrated"
+
+
+def _row(cond: Condition, pan: float, tilt: float, z: ZoneOutcome, result: ZoneResult, truth: dict,
+         reference: str) -> dict:
+    floor = truth.get("floor") or {}
+    mine = result.lasers.get(reference)
+    return {
+        "condition": cond.name, "zone": z.index, "pan_deg": pan, "tilt_deg": tilt,
+        "status": z.status, "detail": result.detail, "range_m": z.range_m, "sigma_m": z.sigma_m,
+        "truth_m": z.truth_m, "error_m": z.error_m, "visible": z.visible, "observable": z.observable,
+        "wrong": z.wrong, "floor": floor,
+        "spot": None if mine is None else mine.to_json(),
+    }
+
+
+def run_family(config_path: str | None, overrides: Sequence[str], conditions: Sequence[Condition], zones: int,
+               rig: str = "true", jobs: int = 1, keep: Path | None = None,
+               progress: Callable[[Run], None] | None = None) -> list[Run]:
+    """Every condition of `conditions`, `jobs` at a time, in condition order. Recordings go to
+    `keep` if given, else to a scratch folder removed afterwards."""
+    with tempfile.TemporaryDirectory(prefix="edge-accuracy-") as scratch:
+        folder = keep if keep is not None else Path(scratch)
+        folder.mkdir(parents=True, exist_ok=True)
+        args = [(config_path, tuple(overrides), c, zones, rig, folder) for c in conditions]
+        runs: list[Run] = []
+        if jobs <= 1:
+            for a in args:
+                runs.append(run_condition(*a))
+                if progress:
+                    progress(runs[-1])
+            return runs
+        # Fresh interpreters: the parent may hold threads (logging, a progress bar) that fork copies badly.
+        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = [pool.submit(run_condition, *a) for a in args]
+            for f in futures:
+                runs.append(f.result())
+                if progress:
+                    progress(runs[-1])
+        return runs
+
+
+# --- the report ---------------------------------------------------------------------------------
+
+
+def _mm(x: float) -> str:
+    return "-" if math.isnan(x) else f"{1000 * x:.1f}"
+
+
+def _num(x: float, fmt: str = ".2f") -> str:
+    return "-" if math.isnan(x) else format(x, fmt)
+
+
+def _pct(x: float) -> str:
+    return "-" if math.isnan(x) else f"{100 * x:.0f}%"
+
+
+HEADER = (f"{'condition':<14} {'covered':>8} {'ok':>3} {'mean|e|':>8} {'med|e|':>7} {'mean%':>6} "
+          f"{'e/floor':>7} {'med':>5} {'≤2σ':>5} {'wrong':>5} {'σ/floor':>7}  set-up")
+
+
+def condition_line(run: Run) -> str:
+    f = run.figures
+    return (f"{run.condition.name:<14} {f.covered:>3}/{f.observable:<4} {f.ok:>3} {_mm(f.mean_abs_m):>8} "
+            f"{_mm(f.median_abs_m):>7} {_num(100 * f.mean_rel):>6} {_num(f.mean_ratio):>7} "
+            f"{_num(f.median_ratio, '.1f'):>5} {_pct(f.within_2sigma):>5} {f.wrong_ok:>5} "
+            f"{_num(f.sigma_over_floor):>7}  {run.condition.describe()}")
+
+
+def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[str]:
+    """The benchmark's printout: a line per condition, the family's figures and the targets."""
+    if not runs:
+        return ["no conditions"]
+    seeds = f"{runs[0].condition.seed}-{runs[-1].condition.seed}"
+    lines = [
+        f"ranging accuracy on {len(runs)} conditions of the {family_name} family (seeds {seeds}), "
+        f"{zones} zones each, ranged with the {rig} rig",
+        "  covered: ok / observable zones (reference spot's matched-filter SNR ≥ 6); |e| in mm over "
+        "covered zones; e/floor: |error| ÷ the floor's σ (0.80 at the floor); σ/floor: median claimed σ ÷ floor",
+        HEADER,
+    ]
+    lines += [condition_line(r) for r in runs]
+    notes = [f"  {r.condition.name}: ranged with the {r.rig} rig" for r in runs if r.rig not in RIGS]
+    lines += notes
+    per = [r.figures for r in runs]
+    pooled = Figures.of([z for r in runs for z in r.outcomes])
+    missed = ", ".join(f"{s} {n}" for s, n in sorted(pooled.missed.items(), key=lambda kv: -kv[1])) or "none"
+    lines += [
+        "",
+        f"family: {pooled.zones} zones, {pooled.observable} observable, {pooled.covered} of them ok "
+        f"(coverage {_pct(pooled.coverage)}); {pooled.ok} ok in all, {pooled.wrong_ok} wrong",
+        f"  |error| over covered zones: mean {_mm(pooled.mean_abs_m)} mm, median {_mm(pooled.median_abs_m)} mm, "
+        f"mean {_num(100 * pooled.mean_rel)} % of range",
+        f"  |error| ÷ floor: mean {_num(pooled.mean_ratio)}, median {_num(pooled.median_ratio)}; "
+        f"claimed σ ÷ floor: median {_num(pooled.sigma_over_floor)}",
+        f"  within 2σ: {_pct(pooled.within_2sigma)} of {pooled.scored} ok zones with truth "
+        f"(worst condition {_pct(min((f.within_2sigma for f in per if f.scored), default=math.nan))})",
+        f"  observable zones not ok: {missed}",
+        f"  time: {sum(r.seconds for r in runs):.0f} s of work",
+        "targets (to be met on the evaluation family):",
+    ]
+    for t in targets(per, pooled):
+        value = _pct(t.value) if "%" in t.what else _num(t.value, "g" if t.what.startswith("wrong") else ".2f")
+        lines.append(f"  [{'met' if t.met else 'not met'}] {t.what}: {value}")
+    return lines

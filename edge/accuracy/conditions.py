@@ -1,0 +1,237 @@
+"""A family of simulated conditions: what real cameras and rooms vary, drawn per recording.
+
+One simulator setting says little about a device in someone else's room, with someone else's camera.
+A condition draws, from its seed, everything the simulator can vary that real set-ups do:
+
+- the camera: resolution (320 × 240 to 1280 × 720), field of view (50–75°), principal point and
+  barrel distortion; the sensor's full well, read noise and ADC; grey or colour, with an ideal
+  3-colour sensor or a Bayer filter and one of OpenCV's demosaicing methods; lossless frames
+  (8- or 16-bit) or JPEG of quality 50–95 with 4:2:0 or 4:4:4 chroma;
+- the light: laser power and room light each ¼–4 × the configured, and the exposure someone (or an
+  auto-exposure) chose for the room: a white wall under its light fills 25–80 % of the full well,
+  within 0.5–30 ms (a fixed exposure in a bright room would clip every wall: nothing to measure);
+- the room: the scene (office, kitchen), every surface's albedo ×0.1–1.2 (so about 0.03–0.9 for the
+  usual materials) and texture contrast ×0.3–3, extra gloss on half of the rooms;
+- the optics: f-number, focus distance (defocus), lens blur; the speckle's contrast and grain and
+  how far a spot must move for a new pattern;
+- how the rig was built (``sim.rig_error``): lasers tilted up to 0.3° and shifted up to 1 mm, the
+  focal length off by up to 1 %;
+- where the zones look: pans all round, tilts from 30° down to 15° up.
+
+Ranging is configured as the base configuration says; a condition changes only the simulator, the
+camera model and the sweep's poses. A condition is a set of ``--set`` overrides, so any of them can
+be recorded again by hand: ``edge sim record --out DIR --set …``.
+
+**Tuning and evaluation seeds are disjoint by construction.** Condition i of the ``tuning`` family
+has seed 1 000 000 + i, of the ``evaluation`` family 2 000 000 + i (i < 1 000 000): tune estimators
+on ``tuning`` only, and report ``evaluation``, which no tuning may ever see.
+
+Pure: numbers in, strings out.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, fields
+from typing import Literal
+
+import numpy as np
+
+Family = Literal["tuning", "evaluation"]
+FAMILIES: dict[str, int] = {"tuning": 1_000_000, "evaluation": 2_000_000}
+FAMILY_SIZE = 1_000_000
+SCENES = ("office", "kitchen")
+# (width, height) of the cameras drawn, and how often: Pi cameras binned, webcams, an HD webcam.
+RESOLUTIONS = ((320, 240), (352, 288), (640, 480), (800, 600), (1280, 720))
+RESOLUTION_WEIGHTS = (0.15, 0.15, 0.4, 0.15, 0.15)
+_SALT = 0xACC  # separates the conditions' draws from any other use of their seed
+_POSES_SALT = 0x9053
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One drawn set-up. Scales (×) are relative to the base configuration's values."""
+
+    family: str
+    index: int
+    seed: int  # the simulator's seed (noise, speckle, the rig's errors); unique over both families
+    scene: str
+    width: int
+    height: int
+    fx: float  # fy = fx
+    cx: float
+    cy: float
+    k1: float  # radial distortion (OpenCV's k1; negative: barrel)
+    colour: bool
+    bayer: Literal["none", "bilinear", "vng", "ea"]
+    jpeg_quality: int  # 0: lossless
+    jpeg_chroma: Literal["4:2:0", "4:4:4"]
+    output_bits: Literal[8, 16]
+    adc_bits: int
+    full_well_e: float
+    read_noise_e: float
+    laser_power: float  # ×
+    room_light: float  # ×
+    fill: float  # the exposure fills this much of the full well with a white wall's room light
+    albedo_scale: float
+    texture_scale: float
+    extra_gloss: float
+    f_number: float
+    focus_m: float
+    psf_sigma_px: float
+    speckle: float  # × the modelled contrast
+    speckle_grain: float
+    speckle_cell_m: float
+    laser_angle_deg: float  # 1 σ, as sim.rig_error takes them
+    laser_offset_m: float
+    focal_scale: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.family}-{self.index}"
+
+    def poses(self, zones: int) -> list[tuple[float, float]]:
+        """Where the sweep's `zones` look (pan, tilt in degrees); the first n are the same for any
+        `zones` ≥ n, so that a short run is a prefix of a long one."""
+        rng = np.random.default_rng([self.seed, _POSES_SALT])
+        out = []
+        for _ in range(zones):
+            pan, tilt = rng.uniform(-180.0, 180.0), rng.uniform(-30.0, 15.0)
+            out.append((round(float(pan), 4), round(float(tilt), 4)))
+        return out
+
+    def exposure_us(self, white_e_per_ms: float, frame_rate_hz: float = 30.0) -> float:
+        """The exposure in a room whose white wall sends `white_e_per_ms` (× the room light)."""
+        light = white_e_per_ms * self.room_light
+        wanted = 1000.0 * self.fill * self.full_well_e / light if light > 0 else math.inf
+        return round(min(max(wanted, 500.0), 30000.0, 0.9e6 / frame_rate_hz), 1)
+
+    def overrides(self, beam_e_per_ms_at_1m: float, white_e_per_ms: float, zones: int,
+                  frame_rate_hz: float = 30.0) -> tuple[str, ...]:
+        """``--set`` overrides that make this condition of a base configuration whose beam, room
+        light and frame rate are these (the scales multiply them)."""
+        poses = json.dumps([list(p) for p in self.poses(zones)])
+        return (
+            f"camera.exposure_us={self.exposure_us(white_e_per_ms, frame_rate_hz)!r}",
+            f"sim.scene={json.dumps(self.scene)}",
+            f"sim.seed={self.seed}",
+            f"rig.camera.width={self.width}",
+            f"rig.camera.height={self.height}",
+            f"rig.camera.fx={self.fx!r}",
+            f"rig.camera.fy={self.fx!r}",
+            f"rig.camera.cx={self.cx!r}",
+            f"rig.camera.cy={self.cy!r}",
+            f"rig.camera.dist=[{self.k1!r}, 0.0, 0.0, 0.0, 0.0]",
+            f"sim.sensor.colour={str(self.colour).lower()}",
+            f"sim.sensor.bayer={json.dumps(self.bayer)}",
+            f"sim.sensor.jpeg_quality={self.jpeg_quality}",
+            f"sim.sensor.jpeg_chroma={json.dumps(self.jpeg_chroma)}",
+            f"sim.sensor.output_bits={self.output_bits}",
+            f"sim.sensor.adc_bits={self.adc_bits}",
+            f"sim.sensor.full_well_e={self.full_well_e!r}",
+            f"sim.sensor.read_noise_e={self.read_noise_e!r}",
+            f"sim.beam.e_per_ms_at_1m={beam_e_per_ms_at_1m * self.laser_power!r}",
+            f"sim.ambient.white_e_per_ms={white_e_per_ms * self.room_light!r}",
+            f"sim.surfaces.albedo_scale={self.albedo_scale!r}",
+            f"sim.surfaces.texture_scale={self.texture_scale!r}",
+            f"sim.surfaces.extra_gloss={self.extra_gloss!r}",
+            f"sim.optics.f_number={self.f_number!r}",
+            f"sim.optics.focus_m={self.focus_m!r}",
+            f"sim.optics.psf_sigma_px={self.psf_sigma_px!r}",
+            f"sim.beam.speckle={self.speckle!r}",
+            f"sim.beam.speckle_grain={self.speckle_grain!r}",
+            f"sim.beam.speckle_cell_m={self.speckle_cell_m!r}",
+            f"sim.rig_error.laser_angle_deg={self.laser_angle_deg!r}",
+            f"sim.rig_error.laser_offset_m={self.laser_offset_m!r}",
+            f"sim.rig_error.focal_scale={self.focal_scale!r}",
+            f"sim.rig_error.seed={self.seed}",
+            f"sweep.poses_deg={poses}",
+        )
+
+    def describe(self) -> str:
+        """One short line of what matters most to ranging."""
+        sensor = "grey" if not self.colour else ("3-colour" if self.bayer == "none" else f"bayer-{self.bayer}")
+        frames = f"jpeg{self.jpeg_quality} {self.jpeg_chroma}" if self.jpeg_quality else f"png{self.output_bits}"
+        return (f"{self.scene} {self.width}x{self.height} {sensor} {frames}, laser ×{self.laser_power:.2g} "
+                f"light ×{self.room_light:.2g} fill {self.fill:.2f} albedo ×{self.albedo_scale:.2g} "
+                f"gloss +{self.extra_gloss:.2f} f/{self.f_number:.1f}@{self.focus_m:.1f}m speckle ×{self.speckle:.2g}")
+
+    def to_json(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def condition(family: Family | str, index: int) -> Condition:
+    """Condition `index` of `family` (``tuning`` or ``evaluation``)."""
+    if family not in FAMILIES:
+        raise ValueError(f"family must be one of {', '.join(FAMILIES)}, got {family!r}")
+    if not 0 <= index < FAMILY_SIZE:
+        raise ValueError(f"a condition's index must be 0-{FAMILY_SIZE - 1}, got {index}")
+    seed = FAMILIES[family] + index
+    # The draws below are in a fixed order: a new knob must be drawn after all of them, so that
+    # every condition keeps what it was (and figures measured on it stay comparable).
+    rng = np.random.default_rng([seed, _SALT])
+    width, height = RESOLUTIONS[int(rng.choice(len(RESOLUTIONS), p=RESOLUTION_WEIGHTS))]
+    hfov = math.radians(rng.uniform(50.0, 75.0))
+    fx = round(width / 2.0 / math.tan(hfov / 2.0), 3)
+    cx = round((width - 1) / 2.0 + rng.uniform(-0.02, 0.02) * width, 3)
+    cy = round((height - 1) / 2.0 + rng.uniform(-0.02, 0.02) * height, 3)
+    k1 = round(float(rng.uniform(-0.25, 0.05)), 4)
+    colour = bool(rng.random() < 0.9)
+    lossless = bool(rng.random() < 0.5)
+    output_bits: Literal[8, 16] = 16 if lossless and rng.random() < 0.3 else 8
+    bayer_choice = str(rng.choice(["none", "bilinear", "vng", "ea"], p=[0.25, 0.25, 0.25, 0.25]))
+    if not colour:
+        bayer_choice = "none"
+    elif bayer_choice == "vng" and output_bits == 16:
+        bayer_choice = "ea"
+    bayer: Literal["none", "bilinear", "vng", "ea"] = bayer_choice  # type: ignore[assignment]
+    jpeg_quality = 0 if lossless else int(rng.integers(50, 96))
+    jpeg_chroma: Literal["4:2:0", "4:4:4"] = "4:2:0" if rng.random() < 0.6 else "4:4:4"
+    adc_bits = int(rng.choice([8, 10, 12], p=[0.2, 0.5, 0.3]))
+    full_well = round(_log_uniform(rng, 3000.0, 20000.0), 1)
+    read_noise = round(_log_uniform(rng, 1.5, 15.0), 2)
+    return Condition(
+        family=family,
+        index=index,
+        seed=seed,
+        scene=str(rng.choice(SCENES)),
+        width=width,
+        height=height,
+        fx=fx,
+        cx=cx,
+        cy=cy,
+        k1=k1,
+        colour=colour,
+        bayer=bayer,
+        jpeg_quality=jpeg_quality,
+        jpeg_chroma=jpeg_chroma,
+        output_bits=output_bits,
+        adc_bits=adc_bits,
+        full_well_e=full_well,
+        read_noise_e=read_noise,
+        laser_power=round(_log_uniform(rng, 0.25, 4.0), 4),
+        room_light=round(_log_uniform(rng, 0.25, 4.0), 4),
+        fill=round(float(rng.uniform(0.25, 0.8)), 3),
+        albedo_scale=round(_log_uniform(rng, 0.1, 1.2), 4),
+        texture_scale=round(_log_uniform(rng, 0.3, 3.0), 4),
+        extra_gloss=round(float(rng.uniform(0.0, 0.3)), 4) if rng.random() < 0.5 else 0.0,
+        f_number=round(float(rng.uniform(1.8, 2.8)), 2),
+        focus_m=round(_log_uniform(rng, 0.5, 3.0), 3),
+        psf_sigma_px=round(float(rng.uniform(0.4, 1.0)), 3),
+        speckle=round(float(rng.uniform(0.5, 1.5)), 3),
+        speckle_grain=round(_log_uniform(rng, 0.7, 1.5), 3),
+        speckle_cell_m=round(_log_uniform(rng, 1e-4, 4e-4), 6),
+        laser_angle_deg=round(float(rng.uniform(0.0, 0.3)), 4),
+        laser_offset_m=round(float(rng.uniform(0.0, 0.001)), 6),
+        focal_scale=round(float(rng.uniform(0.0, 0.01)), 5),
+    )
+
+
+def family(name: Family | str, count: int, start: int = 0) -> list[Condition]:
+    """Conditions start … start + count − 1 of family `name`."""
+    return [condition(name, i) for i in range(start, start + count)]

@@ -1,0 +1,217 @@
+"""The accuracy benchmark's parts: the family of conditions (seeded, disjoint, within its ranges, each
+a valid configuration), the floor of rendered frames against a fit that reaches it, the scoring
+rules, and a tiny family recorded, replayed and reported."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edge.accuracy import conditions as cond
+from edge.accuracy.floor import OBSERVABLE_SNR, spot_profile
+from edge.accuracy.score import Figures, ZoneOutcome, targets
+from edge.config import load_config
+from edge.ranging import OK, ZoneResult
+
+# --- conditions ----------------------------------------------------------------------------------
+
+
+def test_conditions_are_seeded_and_tuning_never_meets_evaluation() -> None:
+    assert cond.condition("tuning", 3) == cond.condition("tuning", 3)
+    tuning = cond.family("tuning", 50)
+    evaluation = cond.family("evaluation", 50)
+    assert [c.name for c in tuning[:2]] == ["tuning-0", "tuning-1"]
+    assert not {c.seed for c in tuning} & {c.seed for c in evaluation}
+    # By construction, over the whole of both families: seeds in disjoint blocks.
+    last_tuning = cond.FAMILIES["tuning"] + cond.FAMILY_SIZE - 1
+    assert last_tuning < cond.FAMILIES["evaluation"]
+    assert tuning[0] != replace(evaluation[0], family="tuning", index=0, seed=tuning[0].seed)
+    assert cond.family("evaluation", 3, start=10)[0] == cond.condition("evaluation", 10)
+    with pytest.raises(ValueError, match="family"):
+        cond.condition("test", 0)
+    with pytest.raises(ValueError, match="index"):
+        cond.condition("tuning", cond.FAMILY_SIZE)
+
+
+def test_conditions_cover_what_the_issue_asks_within_its_ranges() -> None:
+    family = cond.family("tuning", 200)
+    jpeg = [c for c in family if c.jpeg_quality]
+    assert 0.3 < len(jpeg) / len(family) < 0.7
+    assert all(50 <= c.jpeg_quality <= 95 and c.output_bits == 8 for c in jpeg)
+    assert {c.jpeg_chroma for c in jpeg} == {"4:2:0", "4:4:4"}
+    assert {c.bayer for c in family if c.colour} == {"none", "bilinear", "vng", "ea"}
+    assert any(not c.colour for c in family) and all(c.bayer == "none" for c in family if not c.colour)
+    assert {(c.width, c.height) for c in family} == set(cond.RESOLUTIONS)
+    assert {c.scene for c in family} == set(cond.SCENES)
+    for key, lo, hi in [("laser_power", 0.25, 4), ("room_light", 0.25, 4), ("albedo_scale", 0.1, 1.2),
+                        ("texture_scale", 0.3, 3), ("extra_gloss", 0, 0.3), ("laser_angle_deg", 0, 0.3),
+                        ("focus_m", 0.5, 3), ("f_number", 1.8, 2.8), ("read_noise_e", 1.5, 15),
+                        ("fill", 0.25, 0.8)]:
+        values = [getattr(c, key) for c in family]
+        assert lo <= min(values) and max(values) <= hi, key
+        assert max(values) - min(values) > 0.5 * (hi - lo), f"{key} does not spread over its range"
+    # Half-power points of the log-uniform scales: as many below 1 as above.
+    assert 0.35 < np.mean([c.laser_power < 1 for c in family]) < 0.65
+
+
+def test_a_condition_is_a_valid_configuration_of_what_it_says() -> None:
+    base = load_config(None, [])
+    for c in cond.family("evaluation", 12):
+        extra = c.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones=5)
+        config = load_config(None, list(extra))
+        assert config.sim.seed == c.seed == config.sim.rig_error.seed
+        assert config.sim.scene == c.scene
+        assert config.rig.build().camera.width == c.width and config.rig.camera.dist == (c.k1, 0, 0, 0, 0)
+        assert config.sim.beam.e_per_ms_at_1m == pytest.approx(20000.0 * c.laser_power)
+        assert config.sim.ambient.white_e_per_ms == pytest.approx(600.0 * c.room_light)
+        assert config.sim.sensor.bayer == c.bayer and config.sim.sensor.jpeg_quality == c.jpeg_quality
+        assert config.sim.surfaces.albedo_scale == c.albedo_scale
+        assert config.sweep.poses() == c.poses(5)
+        white = 600.0 * c.room_light * config.camera.exposure_us / 1000.0  # e of a white wall
+        assert 500.0 <= config.camera.exposure_us <= 30000.0
+        assert white == pytest.approx(c.fill * c.full_well_e, rel=1e-3) or config.camera.exposure_us in (500, 30000)
+        assert c.name in c.describe() or c.scene in c.describe()
+    c = cond.condition("tuning", 0)
+    assert c.poses(12)[:5] == c.poses(5)  # a short run is a prefix of a long one
+    assert all(-180 <= p <= 180 and -30 <= t <= 15 for p, t in c.poses(50))
+
+
+# --- the floor of rendered frames ----------------------------------------------------------------
+
+_SMALL = ["rig.camera.width=160", "rig.camera.height=120", "rig.camera.fx=132.5", "rig.camera.fy=132.5",
+          "rig.camera.cx=79.5", "rig.camera.cy=59.5"]
+
+
+def test_the_floor_of_a_rendered_spot_is_what_a_fit_of_its_frames_reaches() -> None:
+    """The renderer's noise is the floor's: a least-squares fit of the spot's known shape to the
+    difference of real frames scatters as the floor's noise term says."""
+    from edge.accuracy.truth import sensor_of, zone_floors
+    from edge.sim.record import flat_target_scene
+    from edge.sim.render import Renderer
+
+    config = load_config(None, [*_SMALL, "sim.sensor.colour=false", "sim.sensor.output_bits=16",
+                                "sim.beam.speckle=0", "sim.ambient.flicker=0", "sim.beam.e_per_ms_at_1m=400"])
+    renderer = Renderer(flat_target_scene(1.5, "cardboard"), config.rig.build(), config.sim, config.camera)
+    floors, zone = zone_floors(renderer, sensor_of(config), [(0.0, 0.0)])
+    assert set(floors) == {"center", "parallel", "sloped"} and zone["used"] == ["center", "parallel", "sloped"]
+    center = floors["center"]
+    assert center.observable and center.speckle_m == 0.0 and center.clipped == 0
+    assert zone["reference_sigma_m"] == pytest.approx(center.sigma_m, rel=1e-6)
+    assert zone["sigma_m"] < 0.8 * center.sigma_m  # the sloped laser's depth is the sharper
+    model = renderer.spot_model(0.0, 0.0, "center")
+    assert model is not None and model.truth.pixel is not None
+    s = config.sim.sensor
+    e_per_dn = s.full_well_e / 65535.0
+    bg = model.background
+    h, w = bg.electrons.shape[:2]
+    rows, cols = slice(bg.y0, bg.y0 + h), slice(bg.x0, bg.x0 + w)
+    rng = np.random.default_rng(2)
+    fits = []
+    for _ in range(120):
+        on = renderer.render(0.0, 0.0, {"center": 1.0}, 0.0, rng)[rows, cols].astype(float)
+        off = renderer.render(0.0, 0.0, {}, 0.0, rng)[rows, cols].astype(float)
+        diff = (on - off) * e_per_dn
+        c = model.truth.pixel.copy()
+        for _ in range(5):
+            g, d = spot_profile(c, model.covariance, bg.x0, bg.y0, w, h)
+            jac = (model.total_e * d).reshape(2, -1).T
+            c = c + np.linalg.lstsq(jac, (diff - model.total_e * g).ravel(), rcond=None)[0]
+        fits.append(c)
+    spread = np.array(fits).std(axis=0)
+    bound = np.sqrt(np.diag(center.noise_cov_px))
+    # An unweighted fit is nearly efficient here (the room light's noise dominates the spot's own).
+    assert np.all(spread >= 0.85 * bound) and np.all(spread <= 1.3 * bound), (spread, bound)
+
+
+# --- scoring -------------------------------------------------------------------------------------
+
+
+def _zone(index: int, status: str = OK, range_m: float | None = 2.0, sigma_m: float | None = 0.01,
+          truth_m: float | None = 2.0, visible: bool = True, floor_m: float | None = 0.01,
+          snr: float = 20.0) -> ZoneOutcome:
+    return ZoneOutcome(index, status, range_m if status == OK else None, sigma_m if status == OK else None,
+                       truth_m, visible, floor_m, snr)
+
+
+def test_outcomes_read_the_truth_the_recording_carries() -> None:
+    truth = {"range_m": 2.0, "lasers": {"center": {"visible": True}},
+             "floor": {"sigma_m": 0.004, "reference_sigma_m": 0.01, "lasers": {"center": {"snr": 12.5}}}}
+    result = ZoneResult(3, 10.0, 0.0, OK, 2.01, 0.006)
+    z = ZoneOutcome.of(result, truth, "center")
+    assert (z.truth_m, z.visible, z.floor_m, z.snr, z.reference_floor_m) == (2.0, True, 0.004, 12.5, 0.01)
+    assert z.observable and z.error_m == pytest.approx(0.01) and z.ratio == pytest.approx(2.5)
+    assert z.within_2sigma is True and not z.wrong
+    blind = ZoneOutcome.of(ZoneResult(4, 0.0, 0.0, "no_spot"), {"range_m": None}, "center")
+    assert not blind.observable and blind.snr == 0.0 and blind.error_m is None
+
+
+def test_figures_and_targets_follow_the_rules() -> None:
+    zones = [
+        _zone(0, range_m=2.01),  # 1 floor off, within its claimed 2σ
+        _zone(1, range_m=2.03, sigma_m=0.01),  # 3 floors off, claims too little
+        _zone(2, status="no_spot"),  # observable, missed
+        _zone(3, status="no_spot", snr=OBSERVABLE_SNR - 1),  # too faint to count
+        _zone(4, range_m=2.5),  # 25 % off: wrong
+        _zone(5, visible=False, floor_m=None, snr=0.0),  # ranged what the camera cannot see: wrong
+    ]
+    f = Figures.of(zones)
+    assert (f.zones, f.observable, f.covered, f.ok, f.wrong_ok) == (6, 4, 3, 4, 2)
+    assert f.coverage == pytest.approx(3 / 4)
+    assert f.missed == {"no_spot": 1}
+    assert f.mean_abs_m == pytest.approx((0.01 + 0.03 + 0.5) / 3)
+    assert f.median_ratio == pytest.approx(3.0)
+    assert f.within_2sigma == pytest.approx(2 / 4)  # zones 0 and 5 (error 0) of the four ok
+    met = {t.what.split(" ")[0]: t.met for t in targets([f], f)}
+    assert met == {"wrong": False, "within": False, "coverage": False, "mean": False}
+    good = Figures.of([_zone(i, range_m=2.0 + 0.005 * (-1) ** i) for i in range(10)])
+    assert all(t.met for t in targets([good], good))
+    assert math.isnan(Figures.of([]).coverage)
+
+
+# --- a tiny family, end to end ------------------------------------------------------------------
+
+
+def test_a_tiny_family_is_recorded_replayed_and_reported(tmp_path: Path) -> None:
+    from edge.accuracy.bench import report, run_family
+    from edge.recording import read_recording
+
+    tiny = replace(cond.condition("tuning", 0), width=160, height=120, fx=110.0, cx=79.5, cy=59.5, k1=0.0,
+                   scene="office")
+    runs = run_family(None, [], [tiny], zones=3, rig="true", jobs=1, keep=tmp_path)
+    (run,) = runs
+    assert len(run.outcomes) == 3 and len(run.rows) == 3 and run.rig == "true"
+    rec = read_recording(tmp_path / "tuning-0")
+    assert rec.rig.camera.width == 160 and len(rec.zones) == 3
+    for zone in rec.zones:
+        assert zone.truth is not None and "floor" in zone.truth
+        if zone.truth["lasers"]["center"]["visible"]:
+            assert zone.truth["floor"]["lasers"]["center"]["snr"] > 0
+    text = "\n".join(report(runs, "tuning", 3, "true"))
+    for label in ("tuning-0", "family:", "coverage", "÷ floor", "targets", "wrong ok = 0"):
+        assert label in text
+
+
+def test_the_command_refuses_what_it_cannot_run(capsys: pytest.CaptureFixture[str]) -> None:
+    from edge.cli import main
+
+    assert main(["bench", "accuracy", "--conditions", "0"]) != 0
+    assert "--conditions: must be 1-1000" in capsys.readouterr().err
+    assert main(["bench", "accuracy", "--zones", "0"]) != 0
+    assert "--zones" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # a calibration recording: six distances of four nudged pairs
+def test_the_calibrated_rig_is_fitted_from_a_simulated_board(tmp_path: Path) -> None:
+    from edge.accuracy.bench import CALIBRATION_DISTANCES_M, run_condition
+    from edge.recording import read_recording
+
+    c = replace(cond.condition("tuning", 0), width=320, height=240, fx=265.0, cx=159.5, cy=119.5, k1=0.0,
+                jpeg_quality=0, bayer="none", colour=True, laser_angle_deg=0.3)
+    run = run_condition(None, [], c, 2, "calibrated", tmp_path)
+    assert run.rig == "calibrated" and len(run.outcomes) == 2
+    board = read_recording(tmp_path / "tuning-0-calibration")
+    assert [z.truth["range_m"] for z in board.zones if z.truth] == pytest.approx(CALIBRATION_DISTANCES_M, abs=0.01)
