@@ -46,6 +46,9 @@ def test_edge_sweep_writes_results_and_map(tmp_path: Path) -> None:
     doc = json.loads((tmp_path / "sweep.json").read_text())
     assert len(doc["zones"]) == 3
     assert (tmp_path / "map.png").stat().st_size > 1000
+    for name in ("map.pgm", "map.yaml", "cloud.ply"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert doc["rig"]["lasers"][0]["name"] == "center"  # what edge map casts the rays with
 
 
 def test_a_nudge_at_a_pan_limit_goes_inward() -> None:
