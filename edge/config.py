@@ -15,8 +15,8 @@ from typing import Any, Literal
 
 from edge.config_file import apply_overrides, default_config_path, read_table
 from edge.errors import ConfigError
-from edge.grid import GridConfig
 from edge.fsutil import output_problem
+from edge.grid import GridConfig
 from edge.hw.camera import CameraSettings
 from edge.hw.lasers import DEFAULT_WIRING, LasersConfig, LaserWiring
 from edge.hw.ptu import PtuConfig

@@ -29,7 +29,6 @@ from edge.ranging import NO_SPOT, OK, OUT_OF_RANGE, ZoneResult
 from edge.rig import Rig
 from edge.schema import require
 
-
 # A no_spot ray whose other lasers saw spots is free up to this fraction of their nearest depth.
 OTHERS_MARGIN = 0.8
 
@@ -219,7 +218,8 @@ class OccupancyGrid:
             return
         ids, t_ins, t_outs, cells = [], [], [], []
         for k, ray in enumerate(rays):
-            reach = ray.hit_m + 4 * math.hypot(ray.sigma_m, self.resolution / 4) if ray.hit_m is not None else ray.free_m
+            spread = math.hypot(ray.sigma_m, self.resolution / 4)
+            reach = ray.hit_m + 4 * spread if ray.hit_m is not None else ray.free_m
             t_in, t_out, cell = self._crossed(ray, reach)
             ids.append(np.full(len(cell), k))
             t_ins.append(t_in)
@@ -230,8 +230,8 @@ class OccupancyGrid:
             return
         lo, hi = self.config.band_m
         # A hit outside the band (the floor, the ceiling) is no obstacle of this slice.
-        hit = np.array([r.hit_m if r.hit_m is not None and lo <= float(r.origin[2] + r.hit_m * r.direction[2]) <= hi
-                        else np.nan for r in rays])[ray_id]
+        hit = np.array([r.hit_m if r.hit_m is not None and lo <= float(r.origin[2] + r.hit_m * r.direction[2])
+                        <= hi else np.nan for r in rays])[ray_id]
         # A hit is spread by its σ and by a quarter of a cell: the obstacle's thickness of
         # Thrun's inverse sensor model. A wall on a cell's edge (rooms are often a whole number of
         # cells across) then marks both cells, not whichever side its noise fell on.
@@ -314,13 +314,14 @@ def grid_picture(
     # Crop to what is known (and the room), with a margin: most of a fresh grid is unknown.
     known = np.argwhere(grid.free() | grid.occupied())
     res = grid.resolution
-    ix0, iy0, ix1, iy1 = grid.size // 2 - 20, grid.size // 2 - 20, grid.size // 2 + 20, grid.size // 2 + 20
+    mid = grid.size // 2
+    ix0, iy0, ix1, iy1 = mid - 20, mid - 20, mid + 20, mid + 20
     if len(known):
-        iy0, ix0 = np.minimum(known.min(axis=0), (iy0, ix0))
-        iy1, ix1 = np.maximum(known.max(axis=0) + 1, (iy1, ix1))
+        iy0, ix0 = (int(v) for v in np.minimum(known.min(axis=0), (iy0, ix0)))
+        iy1, ix1 = (int(v) for v in np.maximum(known.max(axis=0) + 1, (iy1, ix1)))
     for a, b in room:
         for x, y in (a, b):
-            cx, cy = grid.cell_of(np.array([x, y]))
+            cx, cy = (int(v) for v in grid.cell_of(np.array([x, y])))
             ix0, iy0, ix1, iy1 = min(ix0, cx), min(iy0, cy), max(ix1, cx + 1), max(iy1, cy + 1)
     pad = max(4, int(0.3 / res))
     ix0, iy0 = max(0, int(ix0) - pad), max(0, int(iy0) - pad)

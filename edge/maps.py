@@ -20,7 +20,16 @@ import numpy as np
 from edge.cloud import Cloud, ply_bytes, scan_cloud
 from edge.errors import RecordingError
 from edge.fsutil import atomic_write_bytes, read_small
-from edge.grid import GridConfig, OccupancyGrid, Segment, grid_from_state, grid_picture, pgm_bytes, state_bytes, yaml_text
+from edge.grid import (
+    GridConfig,
+    OccupancyGrid,
+    Segment,
+    grid_from_state,
+    grid_picture,
+    pgm_bytes,
+    state_bytes,
+    yaml_text,
+)
 from edge.ranging import OK, STATUSES, LaserMeasurement, ZoneResult
 from edge.recording import SWEEP_JSON, LaserKeys, format_is, load, rig_of
 from edge.rig import CameraModel, Mount, Rig
@@ -155,7 +164,8 @@ def map_png(grid: OccupancyGrid, cloud: Cloud | None = None, room: Sequence[Segm
     """The grid's picture for people, PNG-encoded (what the service publishes)."""
     import cv2
 
-    points = [] if cloud is None else [p for p in cloud.points if grid.config.band_m[0] <= p[2] <= grid.config.band_m[1]]
+    lo, hi = grid.config.band_m
+    points = [] if cloud is None else [p for p in cloud.points if lo <= p[2] <= hi]
     ok, buf = cv2.imencode(".png", grid_picture(grid, points, room, title))
     if not ok:
         raise RuntimeError("could not encode the map as PNG")

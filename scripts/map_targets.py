@@ -17,8 +17,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from edge.cloud import scan_cloud
 from edge.config import load_config
 from edge.grid import GridConfig
