@@ -29,6 +29,8 @@ from edge.ranging import NO_SPOT, OK, OUT_OF_RANGE, ZoneResult
 from edge.rig import Rig
 from edge.schema import require
 
+# A hit marks the cells whose chance of holding it is at least this share of the likeliest's.
+SPREAD_MIN_SHARE = 0.5
 # A no_spot ray whose other lasers saw spots is free up to this fraction of their nearest depth.
 OTHERS_MARGIN = 0.8
 
@@ -250,7 +252,9 @@ class OccupancyGrid:
             peak = np.zeros(len(rays))
             np.maximum.at(peak, ray_id[h], mass)
             share = mass / np.maximum(peak[ray_id[h]], 1e-12)
-            spread = share >= 0.05
+            # Only cells about as likely as the likeliest: a far hit's σ of several centimetres would
+            # otherwise thicken walls by a cell on each side, which repeated sweeps make occupied.
+            spread = share >= SPREAD_MIN_SHARE
             delta[h[spread]] = self._hit * share[spread]
         flat = self.log_odds.reshape(-1)
         acc = np.zeros(flat.shape, np.float64)
