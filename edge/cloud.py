@@ -26,8 +26,6 @@ from edge.rig import Rig
 # Neighbours in view direction: this many nearest, within this many times the typical spacing.
 _NEIGHBOURS = 8
 _SPACING_FACTOR = 2.5
-# A neighbour this far off a plane, relative to range (or 3σ, if more), is not on it.
-TOLERANCE_OF_RANGE = 0.02
 
 
 @dataclass(frozen=True)
@@ -104,24 +102,20 @@ def estimate_normals(points: np.ndarray, views: np.ndarray, sigma: np.ndarray,
         centre = points[i]
         rng = float(np.linalg.norm(centre - viewpoints[i]))
         # Off the plane by more than this: another surface (a corner, an edge, a box on the floor).
-        # Ranging's error grows at grazing incidence (a floor seen at -40°: 2 % of range), so 3σ
-        # alone would split a surface into its points.
-        tol = max(3.0 * float(sigma[i]), TOLERANCE_OF_RANGE * rng, 0.01)
+        tol = max(3.0 * float(sigma[i]), 0.01 * rng, 0.005)
         rel = points[nb] - centre
         best: np.ndarray | None = None
-        best_key = (1, 0.0)
+        best_count = 1
         for a, b in itertools.combinations(range(len(nb)), 2):
             normal = np.cross(rel[a], rel[b])
             norm = float(np.linalg.norm(normal))
             if norm < 1e-3 * float(np.linalg.norm(rel[a])) * float(np.linalg.norm(rel[b])) + 1e-12:
                 continue  # nearly collinear: no plane
             normal /= norm
-            off = np.abs(rel @ normal)
-            inliers = off <= tol
-            # Most neighbours on the plane; of equals, the one they lie on most closely.
-            key = (int(inliers.sum()), -float(off[inliers].sum()))
-            if key > best_key:
-                best_key, best = key, inliers
+            inliers = np.abs(rel @ normal) <= tol
+            count = int(inliers.sum())
+            if count > best_count:
+                best_count, best = count, inliers
         if best is None:
             continue
         fit = np.vstack([np.zeros(3), rel[best]])
