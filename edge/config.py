@@ -16,6 +16,7 @@ from typing import Any, Literal
 from edge.config_file import apply_overrides, default_config_path, read_table
 from edge.errors import ConfigError
 from edge.fsutil import output_problem
+from edge.grid import GridConfig
 from edge.hw.camera import CameraSettings
 from edge.hw.lasers import DEFAULT_WIRING, LasersConfig, LaserWiring
 from edge.hw.ptu import PtuConfig
@@ -129,6 +130,8 @@ class SweepConfig:
     pan_start_deg: float = 0.0
     pan_step_deg: float = 360.0 / 64
     tilt_deg: float = 0.0
+    # A 3D scan: the zones at each of these tilts (empty: at tilt_deg only).
+    tilts_deg: tuple[float, ...] = ()
     poses_deg: tuple[tuple[float, float], ...] = ()  # explicit (pan, tilt) list; replaces the above
     pairs_per_zone: int = 2  # laser-off/laser-on frame pairs per zone
     # Between pairs the unit is nudged by this much in pan so that each pair sees different laser
@@ -141,6 +144,12 @@ class SweepConfig:
         for key in ("pan_start_deg", "pan_step_deg"):
             require(abs(getattr(self, key)) <= 360.0, key, "must be within ±360°")
         require(abs(self.tilt_deg) <= 90.0, "tilt_deg", "must be within ±90°")
+        require(len(self.tilts_deg) <= 64, "tilts_deg", "at most 64 tilt levels")
+        for i, tilt in enumerate(self.tilts_deg):
+            require(abs(tilt) <= 90.0, f"tilts_deg[{i}]", f"must be within ±90°, got {tilt:g}")
+            require(tilt not in self.tilts_deg[:i], f"tilts_deg[{i}]", f"tilt {tilt:g}° is listed twice")
+        require(self.zones * max(1, len(self.tilts_deg)) <= 4096, "tilts_deg",
+                f"zones × tilt levels must be at most 4096, got {self.zones} × {len(self.tilts_deg)}")
         require(len(self.poses_deg) <= 4096, "poses_deg", "at most 4096 poses")
         for i, (pan, tilt) in enumerate(self.poses_deg):
             require(abs(pan) <= 360.0 and abs(tilt) <= 90.0, f"poses_deg[{i}]",
@@ -155,11 +164,13 @@ class SweepConfig:
         return [((k + 1) // 2) * (1 if k % 2 else -1) * self.nudge_deg if k else 0.0 for k in range(n)]
 
     def poses(self) -> list[tuple[float, float]]:
-        """(pan, tilt) in degrees of each zone, in sweep order."""
+        """(pan, tilt) in degrees of each zone, by index: the pans of the first tilt level, then
+        of the next (the sweep visits them in its own order, see edge.sweep.visiting_order)."""
         if self.poses_deg:
             return list(self.poses_deg)
         return [
-            (_wrap_deg(self.pan_start_deg + i * self.pan_step_deg), self.tilt_deg)
+            (_wrap_deg(self.pan_start_deg + i * self.pan_step_deg), tilt)
+            for tilt in (self.tilts_deg or (self.tilt_deg,))
             for i in range(self.zones)
         ]
 
@@ -308,6 +319,7 @@ class Config:
     device: DeviceConfig = field(default_factory=DeviceConfig)
     rig: RigConfig = field(default_factory=RigConfig)
     sweep: SweepConfig = field(default_factory=SweepConfig)
+    map: GridConfig = field(default_factory=GridConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     ranging: RangingConfig = field(default_factory=RangingConfig)
     camera: CameraSettings = field(default_factory=CameraSettings)

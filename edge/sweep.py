@@ -70,13 +70,50 @@ def zone_views(config: Config, pan: float, tilt: float,
     return views
 
 
-def visiting_order(poses: Sequence[tuple[float, float]], start: tuple[float, float]) -> list[int]:
-    """Zone indices in the order to visit them: one pass in pan from the end nearer to where the
-    unit is (a full turn read in index order would swing the head round by 354° at the wrap)."""
-    order = sorted(range(len(poses)), key=lambda i: (poses[i][0], poses[i][1]))
-    if order and abs(poses[order[-1]][0] - start[0]) < abs(poses[order[0]][0] - start[0]):
-        order.reverse()
-    return order
+def visiting_order(poses: Sequence[tuple[float, float]], start: tuple[float, float],
+                   move_s: Callable[[tuple[float, float], tuple[float, float]], float] | None = None) -> list[int]:
+    """Zone indices in the order to visit them, keeping the unit's moves short: a serpentine over
+    the tilt levels — one pass in pan at a tilt, back at the next — or over the pans (every tilt at
+    a pan, then the next pan), whichever takes less time by `move_s(from, to)` (default: the
+    longer axis's angle), started from the corner nearer to where the unit is. A single tilt
+    level is one pass in pan from the nearer end (a full turn read in index order would swing the
+    head round by 354° at the wrap)."""
+    if not poses:
+        return []
+    cost = move_s or (lambda a, b: max(abs(a[0] - b[0]), abs(a[1] - b[1])))
+
+    def serpentine(major: int) -> list[int]:
+        levels = sorted({p[major] for p in poses})
+        rows = [sorted((i for i in range(len(poses)) if poses[i][major] == level),
+                       key=lambda i: (poses[i][1 - major], poses[i][major])) for level in levels]
+        return [i for k, row in enumerate(rows) for i in (row if k % 2 == 0 else row[::-1])]
+
+    def total(order: list[int]) -> float:
+        here, t = start, 0.0
+        for i in order:
+            t += cost(here, poses[i])
+            here = poses[i]
+        return t
+
+    candidates = []
+    for major in (1, 0):  # rows of one tilt (the usual), then columns of one pan
+        order = serpentine(major)
+        candidates += [order, order[::-1]]
+        # Mirrored within each row: starting the first row from its other end.
+        mirrored = serpentine_mirrored(poses, order, major)
+        candidates += [mirrored, mirrored[::-1]]
+    return min(candidates, key=total)
+
+
+def serpentine_mirrored(poses: Sequence[tuple[float, float]], order: list[int], major: int) -> list[int]:
+    """`order` (a serpentine) with every row run the other way."""
+    rows: list[list[int]] = []
+    for i in order:
+        if rows and poses[rows[-1][0]][major] == poses[i][major]:
+            rows[-1].append(i)
+        else:
+            rows.append([i])
+    return [i for row in rows for i in row[::-1]]
 
 
 class Sweeper:
@@ -115,7 +152,7 @@ class Sweeper:
             start = self.ptu.position()
         except HardwareError as exc:
             raise type(exc)(f"cannot start the sweep: {exc}", part=exc.part) from None
-        order = visiting_order(poses, start)
+        order = visiting_order(poses, start, lambda a, b: self.ptu.move_time_s(*a, *b))
         views = [self.views(*poses[i]) for i in order]
         report.limit_s = sweep_limit_s(self.config, self.ptu, views, start)
         dropped_before = self.capture.dropped

@@ -24,6 +24,8 @@ CORE = (
     "vision.py",
     "ranging.py",
     "mapping.py",
+    "grid.py",
+    "cloud.py",
     "calibration/fit.py",
     "modes/guard.py",
     "modes/blindaid/logic.py",

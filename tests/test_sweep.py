@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from edge.config import load_config
-from edge.errors import HardwareError
+from edge.errors import ConfigError, HardwareError
 from edge.parts import open_parts
 from edge.recording import read_recording
 from edge.sweep import run_configured_sweep, sweeper_for, visiting_order, zone_views
@@ -46,6 +46,9 @@ def test_edge_sweep_writes_results_and_map(tmp_path: Path) -> None:
     doc = json.loads((tmp_path / "sweep.json").read_text())
     assert len(doc["zones"]) == 3
     assert (tmp_path / "map.png").stat().st_size > 1000
+    for name in ("map.pgm", "map.yaml", "cloud.ply"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert doc["rig"]["lasers"][0]["name"] == "center"  # what edge map casts the rays with
 
 
 def test_a_nudge_at_a_pan_limit_goes_inward() -> None:
@@ -141,3 +144,35 @@ def test_no_frame_the_sweep_uses_saw_a_laser_switch() -> None:
                 assert least == 1.0, (laser, least, most)
             else:
                 assert most == 0.0, (laser, least, most)
+
+
+def test_several_tilts_are_visited_as_a_serpentine() -> None:
+    poses = load_config(None, ["sweep.zones=4", "sweep.pan_step_deg=10.0",
+                               "sweep.tilts_deg=[-20.0, 0.0, 20.0]"]).sweep.poses()
+    assert len(poses) == 12 and poses[0] == (0.0, -20.0) and poses[4] == (0.0, 0.0)
+    order = visiting_order(poses, (0.0, 0.0))
+    assert sorted(order) == list(range(12))
+    steps = [(abs(poses[a][0] - poses[b][0]), abs(poses[a][1] - poses[b][1])) for a, b in zip(order, order[1:])]
+    # One step at a time: along a tilt level in pan, or up to the next level (never back across).
+    assert all((dp, dt) in ((10.0, 0.0), (0.0, 20.0)) for dp, dt in steps)
+
+
+def test_tilt_levels_are_checked() -> None:
+    with pytest.raises(ConfigError, match=r"sweep\.tilts_deg\[1\]: tilt 5° is listed twice"):
+        load_config(None, ["sweep.tilts_deg=[5.0, 5.0]"])
+    with pytest.raises(ConfigError, match=r"sweep\.tilts_deg\[0\]: must be within ±90°"):
+        load_config(None, ["sweep.tilts_deg=[95.0]"])
+
+
+def test_a_sweep_over_two_tilts_on_the_simulated_rig() -> None:
+    config = load_config(None, ["sweep.zones=2", "sweep.pan_start_deg=-90.0", "sweep.pan_step_deg=10.0",
+                                "sweep.tilts_deg=[0.0, -25.0]", "sweep.pairs_per_zone=1"])
+    sweep = run_configured_sweep(config)
+    results = sweep.report.results
+    poses = [(-90.0, 0.0), (-80.0, 0.0), (-90.0, -25.0), (-80.0, -25.0)]
+    assert [(r.pan_deg, r.tilt_deg) for r in results] == [pytest.approx(p, abs=0.06) for p in poses]
+    # Down 25° towards the wall 1.3 m away: the beam meets it 0.6 m lower, further along.
+    for r in results:
+        truth = sweep.truths[r.index]
+        assert r.status == "ok" and abs(r.range_m - truth["range_m"]) < 0.03 * truth["range_m"]
+    assert results[2].point_base_m[2] < -0.5

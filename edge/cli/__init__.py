@@ -14,7 +14,7 @@ import logging
 import sys
 
 from edge import __version__
-from edge.cli import calibrate, doctor, info, lasers, ptu, recordings, running, sweeps
+from edge.cli import calibrate, doctor, info, lasers, maps, ptu, recordings, running, sweeps
 from edge.cli.common import Parser
 from edge.errors import EdgeError
 
@@ -27,6 +27,7 @@ def build_parser() -> Parser:
     running.add_parsers(sub)  # run, range
     info.add_parsers(sub)  # config, bench
     recordings.add_parsers(sub)  # replay, sim record|show
+    maps.add_parser(sub)  # map
     calibrate.add_parser(sub)
     ptu.add_parser(sub)
     lasers.add_parser(sub)

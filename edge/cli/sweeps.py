@@ -56,13 +56,15 @@ def _live_sweep(config, out: Path, recording: Path | None) -> int:
     import contextlib
 
     from edge.errors import UsageError
-    from edge.fsutil import atomic_write_bytes, check_output, write_png
-    from edge.mapping import draw_map, map_error, results_document
-    from edge.recording import RecordingWriter
+    from edge.fsutil import atomic_write_bytes, check_output
+    from edge.mapping import map_error, results_document
+    from edge.maps import MAP_FILES, build_map, write_map
+    from edge.maps import Scan as MapScan
+    from edge.recording import RecordingWriter, rig_to_json
 
-    # Refused before the sweep, not after it: a folder of ours, a regular sweep.json and map.png.
+    # Refused before the sweep, not after it: a folder of ours, a regular sweep.json and map files.
     check_output(out, "--out", folder=True, error=UsageError)
-    for name in ("sweep.json", "map.png"):
+    for name in ("sweep.json", *MAP_FILES):
         check_output(out / name, "--out", error=UsageError)
     from edge.replay import format_score, score_ranges
     from edge.sweep import run_configured_sweep
@@ -72,7 +74,8 @@ def _live_sweep(config, out: Path, recording: Path | None) -> int:
     from edge.calibration.in_use import believed_rig
 
     # The recording keeps the rig it was ranged with, calibration included, so replay agrees.
-    writer = RecordingWriter(recording, believed_rig(config).rig, device=device) if recording else None
+    rig = believed_rig(config).rig
+    writer = RecordingWriter(recording, rig, device=device) if recording else None
     with writer or contextlib.nullcontext() as recorder:
         sweep = run_configured_sweep(config, progress("sweep"), recorder=recorder)
     report = sweep.report
@@ -95,6 +98,7 @@ def _live_sweep(config, out: Path, recording: Path | None) -> int:
     if error is not None:
         extra["map_error"] = {"zones": error.zones, "mean_rel": round(error.mean_rel, 6),
                               "median_rel": round(error.median_rel, 6), "max_rel": round(error.max_rel, 6)}
+    extra["rig"] = rig_to_json(rig)  # what `edge map` needs to cast the rays again
     doc = results_document(report.results, **extra)
     if sweep.truths:
         for zone in doc["zones"]:
@@ -103,9 +107,10 @@ def _live_sweep(config, out: Path, recording: Path | None) -> int:
     title = f"{config.sim.scene} (simulated)" if sweep.truths else device
     if error is not None:
         title += f"; mean error {100 * error.mean_rel:.2f} %"
-    picture = draw_map(report.results, sweep.room, range_limit_m=config.rig.range_limits_m[1], title=title)
-    write_png(out / "map.png", picture)
-    print(f"results: {out / 'sweep.json'}; map: {out / 'map.png'}"
+    grid, cloud = build_map(config.map, [MapScan("sweep", rig, report.results)])
+    write_map(out, grid, cloud, sweep.room, title)
+    print(f"results: {out / 'sweep.json'}; map: {out / 'map.png'} (occupancy grid: map.pgm + map.yaml; "
+          f"points: cloud.ply)"
           + (f"; recording: {recording}" if recording else "")
           + f" ({time.monotonic() - started:.1f} s in all)")
     return 0

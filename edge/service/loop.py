@@ -83,10 +83,14 @@ class Service:
                                 changed=self._publish_state)
         boot = BootId(config.service.resolved_state_dir())  # in every sweep and alert
         self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert), boot)
+        from edge.maps import GridKeeper
+
+        # The occupancy grid of every sweep, kept in state_dir; map_png() gives its picture.
+        self.map = GridKeeper(config.map, believed.rig, config.service.resolved_state_dir())
         self.steps = ModeSteps(self.health, self.guard, boot,
                                publish_live=lambda kind, p: self.link.publish_live(kind, p),
                                publish_event=lambda kind, p: self.link.publish_event(kind, p),
-                               pause=self._pause, now=self._now)
+                               pause=self._pause, now=self._now, grid=self.map)
         self.calibration = CalibrationController(
             config, self.device_id,
             publish_result=lambda ok, error, request_id, extra: self.link.publish_result(
@@ -102,6 +106,10 @@ class Service:
             lambda: self._parts.ptu.limits_deg if self._parts else ((-180.0, 180.0), (-90.0, 90.0)),
             config.mqtt.max_payload_bytes)
         self.queue = CommandQueue(lambda: self.link.commands(), self.commands.handle, self._progressed)
+
+    def map_png(self) -> bytes:
+        """The kept map's picture (PNG): what a publisher of the map sends after each sweep."""
+        return self.map.png()
 
     def _now(self) -> float:
         """The rig's time, s."""

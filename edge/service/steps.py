@@ -21,6 +21,7 @@ from edge.service.health import RigHealth
 from edge.service.identity import BootId
 
 if TYPE_CHECKING:
+    from edge.maps import GridKeeper
     from edge.modes.blindaid.runner import BlindAidRunner
     from edge.parts import Parts
 
@@ -35,8 +36,10 @@ class ModeSteps:
     stop; `now()` is the rig's time in seconds (the guard's clock)."""
 
     def __init__(self, health: RigHealth, guard: GuardWatch, boot: BootId, *, publish_live: Publish,
-                 publish_event: Publish, pause: Callable[[float], object], now: Callable[[], float]) -> None:
+                 publish_event: Publish, pause: Callable[[float], object], now: Callable[[], float],
+                 grid: GridKeeper | None = None) -> None:
         self.health = health
+        self.grid = grid  # the map kept across sweeps and restarts: every complete sweep goes in
         self.guard = guard
         self._boot = boot
         self.sweeps = 0  # complete sweeps so far
@@ -77,6 +80,8 @@ class ModeSteps:
             log.info("sweep ended early after %d zones", len(report.results))
             return False
         self.sweeps += 1
+        if self.grid is not None:
+            self.grid.add_sweep(ranger.rig, report.results)
         self._publish_event("sweep", {
             "sweep": self.sweeps,
             "boot": self._boot.value,  # (boot, sweep) is unique across restarts

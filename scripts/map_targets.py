@@ -1,0 +1,88 @@
+#!/usr/bin/env python3
+"""Issue 18's map targets, measured on simulated recordings against the scenes' truth.
+
+    ./dev edge sim record --scene office --out rec/o1 --frames 2 --seed 1     # and seeds 2, 3
+    ./dev edge sim record --scene office --out rec/o3d --frames 2 --set 'sweep.tilts_deg=[-40.0,-20.0,0.0,15.0,30.0]'
+    .venv/bin/python scripts/map_targets.py --grid office rec/o1 rec/o2 rec/o3 --cloud office rec/o3d
+
+--grid SCENE DIR…: the sweeps fused into one 5 cm grid, scored (occupied near a surface, surface
+cells occupied, cells along rays free). --cloud SCENE DIR: one scan's cloud, scored (points'
+error against the truth relative to range, normals on walls and floor). --out DIR writes each
+map's files there as `edge map` does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from edge.cloud import scan_cloud
+from edge.config import load_config
+from edge.grid import GridConfig
+from edge.maps import Scan, build_map, write_map
+from edge.ranging import OK
+from edge.recording import read_recording
+from edge.replay import Replayer
+from edge.sim.map_truth import on_wall_or_floor, score_cloud, score_grid
+from edge.sim.record import true_rig
+from edge.sim.render import Renderer
+from edge.sim.scene import load_scene, scene_dir
+
+
+def ranged(path: str):
+    rec = read_recording(path)
+    config = load_config()
+    results = list(Replayer(rec.rig, "triangulate", config.ranging).zones(rec))
+    return rec, results
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--grid", nargs="+", action="append", default=[], metavar="SCENE DIR")
+    ap.add_argument("--cloud", nargs=2, action="append", default=[], metavar=("SCENE", "DIR"))
+    ap.add_argument("--resolution", type=float, default=0.05)
+    ap.add_argument("--out", help="write each map's files into OUT/<scene>[-3d]")
+    args = ap.parse_args()
+    for scene_name, *dirs in args.grid:
+        scene = load_scene(scene_name, [scene_dir()])
+        scans, scored = [], []
+        for d in dirs:
+            rec, results = ranged(d)
+            scans.append(Scan(d, rec.rig, results))
+            scored.append((results, [z.truth for z in rec.zones]))
+        grid, cloud = build_map(GridConfig(resolution_m=args.resolution), scans)
+        score = score_grid(grid, scene, scans[0].rig, scored)
+        print(f"{scene_name}, {len(dirs)} sweeps, {args.resolution * 100:g} cm:")
+        for line in score.lines():
+            print("  " + line)
+        if args.out:
+            write_map(Path(args.out) / scene_name, grid, cloud, title=f"{scene_name}, {len(dirs)} sweeps")
+    for scene_name, d in args.cloud:
+        scene = load_scene(scene_name, [scene_dir()])
+        config = load_config(None, [f"sim.scene={scene_name!r}".replace("'", '"')])
+        rec, results = ranged(d)
+        cloud = scan_cloud(rec.rig, results)
+        ok = [(r, z) for r, z in zip(results, rec.zones) if r.status == OK and r.point_base_m is not None]
+        renderer = Renderer(scene, true_rig(config), config.sim, config.camera)
+        to_base = scene.base_to_world().inverse()
+        truths, normals, flat = [], [], []
+        ref = rec.rig.reference.name
+        for r, z in ok:
+            truths.append(z.truth)
+            spot = renderer.spots(r.pan_deg, r.tilt_deg)[ref]
+            normals.append(None if spot.normal_world is None else to_base.rotate(spot.normal_world))
+            flat.append(spot.point_world is not None and on_wall_or_floor(scene, spot.point_world))
+        score = score_cloud(cloud.points, cloud.normals, truths, normals, flat)
+        tilts = sorted({z.tilt_deg for z in rec.zones})
+        print(f"{scene_name} 3D scan, tilts {tilts}, {len(rec.zones)} zones, {len(ok)} ok:")
+        for line in score.lines():
+            print("  " + line)
+        if args.out:
+            grid, _ = build_map(GridConfig(resolution_m=args.resolution), [Scan(d, rec.rig, results)])
+            write_map(Path(args.out) / f"{scene_name}-3d", grid, cloud, title=f"{scene_name} 3D scan")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
