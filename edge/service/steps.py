@@ -40,6 +40,7 @@ class ModeSteps:
         self.guard = guard
         self._boot = boot
         self.sweeps = 0  # complete sweeps so far
+        self.last_sweep: list[ZoneResult] = []  # the zones of the last complete sweep
         self._publish_live = publish_live
         self._publish_event = publish_event
         self._pause = pause
@@ -77,6 +78,7 @@ class ModeSteps:
             log.info("sweep ended early after %d zones", len(report.results))
             return False
         self.sweeps += 1
+        self.last_sweep = list(report.results)
         self._publish_event("sweep", {
             "sweep": self.sweeps,
             "boot": self._boot.value,  # (boot, sweep) is unique across restarts
