@@ -13,6 +13,7 @@ the laser watchdog, the blind aid's sound, and the service's intervals (``--for`
   ``paced=True`` keeps it from running ahead of real time (``sim.clock = "paced"``): for a person
   or a tool that talks to the simulated device live, e.g. carrying the calibration board of the
   ``bench`` scene while ``edge calibrate`` runs; it may still fall behind, without distortion.
+  ``pace`` lets it run that many times faster than real time, at most.
 
 Waiting is the one thing that moves simulated time, so the rig's parts wait through the clock:
 ``sleep_until_ns``/``sleep`` to wait for the rig, :meth:`Clock.timer` for what happens at a time
@@ -162,10 +163,13 @@ class SimClock:
 
     simulated = True
 
-    def __init__(self, start_ns: int = SIM_START_NS, paced: bool = False) -> None:
+    def __init__(self, start_ns: int = SIM_START_NS, paced: bool = False, pace: float = 1.0) -> None:
+        if not pace > 0:
+            raise ValueError(f"pace must be positive, not {pace}")
         self._now = int(start_ns)
         self._start = int(start_ns)
         self.paced = paced
+        self.pace = float(pace)
         self._wall_start = time.monotonic_ns()
         self._lock = threading.Lock()  # the time and the timers
         # One mover at a time; re-entrant, as a timer's function may itself wait.
@@ -179,7 +183,7 @@ class SimClock:
     def sleep_until_ns(self, t_ns: int) -> None:
         with self._moving:
             if self.paced:  # not ahead of real time
-                ahead = (int(t_ns) - self._start) - (time.monotonic_ns() - self._wall_start)
+                ahead = (int(t_ns) - self._start) / self.pace - (time.monotonic_ns() - self._wall_start)
                 if ahead > 0:
                     time.sleep(ahead / 1e9)
             while True:

@@ -114,7 +114,7 @@ def rig_clock(config: Config) -> Clock:
     """The rig's clock: simulated for an all-simulated rig under ``sim.clock = "simulated"`` (the
     default) or ``"paced"``, else real time."""
     if config.sim.clock != "real" and all_simulated(config):
-        return SimClock(paced=config.sim.clock == "paced")
+        return SimClock(paced=config.sim.clock == "paced", pace=config.sim.pace)
     return REAL
 
 

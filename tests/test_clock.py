@@ -25,6 +25,22 @@ def test_simulated_time_stands_still_while_the_computer_works_and_jumps_when_the
     assert clock.now_ns() == t0 + 1_500_000_000
 
 
+@pytest.mark.parametrize("pace", [1.0, 4.0])
+def test_a_paced_clock_never_runs_ahead_of_pace_times_real_time(pace):
+    clock = SimClock(paced=True, pace=pace)
+    began = time.monotonic()
+    for _ in range(4):
+        clock.sleep(0.1)
+    # A lower bound only: a busy machine may hold it back, never push it ahead.
+    assert time.monotonic() - began >= 0.4 / pace - 0.005
+    assert clock.now_ns() == SIM_START_NS + 400_000_000
+
+
+def test_a_pace_must_be_positive():
+    with pytest.raises(ValueError, match="pace"):
+        SimClock(paced=True, pace=0.0)
+
+
 def test_simulated_timers_fire_in_time_order_at_their_own_times():
     clock = SimClock()
     t0 = clock.now_ns()

@@ -167,7 +167,7 @@ def outage_until_queued(broker: Mosquitto, state: Path, count: int, timeout: flo
     """Stop the broker until the device has queued about `count` messages in its outbox (it makes
     them while the broker is away: its loop never waits for the broker), then start it again;
     returns the (stopped, restarted) wall-clock times. The outages of `take_the_broker_away` last
-    a second or two, which a loaded machine may spend without finishing a sweep. The queue is
+    about a second, which a loaded machine may spend without finishing a sweep. The queue is
     watched from outside (its files changing): the device holds it locked, as it should."""
     def files() -> tuple:
         found = []
@@ -195,7 +195,7 @@ def outage_until_queued(broker: Mosquitto, state: Path, count: int, timeout: flo
 
 def made_while_down(docs: list[dict], outages: list[tuple[float, float]]) -> list[dict]:
     """The published documents whose `ts` falls inside an outage."""
-    def made(doc: dict) -> float:  # to the millisecond: outages last a second or two
+    def made(doc: dict) -> float:  # to the millisecond: outages last about a second
         return datetime.fromisoformat(doc["ts"].replace("Z", "+00:00")).timestamp()
 
     return [doc for doc in docs if any(a + 0.1 < made(doc) < b - 0.1 for a, b in outages)]
@@ -203,12 +203,12 @@ def made_while_down(docs: list[dict], outages: list[tuple[float, float]]) -> lis
 
 def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, subscriber, tmp_path):
     # Small sweeps back to back (a map sweep every 0.5 s in range-finder mode), the broker stopped
-    # ten times for a second or two: every sweep arrives, once or more, in order, and the device
+    # ten times for about a second: every sweep arrives, once or more, in order, and the device
     # kept sweeping while the broker was away (its loop never waits for the broker).
     proc = start(broker, tmp_path, "sweep.zones=3", "sweep.pan_step_deg=10.0", "service.sweep_interval_s=0.5")
     try:
         first = subscriber.wait_count(f"{P}/sweep", 2, timeout=300)  # bounds for a loaded machine
-        outages = take_the_broker_away(broker, lambda k: 1.0 + 0.2 * (k % 4))
+        outages = take_the_broker_away(broker, lambda k: 0.6 + 0.2 * (k % 4))
         outages.append(outage_until_queued(broker, tmp_path / "state", 5))
         mark = subscriber.mark()
         subscriber.wait_count(f"{P}/sweep", 3, timeout=300, since=mark)
@@ -299,7 +299,7 @@ def test_guard_alerts_survive_ten_broker_outages_exactly_as_raised_and_in_order(
         subscriber.wait_for(f"{P}/state", lambda m: json.loads(m.payload).get("guard", {}).get("learning") is False,
                             timeout=300)
         subscriber.wait_for(f"{P}/alert", lambda m: json.loads(m.payload)["event"] == "intrusion", timeout=300)
-        outages = take_the_broker_away(broker, lambda k: 1.5 + 0.3 * (k % 3))
+        outages = take_the_broker_away(broker, lambda k: 0.7 + 0.2 * (k % 3))
         outages.append(outage_until_queued(broker, tmp_path / "state", 1))
         subscriber.wait_for(f"{P}/alert", lambda m: json.loads(m.payload)["event"] == "cleared", timeout=300)
         proc.send_signal(signal.SIGTERM)
@@ -390,12 +390,30 @@ def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, t
     assert min(abs(typical - i) / i for i in intervals) < 0.1, (typical, intervals)
 
 
-def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog(broker, subscriber, tmp_path):
+def test_a_stalled_or_torn_camera_is_restarted_and_ranging_resumes(broker, subscriber, tmp_path):
     """Frames stop for 3 s, then three frames come torn: zones meanwhile are `fault`, the camera is
-    restarted, ranging resumes. Later the camera hangs (a driver call that never returns): the loop
-    stops, and so do the watchdog notifications. Meanwhile the lasers' own timer has switched off any
-    laser the stuck loop left on. Then the watchdog's kill, as systemd sends it (SIGABRT), prints
-    every thread's stack, and the unit's ExecStopPost leaves every laser pin at its off level."""
+    restarted, ranging resumes (on the rig's simulated clock: the same run on any machine)."""
+    faults = 'sim.camera_faults=[{kind="stall", at_s=8.0, seconds=3.0}, {kind="corrupt", at_s=13.0, count=3}]'
+    proc = start(broker, tmp_path, 'mode="rangefinder"', "rangefinder.pan_deg=-90.0", "camera.timeout_s=0.5", faults,
+                 run_for=18.0)
+    err = finish(proc)
+    ranges = [json.loads(m.payload) for m in subscriber.messages(f"{P}/range")]
+    statuses = [r["status"] for r in ranges]
+    first_fault = statuses.index("fault")
+    assert "ok" in statuses[:first_fault] and "ok" in statuses[first_fault:], "ranging resumed after the faults"
+    faults_seen = [r for r in ranges if r["status"] == "fault"]
+    assert any("no frame" in r["detail"] for r in faults_seen) and any("torn" in r["detail"] for r in faults_seen)
+    assert err.count("restarting it") >= 2, err[-2000:]
+    states = [json.loads(m.payload) for m in subscriber.messages(f"{P}/state")]
+    assert any(s["health"]["camera"].startswith("fault") for s in states)
+    assert states[-1]["camera_restarts"] >= 2
+
+
+def test_a_hung_camera_stops_the_watchdog_and_the_lasers_go_off(tmp_path):
+    """The camera hangs (a driver call that never returns): the loop stops, and so do the watchdog
+    notifications. Meanwhile the lasers' own timer has switched off any laser the stuck loop left
+    on. Then the watchdog's kill, as systemd sends it (SIGABRT), prints every thread's stack, and
+    the unit's ExecStopPost leaves every laser pin at its off level."""
     from test_laser_safety import assert_all_off, exec_stop_post, lit, write_config
 
     config, wires = write_config(tmp_path)
@@ -403,13 +421,12 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(str(path))
     sock.settimeout(0.2)
-    # Late enough that a loaded machine has started the rig and ranged before the first fault.
-    faults = ('sim.camera_faults=[{kind="stall", at_s=8.0, seconds=3.0}, {kind="corrupt", at_s=13.0, count=3},'
-              ' {kind="hang", at_s=18.0, seconds=60.0}]')
-    # Real time: a hang and systemd's watchdog are (on the simulated clock a hang takes no time).
-    proc = start(broker, tmp_path, 'mode="rangefinder"', "rangefinder.pan_deg=-90.0", "camera.timeout_s=0.5", faults,
-                 "mqtt.enabled=true", 'sim.clock="real"', env={"NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"},
-                 config=config)
+    # Real time: a hang and systemd's watchdog are (on the simulated clock the lasers' timer would
+    # wait for a clock that the hung loop no longer moves).
+    args = [sys.executable, "-m", "edge", "run", "--config", str(config), "--set", "camera.timeout_s=0.5",
+            "--set", 'sim.camera_faults=[{kind="hang", at_s=3.0, seconds=60.0}]', "--set", 'sim.clock="real"']
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "NOTIFY_SOCKET": str(path), "WATCHDOG_USEC": "1000000"})
     feeds: list[float] = []
     try:
         deadline = time.monotonic() + 90
@@ -419,7 +436,7 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
                     feeds.append(time.monotonic())
             except TimeoutError:
                 pass
-            if feeds and time.monotonic() - feeds[-1] > 8:
+            if feeds and time.monotonic() - feeds[-1] > 5:
                 break  # the feeding has stopped for good
         # Whichever frame it hung in: a laser it had on was switched off by the lasers' own timer
         # (max_on_s), so none is lit now.
@@ -436,20 +453,10 @@ def test_a_stalled_or_torn_camera_is_restarted_and_a_hung_one_stops_the_watchdog
     result = exec_stop_post(config)
     assert result.returncode == 0, result.stderr
     assert_all_off(wires, config)
-    ranges = [json.loads(m.payload) for m in subscriber.messages(f"{P}/range")]
-    statuses = [r["status"] for r in ranges]
-    first_fault = statuses.index("fault")
-    assert "ok" in statuses[:first_fault] and "ok" in statuses[first_fault:], "ranging resumed after the faults"
-    faults_seen = [r for r in ranges if r["status"] == "fault"]
-    assert any("no frame" in r["detail"] for r in faults_seen) and any("torn" in r["detail"] for r in faults_seen)
-    assert err.count("restarting it") >= 2, err[-2000:]
-    states = [json.loads(m.payload) for m in subscriber.messages(f"{P}/state")]
-    assert any(s["health"]["camera"].startswith("fault") for s in states)
-    assert states[-1]["camera_restarts"] >= 2
-    # Fed about every 0.5 s until the hang at ~18 s, then never again.
-    assert len(feeds) >= 10
+    # Fed about every 0.5 s until the hang at ~3 s, then never again.
+    assert len(feeds) >= 2
     assert max(b - a for a, b in zip(feeds, feeds[1:])) < 4.0
-    assert time.monotonic() - feeds[-1] > 8
+    assert time.monotonic() - feeds[-1] > 5
 
 
 def test_a_command_whose_result_topic_cannot_exist_is_dropped_and_the_service_runs_on(broker, subscriber, tmp_path):

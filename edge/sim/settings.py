@@ -4,6 +4,7 @@ as each driver of :mod:`edge.hw` owns its own; :mod:`edge.config` only gathers t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -136,6 +137,9 @@ class SimConfig:
     # real time (a person or a tool talking to it live); "real" runs on the wall clock, for what
     # must be real (systemd's watchdog, a hang). A rig with any real part runs on real time.
     clock: Literal["simulated", "paced", "real"] = "simulated"
+    # "paced" only: at most this many simulated seconds to a real second (2.0: twice as fast as a
+    # real rig, if the computer renders that fast).
+    pace: float = 1.0
     sensor: SensorConfig = field(default_factory=SensorConfig)
     optics: OpticsConfig = field(default_factory=OpticsConfig)
     beam: BeamConfig = field(default_factory=BeamConfig)
@@ -143,3 +147,6 @@ class SimConfig:
     rig_error: RigErrorConfig = field(default_factory=RigErrorConfig)
     camera_faults: tuple[CameraFault, ...] = ()  # for trying the service's fault handling
     laser_faults: tuple[LaserFault, ...] = ()  # broken lasers, for trying fault reporting
+
+    def __post_init__(self) -> None:
+        require(self.pace > 0 and math.isfinite(self.pace), "pace", "must be a positive number")
