@@ -299,7 +299,7 @@ logger:
         began = time.monotonic()
         self.proc = subprocess.Popen([str(self.hass), "-c", str(self.config), "--log-file", str(self.log_path)],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        if not wait(lambda: self._status() in (200, 401), timeout, 1.0):
+        if not wait(lambda: self._status() == 200, timeout, 1.0):
             raise RuntimeError(f"Home Assistant did not answer within {timeout} s (see {self.log_path})")
         if self.access is None:
             self._login()
@@ -316,8 +316,9 @@ logger:
         self.proc = None
 
     def _status(self) -> int:
+        # The frontend's manifest needs no token: /api/ without one would be logged as a failed login.
         try:
-            with urllib.request.urlopen(f"{self.url}/api/", timeout=5) as r:
+            with urllib.request.urlopen(f"{self.url}/manifest.json", timeout=5) as r:
                 return r.status
         except urllib.error.HTTPError as exc:
             return exc.code
@@ -696,8 +697,14 @@ def run(args: argparse.Namespace) -> Report:
 
 
 def _about_us(line: str) -> bool:
-    words = ("mqtt", "edge", "template", "hacheck", "sensor", "select", "button", "image")
-    return any(w in line.lower() for w in words)
+    """A log line about the device or its entities: it names them or their topics, or comes from
+    a part of Home Assistant that handles them (templates, MQTT discovery and entities, the entity
+    platforms). Not: the broker connection of Home Assistant itself, Home Assistant's own Python."""
+    text = line.lower()
+    sources = ("helpers.template", "mqtt.models", "mqtt.discovery", "mqtt.mixins", "mqtt.sensor",
+               "mqtt.binary_sensor", "mqtt.select", "mqtt.button", "mqtt.image", "components.sensor",
+               "components.binary_sensor", "components.image", "helpers.entity")
+    return DEVICE in text or "edge/" in text or NODE in text or any(s in text for s in sources)
 
 
 def _digest(data: bytes) -> str:
