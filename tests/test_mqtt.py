@@ -221,30 +221,38 @@ def test_a_snapshot_goes_out_at_most_twice_a_second_and_its_latest_value_always(
     link = started(make_link())
     sent = sends_of(link)
     mark = subscriber.mark()
-    for n in range(1, 81):  # 80 states over about 2 s
+    began = time.monotonic()
+    for n in range(1, 81):  # 80 states over 2 s or more
         link.publish_state({"n": n})
         time.sleep(0.025)
+    ended = time.monotonic()
     got = subscriber.wait_for(T.state, lambda m: json.loads(m.payload)["n"] == 80, since=mark, timeout=5)
     seen = [m for m in subscriber.messages(T.state, since=mark)]
     assert got is seen[-1] and all(m.qos == 1 for m in seen)
     numbers = [json.loads(m.payload)["n"] for m in seen]
     assert numbers == sorted(numbers) and numbers[0] == 1  # the first at once, then the newest waiting
     times = sent[T.state]
-    assert len(times) == len(seen) and len(times) < 10
+    assert len(times) == len(seen) and len(times) <= (ended - began) / SNAPSHOT_INTERVAL_S + 2
     gaps = [b - a for a, b in zip(times, times[1:])]
     assert min(gaps) >= SNAPSHOT_INTERVAL_S, gaps
-    # A longer interval asked for holds it back longer; a value that changed much may come sooner.
-    mark = subscriber.mark()
-    link.publish_snapshot("distance", {"active": True, "range_m": 1.0}, min_interval_s=1.0)
+    # A longer interval asked for holds a value back longer; a value that changed much, asked with a
+    # shorter one, brings the time forward (never below the floor).
+    link.publish_snapshot("distance", {"active": True, "range_m": 1.0}, min_interval_s=1.0)  # out at once
     link.publish_snapshot("distance", {"active": True, "range_m": 1.001}, min_interval_s=1.0)
-    subscriber.wait_for(T.of("distance"), lambda m: json.loads(m.payload)["range_m"] == 1.001, since=mark)
-    first, second = sent[T.of("distance")]
-    assert 1.0 <= second - first < 1.5
-    link.publish_snapshot("distance", {"active": True, "range_m": 1.1}, min_interval_s=1.0)
-    link.publish_snapshot("distance", {"active": True, "range_m": 2.0}, min_interval_s=0.1)  # 0.6 s at least
+    snap = link._snapshots[T.of("distance")]
+    with link._send_lock:
+        waits = None if snap.due is None else snap.due - snap.sent_at
+    if waits is not None:  # (not yet sent by the sender thread)
+        assert waits == pytest.approx(1.0)
+    link.publish_snapshot("distance", {"active": True, "range_m": 2.0}, min_interval_s=0.1)
+    with link._send_lock:
+        waits = None if snap.due is None else snap.due - snap.sent_at
+    if waits is not None:
+        assert waits == pytest.approx(SNAPSHOT_INTERVAL_S)
     subscriber.wait_for(T.of("distance"), lambda m: json.loads(m.payload)["range_m"] == 2.0, since=mark)
-    third = sent[T.of("distance")][2]
-    assert SNAPSHOT_INTERVAL_S <= third - second < 0.9
+    times = sent[T.of("distance")]
+    # 1.001 was replaced before it went out (unless this machine paused us for a second meanwhile).
+    assert len(times) in (2, 3) and times[-1] - times[-2] >= SNAPSHOT_INTERVAL_S
     with pytest.raises(ValueError, match="kind must be one of"):
         link.publish_snapshot("range", {})
 
@@ -272,13 +280,17 @@ def test_snapshots_are_retained_sent_again_at_every_connect_and_the_last_before_
         assert late.wait_for(T.of("map")).retain
     finally:
         late.close()
-    # One still waiting for its interval goes out at stop, before `offline`.
+    # One still waiting for its interval goes out at stop, handed over before `offline`.
+    order: list[str] = []
+    client = link._client
+    publish_ = client.publish
+    client.publish = lambda topic, *a, **k: order.append(topic) or publish_(topic, *a, **k)
     link.publish_state({"n": 1})
     link.publish_state({"n": 2})
     link.stop(timeout_s=2)
-    last = subscriber.wait_for(T.state, lambda m: json.loads(m.payload)["n"] == 2)
-    offline = subscriber.wait_for(T.status, lambda m: m.text == "offline")
-    assert last.at <= offline.at
+    subscriber.wait_for(T.state, lambda m: json.loads(m.payload)["n"] == 2)
+    subscriber.wait_for(T.status, lambda m: m.text == "offline")
+    assert order[-2:] == [T.state, T.status], order
 
 
 def test_the_last_result_and_the_backlog_are_snapshots_too(broker, subscriber, make_link):
