@@ -303,7 +303,7 @@ def test_what_the_states_say(tmp_path):
 
 def test_the_map_is_a_small_png(tmp_path):
     png = samples(tmp_path)["map"][0]
-    assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) < 40_000
+    assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) < 60_000
 
 
 def _ha_python() -> str | None:
