@@ -208,6 +208,21 @@ def _identifier_problem(client_id: str) -> str | None:
     return None
 
 
+def _calibrate_problem(distances_m: tuple[float, ...]) -> str | None:
+    """Why cmd/calibrate would refuse these distances, or None (checked by the command's own rules)."""
+    import json
+
+    from edge.commands import parse_command
+    from edge.errors import CommandError
+
+    try:
+        parse_command("calibrate", json.dumps({"distances_m": list(distances_m)}).encode(), max_bytes=1 << 16,
+                      pan_limits=(-180.0, 180.0), tilt_limits=(-90.0, 90.0))
+    except CommandError as exc:
+        return str(exc).removeprefix("cmd/calibrate: ").removeprefix("distances_m: ")
+    return None
+
+
 @dataclass(frozen=True)
 class MqttConfig:
     """The broker link (``[mqtt]``), per ../spec/mqtt.md."""
@@ -227,6 +242,8 @@ class MqttConfig:
     max_payload_bytes: int = 65536  # commands larger than this are refused before parsing
     discovery: bool = True  # Home Assistant MQTT discovery
     discovery_prefix: str = "homeassistant"
+    # What Home Assistant's Calibrate button sends: cmd/calibrate's distances, in the order taken.
+    calibrate_distances_m: tuple[float, ...] = (2.0, 1.3, 0.8, 0.5)
     tls: TlsConfig = field(default_factory=TlsConfig)
 
     def __post_init__(self) -> None:
@@ -244,6 +261,8 @@ class MqttConfig:
         require(problem is None, "client_id", f"{problem}")
         require(len(self.username.encode()) <= 65535, "username", "longer than MQTT allows (65535 bytes)")
         require(5 <= self.keepalive_s <= 3600, "keepalive_s", "must be 5-3600 s")
+        problem = _calibrate_problem(self.calibrate_distances_m)
+        require(problem is None, "calibrate_distances_m", f"{problem}")
         # A four-byte integer in MQTT 5: paho refuses anything larger, killing the link's thread.
         require(0 <= self.session_expiry_s <= MAX_SESSION_EXPIRY_S, "session_expiry_s",
                 f"must be 0-{MAX_SESSION_EXPIRY_S} s (MQTT's limit; {MAX_SESSION_EXPIRY_S} never expires)")

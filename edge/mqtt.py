@@ -11,6 +11,12 @@ Who runs what:
   paho's thread never waits for SQLite.
 - the caller (the service) publishes from its own thread and takes commands with :meth:`commands`.
 
+Snapshots (``state`` and the topics beyond the contract that Home Assistant's entities follow:
+``distance``, ``guard``, ``obstacle``, ``map``, ``backlog``, ``last_result``) are retained, QoS 1,
+and only their latest value matters: each topic goes out at most once every
+:data:`SNAPSHOT_INTERVAL_S` (a newer value waiting meanwhile replaces the one before and goes out
+when the interval is up, sent by the sender thread), and every connect sends each one's latest.
+
 Delivery of events is at least once and in order. The outbox is the one record of what is still
 owed: at every (re)connect paho's own copies of unacknowledged messages are dropped and sending
 starts over from the oldest unacknowledged message in the outbox. (Letting paho re-send its copies
@@ -28,6 +34,7 @@ import re
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -57,6 +64,14 @@ WINDOW = 32  # outbox messages handed to paho and not yet acknowledged, at most
 PAHO_INFLIGHT = 20
 EVENT_KINDS = ("sweep", "alert")  # QoS 1 through the outbox; sweep retained
 LIVE_KINDS = ("range", "cue")  # QoS 0, dropped while disconnected
+# Retained QoS 1 snapshots, latest value only, at most one message every SNAPSHOT_INTERVAL_S per
+# topic. `state` is the contract's; the others are ours, beyond it (README: "Home Assistant").
+SNAPSHOT_KINDS = ("state", "distance", "guard", "obstacle", "map", "backlog", "last_result")
+# So that no Home Assistant entity changes more than twice in any second, with room for jitter.
+SNAPSHOT_INTERVAL_S = 0.6
+# `last_result`'s entity takes its attributes from the same message as its state, and Home Assistant
+# writes them as two changes: this one goes out half as often.
+LAST_RESULT_INTERVAL_S = 2 * SNAPSHOT_INTERVAL_S
 COMMAND_QUEUE_SIZE = 256  # commands waiting for the service; more are refused
 MAX_TOPIC_BYTES = 65535  # MQTT's limit on a topic name (a 2-byte length), UTF-8
 _STOP_RESERVE_S = 1.0  # of stop()'s timeout, kept for `offline` after draining the outbox
@@ -138,18 +153,29 @@ def _finite(value: Any) -> Any:
     return value
 
 
+# Jinja for Home Assistant's templates. States stay short (HA refuses one over 255 characters):
+# the words go to the attributes. Keys that `state` did not always have are read with .get(): a
+# retained state of an older release must not make Home Assistant log template warnings.
+_HEALTH_STATE = "{{ 'fault' if '%s' in value_json.get('faults', []) else 'ok' }}"
+_HEALTH_ATTRS = "{{ {'detail': value_json.health.get('%s')} | tojson }}"
+_ACTIVE = "{{ 'online' if value_json.active else 'offline' }}"
+
+
 def discovery_payloads(config: MqttConfig, device_id: str, version: str) -> dict[str, dict[str, Any]]:
     """Home Assistant MQTT discovery: {config topic: config}, to be published retained.
 
-    A distance sensor on ``range``, a motion binary sensor on ``alert``, a select for the mode; all
-    available while ``status`` is ``online``, all on one device."""
+    Every entity is on one device, has a unique id, the `origin` block, QoS 1 (commands included)
+    and is available while ``status`` is ``online``; the distance and the blind aid's obstacle
+    only while their mode runs (their topic's ``active``). The README's "Home Assistant" section
+    describes each entity; tests/test_ha_discovery.py checks them against what Home Assistant
+    2024.3's MQTT platforms accept."""
     topics = Topics(config.prefix, device_id)
     # Discovery's node and object ids allow [a-zA-Z0-9_-] only.
     node = re.sub(r"[^A-Za-z0-9_-]", "_", f"{config.prefix}_{device_id}")
+    online = {"topic": topics.status, "payload_available": "online", "payload_not_available": "offline"}
     common = {
-        "availability_topic": topics.status,
-        "payload_available": "online",
-        "payload_not_available": "offline",
+        "availability": [online],
+        "qos": 1,
         "device": {
             "identifiers": [node],
             "name": f"edge {device_id}",
@@ -157,25 +183,85 @@ def discovery_payloads(config: MqttConfig, device_id: str, version: str) -> dict
             "manufacturer": "edge",
             "sw_version": version,
         },
+        "origin": {"name": "edge", "sw_version": version},
     }
+
+    def while_active(topic: str) -> dict[str, Any]:
+        return {"availability": [online, {"topic": topic, "value_template": _ACTIVE}], "availability_mode": "all"}
+
+    def button(command: str, name: str, payload: dict[str, Any], **more: Any) -> dict[str, Any]:
+        return {"name": name, "command_topic": topics.cmd(command),
+                "payload_press": json.dumps(payload, separators=(",", ":")), **more}
+
+    def health(part: str, name: str) -> dict[str, Any]:
+        return {"name": name, "state_topic": topics.state, "value_template": _HEALTH_STATE % part,
+                "json_attributes_topic": topics.state, "json_attributes_template": _HEALTH_ATTRS % part,
+                "entity_category": "diagnostic"}
+
+    distance = topics.of("distance")
+    guard = topics.of("guard")
+    obstacle = topics.of("obstacle")
+    distances = [float(d) for d in config.calibrate_distances_m]
     entities: dict[tuple[str, str], dict[str, Any]] = {
+        # The range finder's distance, at most once a second unless it changes much ("range" is
+        # its object id since the first release: the entity keeps its id and history).
         ("sensor", "range"): {
-            "name": "Range",
-            "state_topic": topics.range,
+            "name": "Distance",
+            "state_topic": distance,
             "value_template": "{{ value_json.range_m }}",
             "device_class": "distance",
             "unit_of_measurement": "m",
             "state_class": "measurement",
+            "suggested_display_precision": 2,
+            **while_active(distance),
         },
         ("binary_sensor", "guard"): {
-            "name": "Guard",
-            "state_topic": topics.alert,
-            # intrusion/moved → ON, cleared → OFF; anything else renders empty and is ignored.
-            "value_template": ("{% if value_json.event in ['intrusion', 'moved'] %}ON"
-                               "{% elif value_json.event == 'cleared' %}OFF{% endif %}"),
+            "name": "Motion",
+            "state_topic": guard,
+            "value_template": "{{ 'ON' if value_json.occupied else 'OFF' }}",
             "payload_on": "ON",
             "payload_off": "OFF",
             "device_class": "motion",
+            "json_attributes_topic": guard,
+            "json_attributes_template": ("{{ {'watching': value_json.active, 'learning': value_json.learning, "
+                                         "'tracks': value_json.tracks, 'objects': value_json.objects} | tojson }}"),
+        },
+        ("sensor", "tracks"): {
+            "name": "Tracked objects",
+            "state_topic": guard,
+            "value_template": "{{ value_json.tracks }}",
+            "state_class": "measurement",
+            "suggested_display_precision": 0,
+            "icon": "mdi:account-multiple",
+        },
+        ("binary_sensor", "learning"): {
+            "name": "Guard learning",
+            "state_topic": guard,
+            "value_template": "{{ 'ON' if value_json.active and value_json.learning else 'OFF' }}",
+            "payload_on": "ON",
+            "payload_off": "OFF",
+            "icon": "mdi:school",
+            "entity_category": "diagnostic",
+        },
+        ("sensor", "obstacle_distance"): {
+            "name": "Obstacle distance",
+            "state_topic": obstacle,
+            "value_template": "{{ value_json.range_m }}",
+            "device_class": "distance",
+            "unit_of_measurement": "m",
+            "state_class": "measurement",
+            "suggested_display_precision": 2,
+            **while_active(obstacle),
+        },
+        ("sensor", "obstacle_bearing"): {
+            "name": "Obstacle bearing",
+            "state_topic": obstacle,
+            "value_template": "{{ value_json.bearing_deg }}",
+            "unit_of_measurement": "°",
+            "state_class": "measurement",
+            "suggested_display_precision": 0,
+            "icon": "mdi:compass-outline",
+            **while_active(obstacle),
         },
         ("select", "mode"): {
             "name": "Mode",
@@ -185,10 +271,85 @@ def discovery_payloads(config: MqttConfig, device_id: str, version: str) -> dict
             "value_template": "{{ value_json.mode }}",
             "options": list(MODES),
         },
+        ("button", "sweep"): button("sweep", "Sweep", {}, icon="mdi:radar"),
+        ("button", "relearn"): button("relearn", "Relearn background", {}, icon="mdi:school"),
+        ("button", "lasers_off"): button("lasers_off", "Lasers off", {}, icon="mdi:laser-pointer"),
+        ("button", "calibrate"): button("calibrate", "Calibrate", {"distances_m": distances},
+                                        icon="mdi:ruler", entity_category="config"),
+        ("image", "map"): {
+            "name": "Map",
+            "image_topic": topics.of("map"),
+            "content_type": "image/png",
+        },
+        ("sensor", "last_result"): {
+            "name": "Last command",
+            "state_topic": topics.of("last_result"),
+            "value_template": "{{ value_json.command }}: {{ 'ok' if value_json.ok else 'failed' }}",
+            "json_attributes_topic": topics.of("last_result"),
+            "json_attributes_template": ("{{ {'command': value_json.command, 'ok': value_json.ok, "
+                                         "'error': value_json.get('error'), "
+                                         "'request_id': value_json.get('request_id'), "
+                                         "'at': value_json.ts} | tojson }}"),
+            "icon": "mdi:console",
+        },
+        ("sensor", "camera"): health("camera", "Camera"),
+        ("sensor", "lasers"): health("lasers", "Lasers"),
+        ("sensor", "ptu"): health("ptu", "Pan-tilt unit"),
+        ("sensor", "storage"): health("storage", "Storage"),
+        ("sensor", "calibration"): {
+            **health("calibration", "Calibration"),
+            "value_template": ("{{ 'calibrating' if value_json.get('calibration') else "
+                               "('fault' if 'calibration' in value_json.get('faults', []) else "
+                               "('calibrated' if value_json.get('calibrated_at') else 'nominal')) }}"),
+            "json_attributes_template": ("{{ {'detail': value_json.health.get('calibration'), "
+                                         "'calibrated_at': value_json.get('calibrated_at'), "
+                                         "'session': value_json.get('calibration')} | tojson }}"),
+        },
+        ("sensor", "calibration_age"): {
+            "name": "Calibration age",
+            "state_topic": topics.state,
+            "value_template": "{{ value_json.get('calibration_age_d') }}",
+            "device_class": "duration",
+            "unit_of_measurement": "d",
+            "state_class": "measurement",
+            "suggested_display_precision": 1,
+            "entity_category": "diagnostic",
+        },
+        ("binary_sensor", "problem"): {
+            "name": "Problem",
+            "state_topic": topics.state,
+            "value_template": "{{ 'ON' if value_json.get('faults', []) else 'OFF' }}",
+            "payload_on": "ON",
+            "payload_off": "OFF",
+            "device_class": "problem",
+            "json_attributes_topic": topics.state,
+            "json_attributes_template": ("{{ {'faults': value_json.get('faults', []), "
+                                         "'health': value_json.health} | tojson }}"),
+            "entity_category": "diagnostic",
+        },
+        ("sensor", "camera_restarts"): {
+            "name": "Camera restarts",
+            "state_topic": topics.state,
+            "value_template": "{{ value_json.get('camera_restarts', 0) }}",
+            "state_class": "total_increasing",
+            "suggested_display_precision": 0,
+            "icon": "mdi:camera-retake",
+            "entity_category": "diagnostic",
+        },
+        ("sensor", "backlog"): {
+            "name": "Outbox backlog",
+            "state_topic": topics.of("backlog"),
+            "value_template": "{{ value_json.messages }}",
+            "unit_of_measurement": "messages",
+            "state_class": "measurement",
+            "suggested_display_precision": 0,
+            "icon": "mdi:tray-full",
+            "entity_category": "diagnostic",
+        },
     }
     return {
         f"{config.discovery_prefix}/{component}/{node}/{obj}/config": {
-            **entity, "unique_id": f"{node}_{obj}", **common,
+            **common, **entity, "unique_id": f"{node}_{obj}",
         }
         for (component, obj), entity in entities.items()
     }
@@ -247,6 +408,15 @@ def _guarded(callback: Callable[..., None]) -> Callable[..., None]:
 # ---- the link ----
 
 
+@dataclass
+class _Snapshot:
+    """A snapshot topic's latest value and when it last went out."""
+
+    data: bytes
+    sent_at: float = -math.inf  # time.monotonic() of the last send
+    due: float | None = None  # when the waiting value goes out; None: nothing waits
+
+
 class MqttLink:
     """The device's connection to its broker; see the module notes for threads and delivery."""
 
@@ -273,7 +443,9 @@ class MqttLink:
         self._wake = False
         self._closing = False  # stop() has begun: nothing new goes out
         self._finished = False  # stop() is done with paho: the sender thread may end
-        self._state: bytes | None = None
+        self._snapshots: dict[str, _Snapshot] = {}  # topic → snapshot; under _send_lock
+        self._snapshot_due = math.inf  # the earliest `due` of a waiting snapshot; under _cond
+        self._backlog: int | None = None  # the outbox's size as last published; sender thread only
         self._inflight: dict[int, int] = {}  # mid → outbox seq; sender thread only
         self._stats = {"sent": 0, "acked": 0, "refused": 0, "dropped_live": 0, "live_sent": 0,
                        "connects": 0, "commands_refused": 0, "commands_dropped": 0}
@@ -324,6 +496,7 @@ class MqttLink:
         left = len(self._outbox)
         if left:
             log.info("MQTT: %d queued message(s) stay in the outbox for the next start", left)
+        self._flush_snapshots(force=True)  # the last state, before `offline`
         with self._send_lock:
             self._closing = True  # no more events from the sender, nothing from callbacks
             info = client.publish(self.topics.status, "offline", qos=1, retain=True) if self._connected else None
@@ -385,12 +558,62 @@ class MqttLink:
         return ok
 
     def publish_state(self, payload: dict[str, Any]) -> None:
-        """The state snapshot: retained, QoS 1, remembered and sent again at every connect."""
-        data = encode(payload)
+        """The state snapshot: retained, QoS 1, remembered and sent again at every connect; at
+        most one every :data:`SNAPSHOT_INTERVAL_S` (the latest wins, none is left behind)."""
+        self.publish_snapshot("state", payload)
+
+    def publish_snapshot(self, kind: str, payload: dict[str, Any] | bytes,
+                         min_interval_s: float = SNAPSHOT_INTERVAL_S) -> None:
+        """A snapshot (see the module notes): a JSON object, or bytes sent as they are (the map's
+        PNG). Sent now if the topic's last message is at least `min_interval_s` old (never less
+        than :data:`SNAPSHOT_INTERVAL_S`), else when that time is up, unless a newer value
+        replaces it meanwhile (a later call with a shorter interval brings the time forward).
+        Never waits for the broker."""
+        if kind not in SNAPSHOT_KINDS:
+            raise ValueError(f"publish_snapshot: kind must be one of {', '.join(SNAPSHOT_KINDS)}, got {kind!r}")
+        data = bytes(payload) if isinstance(payload, (bytes, bytearray)) else encode(payload)
+        topic = self.topics.of(kind)
+        interval = max(float(min_interval_s), SNAPSHOT_INTERVAL_S)
         with self._send_lock:  # so that a reconnect sends this one, not the one before
-            self._state = data
-            if self._client is not None and self._connected and not self._closing:
-                self._client.publish(self.topics.state, data, qos=1, retain=True)
+            snap = self._snapshots.get(topic)
+            if snap is None:
+                snap = self._snapshots[topic] = _Snapshot(data)
+            snap.data = data
+            now = time.monotonic()
+            due = snap.sent_at + interval
+            if snap.due is not None:
+                due = min(due, snap.due)
+            if now >= due:
+                self._send_snapshot(topic, snap, now)
+                return
+            snap.due = due
+            with self._cond:
+                if due < self._snapshot_due:
+                    self._snapshot_due = due
+                    self._cond.notify_all()
+
+    def _send_snapshot(self, topic: str, snap: _Snapshot, now: float) -> None:
+        """Hand one snapshot to paho (with _send_lock held). Disconnected, it waits for the
+        connect, which sends every snapshot."""
+        snap.due = None
+        if self._client is not None and self._connected and not self._closing:
+            self._client.publish(topic, snap.data, qos=1, retain=True)
+            snap.sent_at = now
+
+    def _flush_snapshots(self, force: bool = False) -> None:
+        """Send the snapshots whose time has come (every waiting one if `force`)."""
+        with self._send_lock:
+            now = time.monotonic()
+            later = math.inf
+            for topic, snap in self._snapshots.items():
+                if snap.due is None:
+                    continue
+                if force or now >= snap.due:
+                    self._send_snapshot(topic, snap, now)
+                else:
+                    later = min(later, snap.due)
+            with self._cond:
+                self._snapshot_due = later
 
     def publish_result(self, name: str, ok: bool, error: str | None = None, request_id: str | None = None,
                        extra: dict[str, Any] | None = None) -> None:
@@ -416,6 +639,13 @@ class MqttLink:
                 client.publish(self.topics.result(name), encode(body), qos=1)
             except (ValueError, TypeError) as exc:  # paho's checks of a topic or payload
                 log.warning("MQTT: no result for cmd/%s: %s", label(name), exc)
+                return
+            # The last command's result, for Home Assistant: the name as logs show it (a name
+            # can be 65 kB long), no `extra` (a calibration's summary is the result's business).
+            last = {"command": label(name), "ok": bool(ok),
+                    **({"error": error} if error is not None else {}),
+                    **({"request_id": request_id} if request_id is not None else {})}
+            self.publish_snapshot("last_result", last, LAST_RESULT_INTERVAL_S)
 
     def commands(self) -> list[tuple[str, bytes]]:
         """The commands received since the last call, oldest first: (name, raw payload)."""
@@ -462,8 +692,10 @@ class MqttLink:
                 subscriptions.append((f"{self.config.discovery_prefix}/status", SubscribeOptions(qos=1)))
             client.subscribe(subscriptions)
             client.publish(self.topics.status, "online", qos=1, retain=True)
-            if self._state is not None:
-                client.publish(self.topics.state, self._state, qos=1, retain=True)
+            now = time.monotonic()
+            for topic, snap in self._snapshots.items():  # each one's latest, waiting or not
+                client.publish(topic, snap.data, qos=1, retain=True)
+                snap.sent_at, snap.due = now, None
             for m in leftovers:
                 if m.topic.endswith("/result"):
                     client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
@@ -472,6 +704,7 @@ class MqttLink:
                 self._connected = True
                 self._generation += 1
                 self._stats["connects"] += 1
+                self._snapshot_due = math.inf
                 self._cond.notify_all()
         log.info("MQTT: connected to %s:%d (session %s)", self.config.host, self.config.port,
                  "resumed" if flags.session_present else "new")
@@ -566,11 +799,16 @@ class MqttLink:
         cursor = 0  # the last seq handed to paho on this connection
         while True:
             with self._cond:
-                while not (self._finished or self._acks or self._wake or self._generation != generation):
-                    self._cond.wait()
+                while not (self._finished or self._acks or self._wake or self._generation != generation
+                           or time.monotonic() >= self._snapshot_due):
+                    wait = self._snapshot_due - time.monotonic()
+                    self._cond.wait(wait if math.isfinite(wait) else None)
                 acks, self._acks, self._wake = self._acks, [], False
                 current, finished = self._generation, self._finished
+                snapshots_due = time.monotonic() >= self._snapshot_due
             try:
+                if snapshots_due and not finished:
+                    self._flush_snapshots()
                 for ack_generation, mid in acks:
                     seq = self._inflight.pop(mid, None) if ack_generation == generation else None
                     if seq is not None:
@@ -583,10 +821,20 @@ class MqttLink:
                     generation, cursor = current, 0
                     self._inflight.clear()
                 cursor = self._drain(generation, cursor)
+                self._publish_backlog()
             except Exception:  # noqa: BLE001 - e.g. a StorageError: keep trying, loudly
                 log.exception("MQTT: sending queued messages failed; retrying in 1 s")
                 time.sleep(1.0)
                 self._poke()
+
+    def _publish_backlog(self) -> None:
+        """The outbox's size on ``backlog`` when it changed (sender thread)."""
+        if not self._connected:
+            return
+        pending = len(self._outbox)
+        if pending != self._backlog:
+            self._backlog = pending
+            self.publish_snapshot("backlog", {"messages": pending})
 
     def _drain(self, generation: int, cursor: int) -> int:
         """Hand the next queued messages to paho, oldest first, up to the window. Returns the new

@@ -23,7 +23,7 @@ from broker import Mosquitto, Subscriber, publish
 from edge.commands import parse_command, request_id_of
 from edge.config import MqttConfig, TlsConfig
 from edge.errors import CommandError, ConfigError
-from edge.mqtt import MqttLink, Topics, discovery_payloads, encode, utc_timestamp
+from edge.mqtt import SNAPSHOT_INTERVAL_S, MqttLink, Topics, discovery_payloads, encode, utc_timestamp
 from edge.outbox import Outbox
 
 log = logging.getLogger(__name__)
@@ -113,32 +113,7 @@ def test_payloads_are_compact_utf8_json_with_a_millisecond_utc_ts():
     assert utc_timestamp(moment) == "2026-11-23T12:00:00.123Z"
 
 
-def test_discovery_payloads():
-    cfg = MqttConfig()
-    payloads = discovery_payloads(cfg, "pi.lab", VERSION)
-    node = "edge_pi_lab"
-    assert set(payloads) == {f"homeassistant/{c}/{node}/{o}/config"
-                             for c, o in (("sensor", "range"), ("binary_sensor", "guard"), ("select", "mode"))}
-    sensor = payloads[f"homeassistant/sensor/{node}/range/config"]
-    assert sensor["device_class"] == "distance" and sensor["unit_of_measurement"] == "m"
-    assert sensor["state_topic"] == "edge/pi.lab/range" and sensor["value_template"] == "{{ value_json.range_m }}"
-    motion = payloads[f"homeassistant/binary_sensor/{node}/guard/config"]
-    assert motion["device_class"] == "motion" and motion["state_topic"] == "edge/pi.lab/alert"
-    select = payloads[f"homeassistant/select/{node}/mode/config"]
-    assert select["options"] == ["rangefinder", "blindaid", "guard"]
-    assert select["command_topic"] == "edge/pi.lab/cmd/mode"
-    assert select["command_template"] == '{"mode": "{{ value }}"}'
-    assert select["state_topic"] == "edge/pi.lab/state" and select["value_template"] == "{{ value_json.mode }}"
-    assert len({p["unique_id"] for p in payloads.values()}) == 3
-    for p in payloads.values():
-        assert p["availability_topic"] == "edge/pi.lab/status"
-        assert (p["payload_available"], p["payload_not_available"]) == ("online", "offline")
-        assert p["device"] == payloads[f"homeassistant/sensor/{node}/range/config"]["device"]
-    assert sensor["device"]["identifiers"] == [node] and sensor["device"]["sw_version"] == VERSION
-    # The command HA's select sends is one our parser takes.
-    command = select["command_template"].replace("{{ value }}", "guard").encode()
-    parsed = parse_command("mode", command, max_bytes=256, pan_limits=(-1, 1), tilt_limits=(-1, 1))
-    assert parsed.args["mode"] == "guard"
+# Discovery's payloads are checked against Home Assistant's own rules in tests/test_ha_discovery.py.
 
 
 # ---- status, Last Will, state ----
@@ -221,6 +196,124 @@ def test_state_is_retained_and_sent_again_after_a_reconnect(broker, subscriber, 
         assert got.retain and body == {"ts": body["ts"], "mode": "blindaid", "n": 2}
     finally:
         late.close()
+
+
+# ---- snapshots: state and Home Assistant's topics ----
+
+
+def sends_of(link: MqttLink) -> dict[str, list[float]]:
+    """Topic → time.monotonic() of each message the link hands to paho (the device's own pace:
+    what the broker delivers to a subscriber comes with its jitter on a loaded machine)."""
+    sent: dict[str, list[float]] = {}
+    client = link._client
+    assert client is not None
+    publish_ = client.publish
+
+    def recorded(topic, *args, **kwargs):
+        sent.setdefault(topic, []).append(time.monotonic())
+        return publish_(topic, *args, **kwargs)
+
+    client.publish = recorded  # type: ignore[method-assign]
+    return sent
+
+
+def test_a_snapshot_goes_out_at_most_twice_a_second_and_its_latest_value_always(broker, subscriber, make_link):
+    link = started(make_link())
+    sent = sends_of(link)
+    mark = subscriber.mark()
+    began = time.monotonic()
+    for n in range(1, 81):  # 80 states over 2 s or more
+        link.publish_state({"n": n})
+        time.sleep(0.025)
+    ended = time.monotonic()
+    got = subscriber.wait_for(T.state, lambda m: json.loads(m.payload)["n"] == 80, since=mark, timeout=5)
+    seen = [m for m in subscriber.messages(T.state, since=mark)]
+    assert got is seen[-1] and all(m.qos == 1 for m in seen)
+    numbers = [json.loads(m.payload)["n"] for m in seen]
+    assert numbers == sorted(numbers) and numbers[0] == 1  # the first at once, then the newest waiting
+    times = sent[T.state]
+    assert len(times) == len(seen) and len(times) <= (ended - began) / SNAPSHOT_INTERVAL_S + 2
+    gaps = [b - a for a, b in zip(times, times[1:])]
+    assert min(gaps) >= SNAPSHOT_INTERVAL_S, gaps
+    # A longer interval asked for holds a value back longer; a value that changed much, asked with a
+    # shorter one, brings the time forward (never below the floor).
+    link.publish_snapshot("distance", {"active": True, "range_m": 1.0}, min_interval_s=1.0)  # out at once
+    link.publish_snapshot("distance", {"active": True, "range_m": 1.001}, min_interval_s=1.0)
+    snap = link._snapshots[T.of("distance")]
+    with link._send_lock:
+        waits = None if snap.due is None else snap.due - snap.sent_at
+    if waits is not None:  # (not yet sent by the sender thread)
+        assert waits == pytest.approx(1.0)
+    link.publish_snapshot("distance", {"active": True, "range_m": 2.0}, min_interval_s=0.1)
+    with link._send_lock:
+        waits = None if snap.due is None else snap.due - snap.sent_at
+    if waits is not None:
+        assert waits == pytest.approx(SNAPSHOT_INTERVAL_S)
+    subscriber.wait_for(T.of("distance"), lambda m: json.loads(m.payload)["range_m"] == 2.0, since=mark)
+    times = sent[T.of("distance")]
+    # 1.001 was replaced before it went out (unless this machine paused us for a second meanwhile).
+    assert len(times) in (2, 3) and times[-1] - times[-2] >= SNAPSHOT_INTERVAL_S
+    with pytest.raises(ValueError, match="kind must be one of"):
+        link.publish_snapshot("range", {})
+
+
+def test_snapshots_are_retained_sent_again_at_every_connect_and_the_last_before_offline(broker, subscriber,
+                                                                                        make_link):
+    link = started(make_link())
+    png = b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 40
+    link.publish_snapshot("map", png)
+    link.publish_snapshot("guard", {"active": True, "occupied": True, "tracks": 1})
+    assert subscriber.wait_for(T.of("map")).payload == png  # bytes as they are, no JSON
+    subscriber.wait_for(T.of("guard"))
+    broker.stop()
+    wait_until(lambda: not link.connected, what="the link to notice the outage")
+    link.publish_snapshot("guard", {"active": False, "occupied": False, "tracks": 0})
+    broker.start()
+    mark = subscriber.mark()
+    wait_until(lambda: link.connected, what="the reconnect")
+    # (The subscriber may first get the broker's retained copy again, as it re-subscribes.)
+    subscriber.wait_for(T.of("guard"), lambda m: json.loads(m.payload)["occupied"] is False, since=mark)
+    assert subscriber.wait_for(T.of("map"), since=mark).payload == png
+    late = Subscriber(broker)
+    try:
+        assert json.loads(late.wait_for(T.of("guard")).payload)["active"] is False
+        assert late.wait_for(T.of("map")).retain
+    finally:
+        late.close()
+    # One still waiting for its interval goes out at stop, handed over before `offline`.
+    order: list[str] = []
+    client = link._client
+    publish_ = client.publish
+    client.publish = lambda topic, *a, **k: order.append(topic) or publish_(topic, *a, **k)
+    link.publish_state({"n": 1})
+    link.publish_state({"n": 2})
+    link.stop(timeout_s=2)
+    subscriber.wait_for(T.state, lambda m: json.loads(m.payload)["n"] == 2)
+    subscriber.wait_for(T.status, lambda m: m.text == "offline")
+    assert order[-2:] == [T.state, T.status], order
+
+
+def test_the_last_result_and_the_backlog_are_snapshots_too(broker, subscriber, make_link):
+    link = started(make_link())
+    assert json.loads(subscriber.wait_for(T.of("backlog")).payload)["messages"] == 0
+    link.publish_result("sweep", True, request_id="r1")
+    got = subscriber.wait_for(T.of("last_result"))
+    assert json.loads(got.payload) | {"ts": None} == {"ts": None, "command": "sweep", "ok": True, "request_id": "r1"}
+    link.publish_result("x" * 5000, False, "unknown command")  # a name from outside: cut short
+    got = subscriber.wait_for(T.of("last_result"), lambda m: json.loads(m.payload)["ok"] is False)
+    assert len(json.loads(got.payload)["command"]) < 100
+    # The backlog follows the outbox: events put while the broker is away are counted, and once
+    # they are delivered after the reconnect it says 0 again.
+    broker.stop()
+    wait_until(lambda: not link.connected, what="the link to notice the outage")
+    for i in range(5):
+        link.publish_event("alert", alert(i))
+    mark = subscriber.mark()
+    broker.start()
+    subscriber.wait_count(T.alert, 5, timeout=10, since=mark)
+    wait_until(lambda: link.stats()["pending"] == 0, what="the outbox to drain")
+    time.sleep(0.7)  # the backlog's last word, after its interval
+    assert json.loads(subscriber.messages(T.of("backlog"), since=mark)[-1].payload)["messages"] == 0
 
 
 # ---- events: the outbox ----

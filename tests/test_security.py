@@ -318,10 +318,11 @@ def test_operators_command_devices_and_cannot_forge_their_data(secured, peers, l
     # Operators command; they do not speak for a device.
     for topic in ("edge/dev1/alert", "edge/dev1/status", "edge/dev1/cmd/mode/result"):
         assert dash.publish(topic, "{}").value == NOT_AUTHORIZED, topic
-    # Home Assistant's account may select a mode and nothing else of the device's.
+    # Home Assistant's account may select a mode and press the device's buttons, nothing else.
     ha = peers(secured, "homeassistant").started()
     assert not ha.publish("edge/dev1/cmd/mode", '{"mode": "rangefinder"}').is_failure
-    assert ha.publish("edge/dev1/cmd/lasers_off", "{}").value == NOT_AUTHORIZED
+    assert ha.publish("edge/dev1/cmd/point", '{"pan_deg": 0, "tilt_deg": 0}').value == NOT_AUTHORIZED
+    assert ha.publish("edge/dev1/guard", '{"occupied": false}').value == NOT_AUTHORIZED
     wait_until(lambda: bool(got.extend(link.commands()) or len(got) == 2), what="the mode from Home Assistant")
     assert got[1] == ("mode", b'{"mode": "rangefinder"}')
 

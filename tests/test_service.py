@@ -73,7 +73,7 @@ def test_a_range_finder_run_publishes_every_topic_of_the_contract(broker, subscr
     assert {"sensor", "binary_sensor", "select"} <= kinds
     for m in configs:
         cfg = json.loads(m.payload)
-        assert cfg["availability_topic"] == f"{P}/status" and cfg["device"]["identifiers"]
+        assert cfg["availability"][0]["topic"] == f"{P}/status" and cfg["device"]["identifiers"]
     finish(proc)
     last = subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"offline", timeout=10)
     assert last.at > ranges[-1].at

@@ -34,6 +34,7 @@ class Recorder:
         self._lock = threading.Lock()
         self.states: list[dict] = []
         self.events: list[tuple] = []
+        self.snapshots: list[tuple] = []
         self.stopped = False
 
     def start(self) -> None:
@@ -67,6 +68,9 @@ class Recorder:
     def publish_result(self, name, ok, error=None, request_id=None, extra=None):
         self.results.append((name, ok, error, request_id))
         self.result_times.append(time.monotonic())
+
+    def publish_snapshot(self, kind, payload, min_interval_s=0.6):
+        self.snapshots.append((kind, payload))
 
 
 def test_the_null_link_takes_everything_and_gives_nothing(tmp_path):
@@ -135,7 +139,8 @@ def test_the_service_answers_commands_through_its_link(tmp_path):
                             ("point", False, "the rig is not running", None),
                             ("sweep", True, None, None), ("mode", True, None, None)]
     assert service.mode == "guard" and link.states[-1]["mode"] == "guard"
-    assert set(link.states[-1]) == {"device", "mode", "health", "version", "uptime_s", "sweeps", "camera_restarts"}
+    assert set(link.states[-1]) == {"device", "mode", "health", "version", "uptime_s", "sweeps", "camera_restarts",
+                                    "faults", "calibrated_at", "calibration_age_d"}
 
 
 # ---- the service's loop on the simulated rig, in this process ----

@@ -37,6 +37,10 @@ class Link(Protocol):
     def publish_result(self, name: str, ok: bool, error: str | None = None, request_id: str | None = None,
                        extra: dict[str, Any] | None = None) -> None: ...
 
+    def publish_snapshot(self, kind: str, payload: dict[str, Any] | bytes, min_interval_s: float = 0.6) -> None:
+        """A retained snapshot whose latest value alone matters (Home Assistant's topics)."""
+        ...
+
 
 class NullLink:
     """No broker: nothing goes out, no command comes in."""
@@ -61,6 +65,9 @@ class NullLink:
 
     def publish_result(self, name: str, ok: bool, error: str | None = None, request_id: str | None = None,
                        extra: dict[str, Any] | None = None) -> None:
+        pass
+
+    def publish_snapshot(self, kind: str, payload: dict[str, Any] | bytes, min_interval_s: float = 0.6) -> None:
         pass
 
 

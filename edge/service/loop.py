@@ -21,9 +21,12 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import replace
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from edge import __version__
@@ -38,6 +41,7 @@ from edge.service.commanding import LATER, CommandQueue, Dispatcher, Handler, La
 from edge.service.course import Course, Step
 from edge.service.guarding import GuardWatch
 from edge.service.health import RigHealth
+from edge.service.homeassistant import HomeAssistantFeed
 from edge.service.identity import BootId
 from edge.service.link import Link, NullLink, open_link
 from edge.service.steps import ModeSteps
@@ -49,6 +53,8 @@ log = logging.getLogger(__name__)
 
 # Between steps the loop waits at most this long for a command or a stop.
 _IDLE_S = 0.05
+# `state` goes out at least this often (real seconds), so that its calibration age stays current.
+STATE_REFRESH_S = 600.0
 
 
 class Service:
@@ -77,6 +83,8 @@ class Service:
             log.error("calibration: %s", believed.health)
         # Built once per rig: it lays out each laser's search band, the same for every zone and frame.
         self.ranger = Ranger(believed.rig, config.ranging)
+        self._calibrated_at = believed.calibration.created if believed.calibration is not None else None
+        self._state_at = -math.inf  # time.monotonic() of the last state published
         self.health = RigHealth(believed.rig.laser_names, believed.health,
                                 calibrated=believed.calibration is not None,
                                 camera=lambda: self._parts.camera if self._parts else None,
@@ -87,8 +95,10 @@ class Service:
 
         # The occupancy grid of every sweep, kept in state_dir; map_png() gives its picture.
         self.map = GridKeeper(config.map, believed.rig, config.service.resolved_state_dir())
+        self.ha = HomeAssistantFeed(lambda kind, p, interval: self.link.publish_snapshot(kind, p, interval),
+                                    device_id=self.device_id, range_limit_m=config.rig.range_limits_m[1])
         self.steps = ModeSteps(self.health, self.guard, boot,
-                               publish_live=lambda kind, p: self.link.publish_live(kind, p),
+                               publish_live=self._publish_live,
                                publish_event=lambda kind, p: self.link.publish_event(kind, p),
                                pause=self._pause, now=self._now, grid=self.map)
         self.calibration = CalibrationController(
@@ -137,8 +147,10 @@ class Service:
         """A calibration was fitted and saved: range with it from now on. The guard learns its room
         again: against the new rays every wall would seem to have moved by a percent or two."""
         self.ranger = Ranger(believed.rig, self.config.ranging)
+        self._calibrated_at = believed.calibration.created if believed.calibration is not None else None
         self.health.recalibrated(believed.health, believed.rig.laser_names)
         self.guard.relearn("with the calibrated rig")
+        self._publish_guard()
 
     # ---- life cycle ----
 
@@ -161,6 +173,7 @@ class Service:
                 with open_parts(self.config, self.clock) as parts:
                     self._parts = parts
                     self._publish_state()
+                    self._publish_activity()
                     self._notifier.ready()
                     self._notifier.status(f"running: {self.mode}")
                     log.info("edge %s running as %s in %s mode", __version__, self.device_id, self.mode)
@@ -211,11 +224,17 @@ class Service:
     def _sweep(self, parts: Parts) -> None:
         if self.steps.sweep(parts, self.config, self.ranger, self._should_stop(sweeping=True)):
             self._publish_state()
+            if self.mode == "guard":
+                self._publish_guard()
+            when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+            self.ha.map(self.steps.last_sweep, self.sweeps, self.mode, when)
 
     def _between_steps(self) -> None:
         """Feed the watchdog (the loop made progress) and carry out a turn's commands."""
         self._progressed()
         self.queue.run(self.stop_requested.is_set)
+        if time.monotonic() - self._state_at >= STATE_REFRESH_S:
+            self._publish_state()
 
     def _should_stop(self, also: Callable[[], bool] | None = None, sweeping: bool = False) -> Callable[[], bool]:
         """What a mode checks between zones or frames: feed the watchdog, take commands, and end
@@ -243,8 +262,11 @@ class Service:
             log.info("mode %s → %s", before, self.mode)
             if before == "blindaid":
                 self.steps.close_fan()
+            if before == "guard":
+                self._stand_down_guard("after leaving guard mode")
             self.config = replace(self.config, mode=self.course.mode)
             self._notifier.status(f"running: {self.mode}")
+            self._publish_activity()
         self._publish_state()
         return None
 
@@ -271,6 +293,7 @@ class Service:
         """The guard learns its background again (from the next complete sweep)."""
         self.guard.relearn()
         self.course.interrupt = self.mode == "guard"  # a sweep half done would mix old and new
+        self._publish_guard()
         return None
 
     def _cmd_calibrate(self, command: Command) -> str | Later | None:
@@ -291,6 +314,9 @@ class Service:
         if self.course.pause():
             log.info("lasers off: ranging paused until cmd/mode or cmd/sweep")
             self._notifier.status("paused: lasers off")
+            if self.mode == "guard":
+                self._stand_down_guard("after cmd/lasers_off")
+            self._publish_activity()
         self.steps.blinded("lasers off")  # the blind aid's fan stays open: it says "cannot see"
         self._publish_state()
         return None
@@ -302,16 +328,55 @@ class Service:
         log.info("%s: ranging resumes", why)
         self.steps.blinded(None)
         self._notifier.status(f"running: {self.mode}")
+        self._publish_activity()
         return True
+
+    def _stand_down_guard(self, why: str) -> None:
+        """The guard stops watching (another mode, a pause): every followed object is cleared
+        (`cleared` alerts: nobody is left believing in an intruder no longer watched), and since
+        the room may change unwatched, it learns the background again when it watches again."""
+        self.guard.relearn(why)
 
     # ---- publishing ----
 
     def state(self) -> dict[str, Any]:
         present = {"paused": self.course.paused, "guard": self.guard.state(), "calibration": self.calibration.state()}
-        return {"device": self.device_id, "mode": self.mode, "health": self.health.parts, "version": __version__,
+        health = self.health.parts
+        return {"device": self.device_id, "mode": self.mode, "health": health, "version": __version__,
                 "uptime_s": round(self._now() - self.started, 1), "sweeps": self.sweeps,
                 "camera_restarts": self.health.camera_restarts,
+                "faults": [part for part, condition in health.items() if condition.startswith("fault")],
+                "calibrated_at": self._calibrated_at or None,
+                "calibration_age_d": _age_days(self._calibrated_at),
                 **{key: value for key, value in present.items() if value is not None}}
 
     def _publish_state(self) -> None:
+        self._state_at = time.monotonic()
         self.link.publish_state(self.state())
+
+    def _publish_live(self, kind: str, payload: dict[str, Any]) -> object:
+        """A range or a cue: on the contract's topic, every one, and to Home Assistant's feed."""
+        sent = self.link.publish_live(kind, payload)
+        self.ha.live(kind, payload)
+        return sent
+
+    def _publish_activity(self) -> None:
+        """What runs changed (or the service started): Home Assistant's distance, obstacle and guard."""
+        self.ha.activity(self.mode, self.course.paused is not None)
+        self._publish_guard()
+
+    def _publish_guard(self) -> None:
+        self.ha.guard(self.mode == "guard" and self.course.paused is None, self.guard.learning, self.guard.tracks)
+
+
+def _age_days(created: str | None) -> float | None:
+    """Days since an ISO 8601 UTC time (a calibration's `created`), or None."""
+    if not created:
+        return None
+    try:
+        moment = datetime.fromisoformat(created)
+    except ValueError:
+        return None
+    if moment.tzinfo is None:
+        moment = moment.replace(tzinfo=UTC)
+    return round(max(time.time() - moment.timestamp(), 0.0) / 86400.0, 2)

@@ -43,6 +43,7 @@ class ModeSteps:
         self.guard = guard
         self._boot = boot
         self.sweeps = 0  # complete sweeps so far
+        self.last_sweep: list[ZoneResult] = []  # the zones of the last complete sweep
         self._publish_live = publish_live
         self._publish_event = publish_event
         self._pause = pause
@@ -82,6 +83,7 @@ class ModeSteps:
         self.sweeps += 1
         if self.grid is not None:
             self.grid.add_sweep(ranger.rig, report.results)
+        self.last_sweep = list(report.results)
         self._publish_event("sweep", {
             "sweep": self.sweeps,
             "boot": self._boot.value,  # (boot, sweep) is unique across restarts
