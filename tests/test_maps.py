@@ -1,6 +1,6 @@
 """`edge map` and the map files of sweeps: sources read (recordings, edge sweep's results), the
 files written and read back by tools nobody here wrote, the device's grid kept across restarts, and
-a small map scored against the simulator's truth (scripts/map_targets.py measures the full one)."""
+a small map scored against the simulator's truth (tools/map_targets.py measures the full one)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 
     ./dev edge sim record --scene office --out rec/o1 --frames 2 --seed 1     # and seeds 2, 3
     ./dev edge sim record --scene office --out rec/o3d --frames 2 --set 'sweep.tilts_deg=[-40.0,-20.0,0.0,15.0,30.0]'
-    .venv/bin/python scripts/map_targets.py --grid office rec/o1 rec/o2 rec/o3 --cloud office rec/o3d
+    .venv/bin/python tools/map_targets.py --grid office rec/o1 rec/o2 rec/o3 --cloud office rec/o3d
 
 --grid SCENE DIR…: the sweeps fused into one 5 cm grid, scored (occupied near a surface, surface
 cells occupied, cells along rays free). --cloud SCENE DIR: one scan's cloud, scored (points'
