@@ -10,6 +10,7 @@ sweeps and restarts in the state folder.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +41,8 @@ log = logging.getLogger(__name__)
 RANGES_FORMAT = "edge-ranges/1"
 MAP_FILES = ("map.pgm", "map.yaml", "map.png", "cloud.ply")
 GRID_STATE = "grid.npz"
+# Free room the kept map must leave on the card when it is saved: the outbox comes first.
+SAVE_MARGIN_BYTES = 4 << 20
 
 
 # --- edge-ranges/1, as edge sweep writes it -------------------------------------------------------
@@ -195,6 +198,7 @@ class GridKeeper:
         half = OccupancyGrid.for_rig(config, rig).half_size_m
         self.grid = OccupancyGrid(config, half)
         self.sweeps = 0
+        self._short = False  # the last save was skipped for want of room
         if self.path.exists():
             try:
                 self.grid = grid_from_state(config, read_small(self.path, 256 << 20), half)
@@ -205,9 +209,20 @@ class GridKeeper:
     def add_sweep(self, rig: Rig, results: Sequence[ZoneResult]) -> None:
         self.grid.add_results(rig, results)
         self.sweeps += 1
+        data = state_bytes(self.grid)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_bytes(self.path, state_bytes(self.grid))
+            # On a nearly full card the outbox (alerts, sweeps not yet delivered) comes first: the
+            # map is saved only while it leaves SAVE_MARGIN_BYTES free, and lives on in memory.
+            stat = os.statvfs(self.path.parent)
+            if stat.f_bavail * stat.f_frsize < len(data) + SAVE_MARGIN_BYTES:
+                if not self._short:
+                    log.warning("%s: not saving the map while the card is nearly full (the queue of "
+                                "messages comes first); it is kept in memory", self.path)
+                self._short = True
+                return
+            atomic_write_bytes(self.path, data)
+            self._short = False
         except OSError as exc:  # a full card must not stop the device; the map lives on in memory
             log.warning("%s: cannot save the map: %s", self.path, exc)
 
