@@ -61,7 +61,9 @@ class GuardWatch:
 
     def relearn(self, why: str | None = None) -> None:
         """Learn the background again from the next complete sweep; every followed object is
-        cleared (published, so that nobody keeps one no longer followed)."""
+        cleared (published, so that nobody keeps one no longer followed). Also how the guard
+        stands down when it stops watching (another mode, a pause): nobody is left believing in an
+        intruder no longer watched, and the room may change unwatched."""
         if self.guard is None:
             return
         if why:

@@ -93,7 +93,7 @@ class Service:
         self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert), boot)
         from edge.maps import GridKeeper
 
-        # The occupancy grid of every sweep, kept in state_dir; map_png() gives its picture.
+        # The occupancy grid of every sweep, kept in state_dir (its picture: self.map.png()).
         self.map = GridKeeper(config.map, believed.rig, config.service.resolved_state_dir())
         self.ha = HomeAssistantFeed(lambda kind, p, interval: self.link.publish_snapshot(kind, p, interval),
                                     device_id=self.device_id, range_limit_m=config.rig.range_limits_m[1])
@@ -116,10 +116,6 @@ class Service:
             lambda: self._parts.ptu.limits_deg if self._parts else ((-180.0, 180.0), (-90.0, 90.0)),
             config.mqtt.max_payload_bytes)
         self.queue = CommandQueue(lambda: self.link.commands(), self.commands.handle, self._progressed)
-
-    def map_png(self) -> bytes:
-        """The kept map's picture (PNG): what a publisher of the map sends after each sweep."""
-        return self.map.png()
 
     def _now(self) -> float:
         """The rig's time, s."""
@@ -226,8 +222,7 @@ class Service:
             self._publish_state()
             if self.mode == "guard":
                 self._publish_guard()
-            when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
-            self.ha.map(self.steps.last_sweep, self.sweeps, self.mode, when)
+            self.ha.map(self.steps.last_sweep, self.sweeps, self.mode, f"{datetime.now(UTC):%Y-%m-%d %H:%M:%S} UTC")
 
     def _between_steps(self) -> None:
         """Feed the watchdog (the loop made progress) and carry out a turn's commands."""
@@ -262,8 +257,8 @@ class Service:
             log.info("mode %s → %s", before, self.mode)
             if before == "blindaid":
                 self.steps.close_fan()
-            if before == "guard":
-                self._stand_down_guard("after leaving guard mode")
+            if before == "guard":  # it stands down: see GuardWatch.relearn
+                self.guard.relearn("after leaving guard mode")
             self.config = replace(self.config, mode=self.course.mode)
             self._notifier.status(f"running: {self.mode}")
             self._publish_activity()
@@ -314,8 +309,8 @@ class Service:
         if self.course.pause():
             log.info("lasers off: ranging paused until cmd/mode or cmd/sweep")
             self._notifier.status("paused: lasers off")
-            if self.mode == "guard":
-                self._stand_down_guard("after cmd/lasers_off")
+            if self.mode == "guard":  # it stands down: see GuardWatch.relearn
+                self.guard.relearn("after cmd/lasers_off")
             self._publish_activity()
         self.steps.blinded("lasers off")  # the blind aid's fan stays open: it says "cannot see"
         self._publish_state()
@@ -330,12 +325,6 @@ class Service:
         self._notifier.status(f"running: {self.mode}")
         self._publish_activity()
         return True
-
-    def _stand_down_guard(self, why: str) -> None:
-        """The guard stops watching (another mode, a pause): every followed object is cleared
-        (`cleared` alerts: nobody is left believing in an intruder no longer watched), and since
-        the room may change unwatched, it learns the background again when it watches again."""
-        self.guard.relearn(why)
 
     # ---- publishing ----
 
@@ -354,11 +343,10 @@ class Service:
         self._state_at = time.monotonic()
         self.link.publish_state(self.state())
 
-    def _publish_live(self, kind: str, payload: dict[str, Any]) -> object:
+    def _publish_live(self, kind: str, payload: dict[str, Any]) -> None:
         """A range or a cue: on the contract's topic, every one, and to Home Assistant's feed."""
-        sent = self.link.publish_live(kind, payload)
+        self.link.publish_live(kind, payload)
         self.ha.live(kind, payload)
-        return sent
 
     def _publish_activity(self) -> None:
         """What runs changed (or the service started): Home Assistant's distance, obstacle and guard."""
