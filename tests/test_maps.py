@@ -110,7 +110,7 @@ def test_the_service_fuses_its_sweeps_into_the_kept_map(tmp_path: Path) -> None:
     service = Service(load_config(None, sets), run_for_s=2.0)
     assert service.run() == 0
     assert service.sweeps >= 1 and service.map.sweeps == service.sweeps
-    assert (tmp_path / "grid.npz").is_file() and service.map_png()[:4] == b"\x89PNG"
+    assert (tmp_path / "grid.npz").is_file() and service.map.png()[:4] == b"\x89PNG"
     kept = service.map.grid.log_odds
     assert service.map.grid.occupied().sum() >= 3
     restarted = Service(load_config(None, sets), run_for_s=0.0)
