@@ -30,7 +30,7 @@ def wiring_of(args: argparse.Namespace) -> tuple[tuple[Any, ...], Any]:
     ConfigError when either cannot be read."""
     from edge.config_file import apply_overrides, default_config_path, read_table
     from edge.errors import ConfigError
-    from edge.hw.lasers import DEFAULT_WIRING, LasersConfig, LaserWiring
+    from edge.hw.lasers import LasersConfig, wiring_from_table
     from edge.schema import build
 
     file = Path(args.config) if args.config is not None else default_config_path()
@@ -40,16 +40,7 @@ def wiring_of(args: argparse.Namespace) -> tuple[tuple[Any, ...], Any]:
     rig = data.get("rig", {})
     if not isinstance(rig, dict):
         raise ConfigError(f"{source}: rig: expected a table")
-    entries = rig.get("lasers")
-    wiring: tuple[LaserWiring, ...]
-    if entries is None:
-        wiring = DEFAULT_WIRING
-    elif not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
-        raise ConfigError(f"{source}: rig.lasers: expected a list of tables ([[rig.lasers]])")
-    else:
-        # Only the wiring: a mistake in a laser's geometry must not keep its pin from going off.
-        wiring = tuple(build(LaserWiring, {k: e[k] for k in ("name", "pin", "active_high") if k in e},
-                             source, f"rig.lasers[{i}]") for i, e in enumerate(entries))
+    wiring = wiring_from_table(rig, source)
     settings = build(LasersConfig, data.get("lasers", {}), source, "lasers")
     return wiring, settings
 

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from edge.config_file import apply_overrides, default_config_path, read_table
 from edge.errors import ConfigError
-from edge.hw.lasers import DEFAULT_WIRING, LasersConfig, LaserWiring
+from edge.hw.lasers import LasersConfig, LaserWiring, wiring_from_table
 from edge.hw.ptu import PtuConfig
 from edge.schema import build
 from edge.sim.settings import SimConfig
@@ -100,15 +100,7 @@ def _string(section: dict[str, Any], source: str, key: str, default: str) -> str
 def from_table(data: dict[str, Any], source: str) -> Settings:
     """The light settings straight from the file (when the typed configuration cannot be loaded)."""
     rig = _section(data, source, "rig")
-    entries = rig.get("lasers")
-    wiring: tuple[LaserWiring, ...]
-    if entries is None:
-        wiring = DEFAULT_WIRING
-    elif not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
-        raise ConfigError(f"{source}: rig.lasers: expected a list of tables ([[rig.lasers]])")
-    else:
-        wiring = tuple(build(LaserWiring, {k: e[k] for k in ("name", "pin", "active_high") if k in e},
-                             source, f"rig.lasers[{i}]") for i, e in enumerate(entries))
+    wiring = wiring_from_table(rig, source)
     camera = _section(data, source, "camera")
     return Settings(
         source,

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from edge.clock import REAL, Clock
-from edge.errors import LaserError
-from edge.schema import require
+from edge.errors import ConfigError, LaserError
+from edge.schema import build, require
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +49,20 @@ class LaserWiring:
 
 # README's wiring of geometry.md's default rig.
 DEFAULT_WIRING = (LaserWiring("center", 17), LaserWiring("parallel", 27), LaserWiring("sloped", 22))
+
+
+def wiring_from_table(rig: dict[str, Any], source: str) -> tuple[LaserWiring, ...]:
+    """The lasers' wiring from a config file's ``[rig]`` table as read (``[[rig.lasers]]``'s
+    `name`, `pin`, `active_high`; the defaults when there are none), for the light commands that
+    must not need the whole configuration: a mistake in a laser's geometry must not keep its pin
+    from going off."""
+    entries = rig.get("lasers")
+    if entries is None:
+        return DEFAULT_WIRING
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise ConfigError(f"{source}: rig.lasers: expected a list of tables ([[rig.lasers]])")
+    return tuple(build(LaserWiring, {k: e[k] for k in ("name", "pin", "active_high") if k in e},
+                       source, f"rig.lasers[{i}]") for i, e in enumerate(entries))
 
 
 @dataclass(frozen=True)
