@@ -343,3 +343,15 @@ def test_spot_model_is_what_the_frames_hold() -> None:
     h, w, _ = bg.electrons.shape
     room = renderer.render_electrons(0.0, 0.0, {})[bg.y0 : bg.y0 + h, bg.x0 : bg.x0 + w]
     assert np.allclose(bg.electrons, room, rtol=1e-5)
+
+
+def test_speckle_on_a_grid_is_the_speckle_at_its_points():
+    """The renderer's separable speckle (optics.speckle_grid) is optics.speckle_field on the
+    grid's points, from the same draws."""
+    xs, ys = np.linspace(-9.0, 11.0, 41), np.linspace(-7.0, 6.0, 27)
+    gx, gy = np.meshgrid(xs, ys)
+    for grain in (1.0, 2.5):
+        field = optics.speckle_field(np.random.default_rng(3), gx, gy, 0.45, grain)
+        grid = optics.speckle_grid(np.random.default_rng(3), xs, ys, 0.45, grain)
+        assert grid.shape == field.shape and np.allclose(grid, field, rtol=0, atol=1e-9)
+        assert field.std() > 0.1  # a speckle, not a flat field
