@@ -54,9 +54,10 @@ from edge.outbox import Outbox
 
 log = logging.getLogger(__name__)
 _paho_log = logging.getLogger(f"{__name__}.paho")
-# paho 2.2's network loop runs once more after a deliberate disconnect() and logs it as an error.
-_paho_log.addFilter(lambda r: not (r.getMessage().startswith("Client is not connected")
-                                   and r.getMessage().endswith("MQTT_CS_DISCONNECTED")))
+# paho 2.2's network loop runs once more after a deliberate disconnect(), or a stop while still
+# connecting, and logs it as an error. What the user needs of it, we log: a broker that cannot be
+# reached (_on_connect_fail) or a connection lost (_on_disconnect).
+_paho_log.addFilter(lambda r: not r.getMessage().startswith("Client is not connected"))
 
 WINDOW = 32  # outbox messages handed to paho and not yet acknowledged, at most
 # QoS 1 messages paho keeps in flight (beyond it paho queues, in order). paho cannot change it once
@@ -442,6 +443,7 @@ class MqttLink:
         self._acks: list[tuple[int, int]] = []  # (generation, mid) of PUBACKs not yet processed
         self._wake = False
         self._closing = False  # stop() has begun: nothing new goes out
+        self._unreachable = False  # a failed connect was logged: quiet until connected again
         self._finished = False  # stop() is done with paho: the sender thread may end
         self._snapshots: dict[str, _Snapshot] = {}  # topic → snapshot; under _send_lock
         self._snapshot_due = math.inf  # the earliest `due` of a waiting snapshot; under _cond
@@ -469,6 +471,7 @@ class MqttLink:
         client.max_inflight_messages_set(PAHO_INFLIGHT)
         client.on_connect = _guarded(self._on_connect)
         client.on_disconnect = _guarded(self._on_disconnect)
+        client.on_connect_fail = _guarded(self._on_connect_fail)
         client.on_publish = _guarded(self._on_publish)
         client.on_message = _guarded(self._on_message)
         props = Properties(PacketTypes.CONNECT)
@@ -706,8 +709,18 @@ class MqttLink:
                 self._stats["connects"] += 1
                 self._snapshot_due = math.inf
                 self._cond.notify_all()
+        self._unreachable = False
         log.info("MQTT: connected to %s:%d (session %s)", self.config.host, self.config.port,
                  "resumed" if flags.session_present else "new")
+
+    def _on_connect_fail(self, client: paho.Client, userdata: Any) -> None:
+        # Once an outage, not at every retry: the journal of a device without its broker for a
+        # week must stay readable.
+        if self._closing or self._unreachable:
+            return
+        self._unreachable = True
+        log.warning("MQTT: cannot reach %s:%d; retrying (back-off %g–%g s); events wait in the outbox",
+                    self.config.host, self.config.port, self.config.reconnect_min_s, self.config.reconnect_max_s)
 
     def _on_disconnect(self, client: paho.Client, userdata: Any, flags: Any, reason: Any, properties: Any) -> None:
         with self._cond:

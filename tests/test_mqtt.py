@@ -643,3 +643,27 @@ def test_the_device_listens_before_it_says_online(tmp_path: Path) -> None:
     subscribe = next(i for i in mine if "Received SUBSCRIBE" in lines[i])
     online = next(i for i in mine if "Received PUBLISH" in lines[i] and f"'edge/{DEV}/status'" in lines[i])
     assert subscribe < online, lines[subscribe - 1:online + 2]
+
+
+def test_an_unreachable_broker_is_one_warning_an_outage_and_stopping_logs_no_error(broker, make_link, caplog):
+    """A user without a broker reads one line that names it, not one per retry, and a stop while
+    still connecting is not an error (paho logs one; we drop it)."""
+    caplog.set_level(logging.DEBUG, logger="edge.mqtt")
+    broker.stop()
+    link = make_link()
+    link.start()
+
+    def unreachable() -> list[str]:
+        return [r.getMessage() for r in caplog.records
+                if r.levelno == logging.WARNING and "cannot reach" in r.getMessage()]
+
+    wait_until(lambda: len(unreachable()) == 1, what="the warning")
+    time.sleep(1.0)  # several retries at 0.05–0.3 s
+    assert unreachable() == [f"MQTT: cannot reach {broker.host}:{broker.port}; retrying (back-off 0.05–0.3 s); "
+                             "events wait in the outbox"]
+    broker.start()
+    wait_until(lambda: link.connected, what="the link to connect")
+    broker.stop()
+    wait_until(lambda: len(unreachable()) == 2, what="the warning of the second outage")
+    link.stop(timeout_s=0.5)
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR] == []
