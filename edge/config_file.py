@@ -7,6 +7,7 @@ it when nothing else may work. :mod:`edge.config` turns the table into typed obj
 from __future__ import annotations
 
 import os
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -22,8 +23,19 @@ CONFIG_LIMIT = 1 << 20
 
 
 def config_dir() -> Path:
-    """Where the shipped configuration lives: ``$EDGE_CONFIG_DIR``, else ``<repo>/config``."""
-    return Path(os.environ.get("EDGE_CONFIG_DIR") or REPO_ROOT / "config")
+    """Where the shipped configuration (``sim.toml``, ``scenes/``) lives: ``$EDGE_CONFIG_DIR``; else
+    the checkout's ``config/`` (edge run from its repository, or installed editable); else the
+    ``config/`` beside the venv edge is installed in (the README's ``/opt/edge/.venv``, a plain
+    ``pip install``, whose package has no ``config/`` next to it)."""
+    env = os.environ.get("EDGE_CONFIG_DIR")
+    if env:
+        return Path(env)
+    places = (REPO_ROOT / "config", Path(sys.prefix).resolve().parent / "config")
+    for place in places:
+        if (place / "sim.toml").is_file():
+            return place
+    raise ConfigError(f"no shipped configuration: neither {show(str(places[0]))} nor {show(str(places[1]))} "
+                      "has sim.toml; give --config FILE, or set EDGE_CONFIG_DIR to the repository's config folder")
 
 
 def default_config_path() -> Path:

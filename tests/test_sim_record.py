@@ -76,7 +76,8 @@ def test_recording_carries_the_nominal_rig_and_truth_the_true_one(tmp_path: Path
     out = record_sweep(config, tmp_path / "bent", zones=1, pairs=1)
     rec = read_recording(out)
     nominal, true = config.rig.build(), true_rig(config)
-    assert np.array([x.direction for x in rec.rig.lasers]) == pytest.approx(np.array([x.direction for x in nominal.lasers]))
+    recorded = np.array([x.direction for x in rec.rig.lasers])
+    assert recorded == pytest.approx(np.array([x.direction for x in nominal.lasers]))
     assert true.lasers != nominal.lasers
     sloped_pixel = rec.zones[0].truth["lasers"]["sloped"]["pixel"]
     z = rec.zones[0].truth["lasers"]["sloped"]["range_m"]

@@ -70,6 +70,7 @@ from typing import Any
 
 import numpy as np
 
+from edge.config_file import config_dir
 from edge.errors import SceneError
 from edge.rig import Pose, rot_z
 from edge.schema import build, require, show
@@ -544,9 +545,10 @@ def _segment(a: np.ndarray, b: np.ndarray) -> Segment:
 
 
 def scene_dir() -> Path:
-    """The folder of scene files: ``$EDGE_SCENES`` or ``<repo>/config/scenes``."""
+    """The folder of scene files: ``$EDGE_SCENES``, else ``scenes/`` of the shipped configuration
+    (:func:`edge.config_file.config_dir`)."""
     env = os.environ.get("EDGE_SCENES")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "config" / "scenes"
+    return Path(env) if env else config_dir() / "scenes"
 
 
 def available_scenes(search_dirs: Sequence[Path] | None = None) -> list[str]:
