@@ -41,6 +41,8 @@ _LEVEL_TOL_DEG = 0.5
 # Zones of a level are next to each other in pan when at most this many pan steps apart (a zone
 # without a point between two makes them not next to each other).
 _GAP_STEPS = 1.5
+# Neighbours reach this far in pan and tilt on a lattice finer than it (at least the next zone).
+_REACH_DEG = 10.0
 # A point off the zone's row pins the plane's slope about the row when the plane's tolerance is
 # at most this fraction of its distance (about ±15°).
 _PIN = math.tan(math.radians(15.0))
@@ -145,11 +147,13 @@ def _wrap(a: np.ndarray | float) -> np.ndarray:
 def lattice_neighbours(pans_deg: Sequence[float], tilts_deg: Sequence[float],
                        all_poses: Sequence[tuple[float, float]] = ()) -> list[list[tuple[int, int, bool]]]:
     """Each zone's neighbours on the scan's pan/tilt lattice, as (zone, level, column): the zones
-    next to it in pan at its own tilt level (level 0); at the levels just above and below (+1,
-    −1), the zone nearest in pan (within half a pan step; column True) and that zone's own
-    neighbours in pan. `all_poses`, the (pan, tilt) of every zone of the scan whether it has a
-    point or not, set the levels and steps: two zones with a pointless one between them are not
-    next to each other."""
+    beside it in pan at its own tilt level (level 0); at the levels just above and below (+1, −1),
+    the zone nearest in pan (within half a pan step; column True) and that zone's own neighbours
+    in pan; and further up and down (±2, ±4, …; column True) the zones nearest in pan while within
+    _REACH_DEG of its tilt. Beside means the next zone in pan, and on a lattice finer than
+    _REACH_DEG those 2, 4, … steps away within it. `all_poses`, the (pan, tilt) of every zone of the scan whether it
+    has a point or not, set the levels and steps: zones with a pointless one between them are not
+    neighbours, and a column stops at a level without a zone there."""
     pans, tilts = _wrap(np.asarray(pans_deg, np.float64)), np.asarray(tilts_deg, np.float64)
     every = np.array(all_poses, np.float64).reshape(-1, 2) if len(all_poses) else np.stack([pans, tilts], 1)
     every = every if len(every) else np.zeros((0, 2))
@@ -161,39 +165,39 @@ def lattice_neighbours(pans_deg: Sequence[float], tilts_deg: Sequence[float],
             levels.append(float(t))
     level_of = lambda t: int(np.searchsorted(np.array(levels) + _LEVEL_TOL_DEG, t))  # noqa: E731
 
-    # Per level: every pan of the scan (pointed or not) and the pan step, the zones with points.
+    # Per level: the zones with points, the pans of those without, and the pan step.
     nlev = len(levels)
-    row_pans: list[np.ndarray] = []
-    for k in range(nlev):
-        p = np.sort(_wrap(np.array([e[0] for e in every if level_of(e[1]) == k] +
-                                   [pans[i] for i in range(len(pans)) if level_of(tilts[i]) == k])))
-        row_pans.append(p)
-    steps = []
-    for p in row_pans:
-        gaps = np.diff(np.unique(np.round(p, 6)))
-        gaps = gaps[gaps > 1e-6]
-        steps.append(float(np.median(gaps)) if len(gaps) else 360.0)
-    members: list[list[int]] = [[] for _ in range(nlev)]
     lev = [level_of(t) for t in tilts]
+    members: list[list[int]] = [[] for _ in range(nlev)]
     for i, k in enumerate(lev):
         members[k].append(i)
+    pointed = {(float(p), float(t)) for p, t in zip(pans_deg, tilts_deg)}
+    missing: list[list[float]] = [[] for _ in range(nlev)]
+    for p, t in every:
+        if (float(p), float(t)) not in pointed:
+            missing[level_of(t)].append(float(_wrap(p)))
+    steps = []
+    for k in range(nlev):
+        row = np.unique(np.round(np.concatenate([pans[members[k]], missing[k]]), 6))
+        gaps = np.diff(row)
+        gaps = gaps[gaps > 1e-6]
+        steps.append(float(np.median(gaps)) if len(gaps) else 360.0)
 
-    def between(k: int, a: float, b: float) -> bool:
-        """Whether level k has a pan strictly between a and b (going up from a, circularly)."""
+    def gap_between(k: int, a: float, b: float) -> bool:
+        """Whether level k has a pointless zone strictly between pans a and b (up from a)."""
         span = float(_wrap(b - a)) % 360.0
-        rel = (row_pans[k] - a) % 360.0
+        rel = (np.array(missing[k]) - a) % 360.0
         return bool(np.any((rel > 1e-6) & (rel < span - 1e-6)))
 
-    def row_next(i: int) -> list[int]:
+    def beside(i: int) -> list[int]:
         k = lev[i]
+        reach = max(_GAP_STEPS * steps[k], _REACH_DEG)
         out = []
         for j in members[k]:
-            if j == i:
-                continue
             d = float(_wrap(pans[j] - pans[i]))
-            if 1e-6 < abs(d) <= _GAP_STEPS * steps[k]:
+            if j != i and 1e-6 < abs(d) <= reach and _power_of_two(round(abs(d) / steps[k])):
                 a, b = (pans[i], pans[j]) if d > 0 else (pans[j], pans[i])
-                if not between(k, a, b):
+                if not gap_between(k, a, b):
                     out.append(j)
         return out
 
@@ -208,13 +212,29 @@ def lattice_neighbours(pans_deg: Sequence[float], tilts_deg: Sequence[float],
     out: list[list[tuple[int, int, bool]]] = []
     for i in range(len(pans)):
         k = lev[i]
-        nb = [(j, 0, False) for j in row_next(i)]
+        nb = [(j, 0, False) for j in beside(i)]
         for side in (-1, 1):
             j = nearest(i, k + side)
-            if j is not None:
-                nb += [(j, side, True)] + [(m, side, False) for m in row_next(j)]
+            if j is None:
+                continue
+            diagonal = [d for d in beside(j) if abs(_wrap(pans[d] - pans[j])) < _GAP_STEPS * steps[k + side]]
+            nb += [(j, side, True)] + [(d, side, False) for d in diagonal]
+            m = 2
+            while 0 <= k + side * m < nlev and abs(levels[k + side * m] - levels[k]) <= _REACH_DEG:
+                j = nearest(i, k + side * m)
+                if j is None:
+                    break
+                if _power_of_two(m):
+                    nb.append((j, side * m, True))
+                m += 1
         out.append(nb)
     return out
+
+
+def _power_of_two(n: int) -> bool:
+    """1, 2, 4, 8, …: the neighbours taken on a fine lattice (all of them would cost much and add
+    little)."""
+    return n >= 1 and n & (n - 1) == 0
 
 
 def estimate_normals(points: np.ndarray, sigma: np.ndarray, viewpoints: np.ndarray, ups: np.ndarray,
@@ -232,6 +252,7 @@ def estimate_normals(points: np.ndarray, sigma: np.ndarray, viewpoints: np.ndarr
 
 def _plane_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.ndarray,
               own: Sequence[Support]) -> np.ndarray | None:
+    """The confirmed plane's unit normal for the point `centre` seen from `viewpoint`, or None."""
     if len(own) < 2:
         return None
     rng = float(np.linalg.norm(centre - viewpoint))
@@ -252,7 +273,11 @@ def _plane_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.nd
     # may be at a corner or an edge, and the one neighbour on another surface).
     across = rel @ np.cross(up, beam)
     beside = [[k for k in range(len(own)) if in_row[k] and np.sign(across[k]) == side] for side in (-1, 1)]
-    a, b = np.triu_indices(len(own), 1)
+    # Candidate planes through the point, a neighbour in its row and one off it (the plane must
+    # hold in the row anyway; two points of the row, or of one column, are one line with it).
+    row = np.flatnonzero(in_row)
+    off = np.flatnonzero(~np.array(in_row))
+    a, b = np.repeat(row, len(off)), np.tile(off, len(row))
     cand = np.cross(rel[a], rel[b])
     norm = np.linalg.norm(cand, axis=1)
     keep = norm > 0.05 * dist[a] * dist[b]  # not nearly collinear with the point (about 3°)
@@ -302,7 +327,7 @@ def _fit(sigma: float, rel: np.ndarray, sig: np.ndarray, tol: np.ndarray) -> tup
     w = 1.0 / np.maximum(np.concatenate([[sigma], sig]), floor) ** 2
     mean = (w[:, None] * pts).sum(axis=0) / w.sum()
     d = pts - mean
-    vals, vecs = np.linalg.eigh((w[:, None] * d).T @ d / w.sum())
+    _, vecs = np.linalg.eigh((w[:, None] * d).T @ d / w.sum())
     normal = vecs[:, 0]
     # Spread within the plane along its narrower axis (unweighted: where the points are).
     flat = d - np.outer(d @ normal, normal)
