@@ -267,7 +267,8 @@ def _plane_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.nd
     # those far enough from the point to pin its slope confirm it.
     offset = rel @ up
     pins = dist * _PIN >= tol
-    sides = [sorted((k for k, s in enumerate(own) if s.column and np.sign(offset[k]) == side),
+    upright = np.abs(offset) >= 0.5 * dist  # (a rolled camera's lasers may lie beside the point)
+    sides = [sorted((k for k, s in enumerate(own) if s.column and upright[k] and np.sign(offset[k]) == side),
                     key=lambda k: abs(offset[k])) for side in (-1, 1)]
     # And beside it, left and right in its own row: both there and on the plane (else the point
     # may be at a corner or an edge, and the one neighbour on another surface).
