@@ -6,23 +6,25 @@ Pure: zone results and the rig in, arrays and bytes out.
 Normals: a rig whose lasers are not coplanar measures one per zone (``ZoneResult.normal``); the
 thesis rig's three lasers lie in one plane and measure none. Then the normal is estimated from the
 zone's neighbours on the scan's pan/tilt lattice — the zones next to it in pan at its tilt level,
-the zone at its pan one level up and one level down and their neighbours in pan — and from the
-zone's other lasers' points (the thesis rig's sloped laser meets a wall about 0.18 × range below
-the reference's). Nearest neighbours by distance will not do: with tilt levels 20° apart, a point's
-nearest ones all lie in its own row, on one line, and any plane through that line fits them.
+the zone at its pan one level up and one level down and their neighbours in pan (on a lattice finer
+than 10°, also those 2, 4, 8 zones away within 10°) — and from the zone's other lasers' points (the
+thesis rig's sloped laser meets a wall about 0.18 × range below the reference's). Nearest neighbours
+by distance will not do: with tilt levels 20° apart, a point's nearest ones all lie in its own row,
+on one line, and any plane through that line fits them.
 
 A neighbour whose range differs from the point's by more than a surface seen 60° from its normal
 would make it differ is across a depth edge and left out. The normal is that of the plane through
 the point that most of the rest lie on (within 3σ, 1 % of range or 5 mm), refitted to them weighted
 by 1/σ², turned towards the unit, and given only where that plane is *confirmed all round*: its
-neighbours on both sides in its row lie on it, and so, above and below it, do the points straight
-up and down (nearest first, up to one far enough away to pin the plane's slope). One side is not
-enough: at a depth edge (a box's front, the wall behind it one level up) the plane through the
-box's row and the wall's row is a slope that exists nowhere, and at the crease of a wall and the
-floor a row's points fit the wall's plane and the floor's alike; only the other side tells which.
-Where no plane is confirmed — depth edges, creases, corners, thin things, the scan's top and
-bottom rows — the normal is (0, 0, 0), which PLY readers take as "no normal". Denser tilt levels
-leave fewer such points.
+neighbours on both sides in its row lie on it, and so, above and below it, do the points straight up
+and down (nearest first, up to one far enough away to pin the plane's slope). One side is not
+enough: at a depth edge (a box's front, the wall behind it one level up) the plane through the box's
+row and the wall's row is a slope that exists nowhere, and at the crease of a wall and the floor a
+row's points fit the wall's plane and the floor's alike; only the other side tells which. A plane
+seen more than 60° from its normal is refused too (points at many depths, not a surface). Where no
+plane is confirmed — depth edges, creases, corners, thin things, surfaces seen edge-on, the scan's
+top and bottom rows — the normal is (0, 0, 0), which PLY readers take as "no normal". Denser tilt
+levels leave fewer such points.
 """
 
 from __future__ import annotations
