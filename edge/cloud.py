@@ -5,15 +5,30 @@ Pure: zone results and the rig in, arrays and bytes out.
 
 Normals: a rig whose lasers are not coplanar measures one per zone (``ZoneResult.normal``); the
 thesis rig's three lasers lie in one plane and measure none. Then the normal is estimated from the
-neighbouring points of the same scan — the zones next to this one in pan and tilt — as the plane
-that most of them lie on (so that at a wall's corner with the floor the plane of the point's own
-surface wins, not a blend of both). Normals point towards the unit; a point without enough
-neighbours on its plane gets (0, 0, 0), which PLY readers take as "no normal".
+zone's neighbours on the scan's pan/tilt lattice — the zones next to it in pan at its tilt level,
+the zone at its pan one level up and one level down and their neighbours in pan (on a lattice finer
+than 10°, also those 2, 4, 8 zones away within 10°) — and from the zone's other lasers' points (the
+thesis rig's sloped laser meets a wall about 0.18 × range below the reference's). Nearest neighbours
+by distance will not do: with tilt levels 20° apart, a point's nearest ones all lie in its own row,
+on one line, and any plane through that line fits them.
+
+A neighbour whose range differs from the point's by more than a surface seen 60° from its normal
+would make it differ is across a depth edge and left out. The normal is that of the plane through
+the point that most of the rest lie on (within 3σ, 1 % of range or 5 mm), refitted to them weighted
+by 1/σ², turned towards the unit, and given only where that plane is *confirmed all round*: its
+neighbours on both sides in its row lie on it, and so, above and below it, do the points straight up
+and down (nearest first, up to one far enough away to pin the plane's slope). One side is not
+enough: at a depth edge (a box's front, the wall behind it one level up) the plane through the box's
+row and the wall's row is a slope that exists nowhere, and at the crease of a wall and the floor a
+row's points fit the wall's plane and the floor's alike; only the other side tells which. A plane
+seen more than 60° from its normal is refused too (points at many depths, not a surface). Where no
+plane is confirmed — depth edges, creases, corners, thin things, surfaces seen edge-on, the scan's
+top and bottom rows — the normal is (0, 0, 0), which PLY readers take as "no normal". Denser tilt
+levels leave fewer such points.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -23,9 +38,21 @@ import numpy as np
 from edge.ranging import OK, ZoneResult
 from edge.rig import Rig
 
-# Neighbours in view direction: this many nearest, within this many times the typical spacing.
-_NEIGHBOURS = 8
-_SPACING_FACTOR = 2.5
+# Tilts closer than this are one level (the unit reaches a pose to within a position or two).
+_LEVEL_TOL_DEG = 0.5
+# Zones of a level are next to each other in pan when at most this many pan steps apart (a zone
+# without a point between two makes them not next to each other).
+_GAP_STEPS = 1.5
+# Neighbours reach this far in pan and tilt on a lattice finer than it (at least the next zone).
+_REACH_DEG = 10.0
+# A point off the zone's row pins the plane's slope about the row when the plane's tolerance is
+# at most this fraction of its distance (about ±15°).
+_PIN = math.tan(math.radians(15.0))
+# A surface seen more obliquely than this from its normal is taken for a depth edge.
+_GRAZING_DEG = 60.0
+_COS_GRAZING = math.cos(math.radians(_GRAZING_DEG))
+# A plane must spread across the row at least this many times its tolerance (not a thin pole).
+_SPREAD = 1.0
 
 
 @dataclass(frozen=True)
@@ -51,10 +78,18 @@ class Cloud:
                      np.concatenate([c.sigma for c in clouds]))
 
 
-def view_direction(pan_deg: float, tilt_deg: float) -> np.ndarray:
-    """Unit vector of the head's x axis (where the unit looks), base frame."""
-    p, t = math.radians(pan_deg), math.radians(tilt_deg)
-    return np.array([math.cos(t) * math.cos(p), math.cos(t) * math.sin(p), math.sin(t)])
+@dataclass(frozen=True)
+class Support:
+    """A point that may share a zone's surface: `point` (3,) base frame, its 1-σ `sigma` (m), its
+    `level` (a lattice neighbour's tilt level relative to the zone's: 0 its own row, ±1; or the
+    name of one of the zone's own lasers), and `column`: whether it lies straight above or below
+    the zone's point (the zone's own lasers, the zones at its pan one level up and down) rather
+    than beside it."""
+
+    point: np.ndarray
+    sigma: float
+    level: int | str
+    column: bool
 
 
 def scan_cloud(rig: Rig, results: Sequence[ZoneResult]) -> Cloud:
@@ -64,67 +99,246 @@ def scan_cloud(rig: Rig, results: Sequence[ZoneResult]) -> Cloud:
         return Cloud.empty()
     points = np.array([r.point_base_m for r in ok], np.float64)
     sigma = np.array([r.sigma_m or 0.0 for r in ok], np.float64)
+    poses = [rig.camera_to_base(r.pan_deg, r.tilt_deg) for r in ok]
+    origins = np.array([pose.apply(rig.reference.o) for pose in poses])
+    neighbours = lattice_neighbours([r.pan_deg for r in ok], [r.tilt_deg for r in ok],
+                                    [(r.pan_deg, r.tilt_deg) for r in results])
+    supports = []
+    for i, r in enumerate(ok):
+        own = [Support(points[k], float(sigma[k]), level, column) for k, level, column in neighbours[i]
+               if not depth_edge(points[i], origins[i], points[k], origins[k])]
+        for name, m in r.lasers.items():  # the zone's other lasers' points (by their depth)
+            if name == rig.reference.name or name not in rig.laser_names or not m.depth_m:
+                continue
+            laser = rig.laser(name)
+            if abs(laser.d[2]) < 1e-6:
+                continue
+            own.append(Support(poses[i].apply(laser.point_at_depth(m.depth_m)), float(m.sigma_m or 0.0), name, True))
+        supports.append(own)
+    ups = np.array([_up(r.pan_deg, r.tilt_deg) for r in ok])
+    estimated = estimate_normals(points, sigma, origins, ups, supports)
     normals = np.zeros_like(points)
-    views = np.array([view_direction(r.pan_deg, r.tilt_deg) for r in ok])
-    origins = np.array([rig.camera_to_base(r.pan_deg, r.tilt_deg).apply(rig.reference.o) for r in ok])
-    estimated = estimate_normals(points, views, sigma, origins)
     for i, r in enumerate(ok):
         if r.normal is not None:  # measured by the lasers: camera frame to base frame
-            normals[i] = rig.camera_to_base(r.pan_deg, r.tilt_deg).rotate(np.asarray(r.normal, np.float64))
+            normals[i] = poses[i].rotate(np.asarray(r.normal, np.float64))
         else:
             normals[i] = estimated[i]
     return Cloud(points, normals, sigma)
 
 
-def estimate_normals(points: np.ndarray, views: np.ndarray, sigma: np.ndarray,
-                     viewpoints: np.ndarray) -> np.ndarray:
-    """Normals (N, 3) of points (N, 3) from their neighbours in view direction (`views`, unit
-    (N, 3)): the plane through the point that most neighbours lie on, refitted to them, turned
-    towards the point's `viewpoints` (N, 3). Zero where fewer than two neighbours agree."""
-    n = len(points)
-    out = np.zeros((n, 3))
-    if n < 3:
-        return out
-    def angles(i: int) -> np.ndarray:
-        a = np.arccos(np.clip(views @ views[i], -1.0, 1.0))
-        a[i] = np.inf
-        return a
+def _up(pan_deg: float, tilt_deg: float) -> np.ndarray:
+    """The unit vector in which a point moves as the tilt rises (base frame)."""
+    p, t = math.radians(pan_deg), math.radians(tilt_deg)
+    return np.array([-math.sin(t) * math.cos(p), -math.sin(t) * math.sin(p), math.cos(t)])
 
-    # Row by row, not an (N, N) matrix: a 4096-zone scan would take 128 MB.
-    nearest = np.array([angles(i).min() for i in range(n)])
-    spacing = float(np.median(nearest))
-    for i in range(n):
-        angle = angles(i)
-        order = np.argsort(angle)[:_NEIGHBOURS]
-        nb = order[angle[order] <= _SPACING_FACTOR * max(spacing, 1e-6)]
-        if len(nb) < 2:
-            continue
-        centre = points[i]
-        rng = float(np.linalg.norm(centre - viewpoints[i]))
-        # Off the plane by more than this: another surface (a corner, an edge, a box on the floor).
-        tol = max(3.0 * float(sigma[i]), 0.01 * rng, 0.005)
-        rel = points[nb] - centre
-        best: np.ndarray | None = None
-        best_count = 1
-        for a, b in itertools.combinations(range(len(nb)), 2):
-            normal = np.cross(rel[a], rel[b])
-            norm = float(np.linalg.norm(normal))
-            if norm < 1e-3 * float(np.linalg.norm(rel[a])) * float(np.linalg.norm(rel[b])) + 1e-12:
-                continue  # nearly collinear: no plane
-            normal /= norm
-            inliers = np.abs(rel @ normal) <= tol
-            count = int(inliers.sum())
-            if count > best_count:
-                best_count, best = count, inliers
-        if best is None:
-            continue
-        fit = np.vstack([np.zeros(3), rel[best]])
-        fit -= fit.mean(axis=0)
-        normal = np.linalg.svd(fit)[2][-1]
-        if normal @ (viewpoints[i] - centre) < 0:
-            normal = -normal
-        out[i] = normal
+
+def depth_edge(p: np.ndarray, o: np.ndarray, q: np.ndarray, o_q: np.ndarray) -> bool:
+    """Whether points `p` and `q`, seen along beams from `o` and `o_q`, lie across a depth edge:
+    their ranges differ more than a plane seen at _GRAZING_DEG from its normal would make them
+    differ (two zones 5.6° apart in pan at 2 m: more than 0.34 m)."""
+    a, b = p - o, q - o_q
+    ra, rb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    angle = math.acos(float(np.clip(a @ b / max(ra * rb, 1e-12), -1.0, 1.0)))
+    return abs(ra - rb) > math.tan(math.radians(_GRAZING_DEG)) * angle * 0.5 * (ra + rb)
+
+
+def _wrap(a: np.ndarray | float) -> np.ndarray:
+    return (np.asarray(a, np.float64) + 180.0) % 360.0 - 180.0
+
+
+def lattice_neighbours(pans_deg: Sequence[float], tilts_deg: Sequence[float],
+                       all_poses: Sequence[tuple[float, float]] = ()) -> list[list[tuple[int, int, bool]]]:
+    """Each zone's neighbours on the scan's pan/tilt lattice, as (zone, level, column): the zones
+    beside it in pan at its own tilt level (level 0); at the levels just above and below (+1, −1),
+    the zone nearest in pan (within half a pan step; column True) and that zone's own neighbours
+    in pan; and further up and down (±2, ±4, …; column True) the zones nearest in pan while within
+    _REACH_DEG of its tilt. Beside means the next zone in pan, and on a lattice finer than
+    _REACH_DEG those 2, 4, … steps away within it. `all_poses`, the (pan, tilt) of every zone of the scan whether it
+    has a point or not, set the levels and steps: zones with a pointless one between them are not
+    neighbours, and a column stops at a level without a zone there."""
+    pans, tilts = _wrap(np.asarray(pans_deg, np.float64)), np.asarray(tilts_deg, np.float64)
+    every = np.array(all_poses, np.float64).reshape(-1, 2) if len(all_poses) else np.stack([pans, tilts], 1)
+    every = every if len(every) else np.zeros((0, 2))
+    # Tilt levels: clusters of tilt values.
+    values = np.sort(np.concatenate([every[:, 1], tilts]))
+    levels: list[float] = []
+    for t in values:
+        if not levels or t - levels[-1] > _LEVEL_TOL_DEG:
+            levels.append(float(t))
+    level_of = lambda t: int(np.searchsorted(np.array(levels) + _LEVEL_TOL_DEG, t))  # noqa: E731
+
+    # Per level: the zones with points, the pans of those without, and the pan step.
+    nlev = len(levels)
+    lev = [level_of(t) for t in tilts]
+    members: list[list[int]] = [[] for _ in range(nlev)]
+    for i, k in enumerate(lev):
+        members[k].append(i)
+    pointed = {(float(p), float(t)) for p, t in zip(pans_deg, tilts_deg)}
+    missing: list[list[float]] = [[] for _ in range(nlev)]
+    for p, t in every:
+        if (float(p), float(t)) not in pointed:
+            missing[level_of(t)].append(float(_wrap(p)))
+    steps = []
+    for k in range(nlev):
+        row = np.unique(np.round(np.concatenate([pans[members[k]], missing[k]]), 6))
+        gaps = np.diff(row)
+        gaps = gaps[gaps > 1e-6]
+        steps.append(float(np.median(gaps)) if len(gaps) else 360.0)
+
+    def gap_between(k: int, a: float, b: float) -> bool:
+        """Whether level k has a pointless zone strictly between pans a and b (up from a)."""
+        span = float(_wrap(b - a)) % 360.0
+        rel = (np.array(missing[k]) - a) % 360.0
+        return bool(np.any((rel > 1e-6) & (rel < span - 1e-6)))
+
+    def beside(i: int) -> list[int]:
+        k = lev[i]
+        reach = max(_GAP_STEPS * steps[k], _REACH_DEG)
+        out = []
+        for j in members[k]:
+            d = float(_wrap(pans[j] - pans[i]))
+            if j != i and 1e-6 < abs(d) <= reach and _power_of_two(round(abs(d) / steps[k])):
+                a, b = (pans[i], pans[j]) if d > 0 else (pans[j], pans[i])
+                if not gap_between(k, a, b):
+                    out.append(j)
+        return out
+
+    def nearest(i: int, k: int) -> int | None:
+        if not 0 <= k < nlev or not members[k]:
+            return None
+        cand = np.array(members[k])
+        d = np.abs(_wrap(pans[cand] - pans[i]))
+        j = int(np.argmin(d))
+        return int(cand[j]) if d[j] <= 0.5 * max(steps[k], steps[lev[i]]) + 1e-6 else None
+
+    out: list[list[tuple[int, int, bool]]] = []
+    for i in range(len(pans)):
+        k = lev[i]
+        nb = [(j, 0, False) for j in beside(i)]
+        for side in (-1, 1):
+            j = nearest(i, k + side)
+            if j is None:
+                continue
+            diagonal = [d for d in beside(j) if abs(_wrap(pans[d] - pans[j])) < _GAP_STEPS * steps[k + side]]
+            nb += [(j, side, True)] + [(d, side, False) for d in diagonal]
+            m = 2
+            while 0 <= k + side * m < nlev and abs(levels[k + side * m] - levels[k]) <= _REACH_DEG:
+                j = nearest(i, k + side * m)
+                if j is None:
+                    break
+                if _power_of_two(m):
+                    nb.append((j, side * m, True))
+                m += 1
+        out.append(nb)
     return out
+
+
+def _power_of_two(n: int) -> bool:
+    """1, 2, 4, 8, …: the neighbours taken on a fine lattice (all of them would cost much and add
+    little)."""
+    return n >= 1 and n & (n - 1) == 0
+
+
+def estimate_normals(points: np.ndarray, sigma: np.ndarray, viewpoints: np.ndarray, ups: np.ndarray,
+                     supports: Sequence[Sequence[Support]]) -> np.ndarray:
+    """Normals (N, 3) of points (N, 3) with 1-σ `sigma` (N,), turned towards `viewpoints` (N, 3),
+    from each point's `supports` (see the module's docstring); `ups` (N, 3): the direction in
+    which each point's row's neighbours above lie. Zero where no plane is confirmed."""
+    out = np.zeros((len(points), 3))
+    for i, own in enumerate(supports):
+        normal = _plane_of(points[i], float(sigma[i]), viewpoints[i], ups[i], own)
+        if normal is not None:
+            out[i] = normal
+    return out
+
+
+def _plane_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.ndarray,
+              own: Sequence[Support]) -> np.ndarray | None:
+    """The confirmed plane's unit normal for the point `centre` seen from `viewpoint`, or None."""
+    if len(own) < 2:
+        return None
+    rng = float(np.linalg.norm(centre - viewpoint))
+    beam = (centre - viewpoint) / max(rng, 1e-12)
+    rel = np.array([s.point - centre for s in own])
+    sig = np.array([s.sigma for s in own])
+    # Off the plane by more than this: another surface (a corner, an edge, a box on the floor).
+    tol = np.maximum(3.0 * np.hypot(sigma, sig), max(0.01 * rng, 0.005))
+    dist = np.linalg.norm(rel, axis=1)
+    in_row = [s.level == 0 for s in own]
+    # Straight above and below, nearest first: a plane holds on a side up to its first miss there;
+    # those far enough from the point to pin its slope confirm it.
+    offset = rel @ up
+    pins = dist * _PIN >= tol
+    upright = np.abs(offset) >= 0.5 * dist  # (a rolled camera's lasers may lie beside the point)
+    sides = [sorted((k for k, s in enumerate(own) if s.column and upright[k] and np.sign(offset[k]) == side),
+                    key=lambda k: abs(offset[k])) for side in (-1, 1)]
+    # And beside it, left and right in its own row: both there and on the plane (else the point
+    # may be at a corner or an edge, and the one neighbour on another surface).
+    across = rel @ np.cross(up, beam)
+    beside = [[k for k in range(len(own)) if in_row[k] and np.sign(across[k]) == side] for side in (-1, 1)]
+    # Candidate planes through the point, a neighbour in its row and one off it (the plane must
+    # hold in the row anyway; two points of the row, or of one column, are one line with it).
+    row = np.flatnonzero(in_row)
+    off = np.flatnonzero(~np.array(in_row))
+    a, b = np.repeat(row, len(off)), np.tile(off, len(row))
+    cand = np.cross(rel[a], rel[b])
+    norm = np.linalg.norm(cand, axis=1)
+    keep = norm > 0.05 * dist[a] * dist[b]  # not nearly collinear with the point (about 3°)
+    if not keep.any():
+        return None
+    cand = cand[keep] / norm[keep, None]
+    inliers = np.abs(rel @ cand.T) <= tol[:, None]  # (supports, candidates)
+    best, best_key = None, (0, -np.inf)
+    for c in np.argsort(-inliers.sum(axis=0), kind="stable"):
+        mask = inliers[:, c]
+        count = int(mask.sum())
+        if count < best_key[0]:
+            break
+        if not all(mask[side].any() for side in beside):
+            continue  # not held on both sides in its row: maybe a corner, an edge, a pole
+        if not all(_confirms(side, mask, pins) for side in sides):
+            continue  # not held both above and below: maybe across a depth edge or a crease
+        fit = _fit(sigma, rel[mask], sig[mask], tol[mask])
+        if fit is None:
+            continue
+        normal, residual = fit
+        if abs(normal @ beam) < _COS_GRAZING:
+            continue  # a plane seen edge-on: points at many depths, not a surface
+        if (count, -residual) > best_key:
+            best, best_key = normal, (count, -residual)
+    if best is None:
+        return None
+    return best if best @ (viewpoint - centre) >= 0 else -best
+
+
+def _confirms(side: list[int], on_plane: np.ndarray, pins: np.ndarray) -> bool:
+    """Whether the points of one side (nearest first) pin the plane before the first that misses it."""
+    for k in side:
+        if not on_plane[k]:
+            return False
+        if pins[k]:
+            return True
+    return False
+
+
+def _fit(sigma: float, rel: np.ndarray, sig: np.ndarray, tol: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The plane through the zone's point and its inliers `rel` (relative to the point), weighted
+    by 1/σ², as (unit normal, RMS residual in tolerances); None where the inliers hardly spread
+    across the plane's narrower axis (a pole, a line)."""
+    pts = np.vstack([np.zeros(3), rel])
+    floor = 1e-3  # σ below a millimetre is not believed: keeps weights finite
+    w = 1.0 / np.maximum(np.concatenate([[sigma], sig]), floor) ** 2
+    mean = (w[:, None] * pts).sum(axis=0) / w.sum()
+    d = pts - mean
+    _, vecs = np.linalg.eigh((w[:, None] * d).T @ d / w.sum())
+    normal = vecs[:, 0]
+    # Spread within the plane along its narrower axis (unweighted: where the points are).
+    flat = d - np.outer(d @ normal, normal)
+    spread = float(np.sqrt(np.linalg.eigvalsh(flat.T @ flat / len(pts))[1]))
+    if spread < _SPREAD * float(np.median(tol)):
+        return None
+    residual = float(np.sqrt(np.mean((d[1:] @ normal / tol) ** 2)))
+    return normal, residual
 
 
 def ply_bytes(cloud: Cloud, comment: str = "") -> bytes:

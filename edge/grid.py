@@ -33,6 +33,8 @@ from edge.schema import require
 SPREAD_MIN_SHARE = 0.5
 # A no_spot ray whose other lasers saw spots is free up to this fraction of their nearest depth.
 OTHERS_MARGIN = 0.8
+# A ray passes through a doorway where it has occupied cells (the jambs) within this on both sides.
+DOOR_WIDTH_M = 1.2
 
 
 def logit(p: float) -> float:
@@ -261,6 +263,41 @@ class OccupancyGrid:
         np.add.at(acc, cell, delta)
         touched = acc != 0
         flat[touched] = np.clip(flat[touched] + acc[touched], -self._clamp, self._clamp)
+
+    def doorway_m(self, origin: np.ndarray, direction: np.ndarray, far_m: float,
+                  width_m: float = DOOR_WIDTH_M) -> float | None:
+        """How far along a horizontal ray from `origin` (base frame x, y) in `direction` (x, y)
+        the room ends, when the ray leaves it through a doorway: the distance at which it is
+        again more than `width_m` from occupied cells on one of its sides, past the last place
+        where it had some on both (the jambs; a ray through the middle of a door 0.9 m wide is
+        past them about a metre beyond the door). Only when the ray meets no occupied cell of
+        its own up to `far_m` (a doorway onto a dark or long corridor, not a gap between two
+        cupboards before a wall, nor a door onto a corridor's lit wall); else None, and None
+        where it never passes between occupied cells. Meant for the rays of the zones the map
+        was made from: between them a wall a sweep saw is a dotted line, and a ray through one of
+        its gaps looks like one through a door (it ends in the room all the same: beyond the
+        wall by about a metre)."""
+        o = np.asarray(origin, np.float64)[:2]
+        d = np.asarray(direction, np.float64)[:2]
+        norm = float(np.linalg.norm(d))
+        if norm <= 0.0 or far_m <= 0.0:
+            return None
+        d = d / norm
+        iy, ix = np.nonzero(self.occupied())
+        centres = np.stack([self.origin[0] + (ix + 0.5) * self.resolution,
+                            self.origin[1] + (iy + 0.5) * self.resolution], axis=1) - o
+        along, across = centres @ d, centres @ np.array([-d[1], d[0]])
+        near = (along > 0) & (along < far_m + self.resolution)
+        if np.any(near & (np.abs(across) < 0.75 * self.resolution)):
+            return None  # the ray meets something: whatever it ranges is in the room
+        s = np.arange(self.resolution / 2, far_m, self.resolution / 2)
+        dist = np.hypot(along[None, :] - s[:, None], across[None, :])  # (steps, occupied cells)
+        close = dist <= width_m
+        both = np.any(close & (across > 0), axis=1) & np.any(close & (across < 0), axis=1)
+        if not both.any():
+            return None
+        last = int(np.flatnonzero(both)[-1])
+        return float(s[last] + self.resolution) if last + 1 < len(s) else None
 
 
 # --- files: map_server's PGM + YAML, and a picture for people --------------------------------------

@@ -184,6 +184,23 @@ def write_map(out: Path, grid: OccupancyGrid, cloud: Cloud, room: Sequence[Segme
     atomic_write_bytes(out / "cloud.ply", ply_bytes(cloud, title))
 
 
+def doorways_m(grid: OccupancyGrid, rig: Rig, results: Sequence[ZoneResult]) -> dict[int, float]:
+    """Zone index → where the room ends along its ray (horizontally from the pan axis), for the
+    zones whose rays leave it through a doorway (see ``OccupancyGrid.doorway_m``)."""
+    out = {}
+    far = rig.range_limits_m[1]
+    for r in results:
+        pose = rig.camera_to_base(r.pan_deg, r.tilt_deg)
+        origin, direction = pose.apply(rig.reference.o), pose.rotate(rig.reference.d)
+        flat = float(np.hypot(direction[0], direction[1]))
+        if flat < 0.5:  # looking steeply up or down: no doorway to look through
+            continue
+        end = grid.doorway_m(origin[:2], direction[:2], far * flat)
+        if end is not None:
+            out[r.index] = end + float(np.hypot(origin[0], origin[1]))
+    return out
+
+
 # --- the device's grid, kept across sweeps and restarts -------------------------------------------
 
 
@@ -225,6 +242,12 @@ class GridKeeper:
             self._short = False
         except OSError as exc:  # a full card must not stop the device; the map lives on in memory
             log.warning("%s: cannot save the map: %s", self.path, exc)
+
+    def outside_m(self, rig: Rig, results: Sequence[ZoneResult]) -> dict[int, float]:
+        """For the guard (``Guard.update``'s `outside_m`): each zone whose ray leaves the room
+        through a doorway (``OccupancyGrid.doorway_m``) and how far, horizontally, the room ends
+        along it. Empty until the grid has walls to tell a doorway by."""
+        return doorways_m(self.grid, rig, results)
 
     def png(self) -> bytes:
         """The map picture (what the service publishes after each sweep)."""

@@ -1,4 +1,5 @@
-"""The point cloud: normals estimated from neighbouring zones, and the PLY read back by plyfile."""
+"""The point cloud: normals estimated from the scan's pan/tilt lattice and the zone's own lasers,
+refused across depth edges and creases, and the PLY read back by plyfile."""
 
 from __future__ import annotations
 
@@ -8,43 +9,191 @@ import math
 import numpy as np
 from plyfile import PlyData
 
-from edge.cloud import Cloud, ply_bytes, scan_cloud
-from edge.ranging import NO_SPOT, OK, ZoneResult
+from edge.cloud import Cloud, lattice_neighbours, ply_bytes, scan_cloud
+from edge.ranging import NO_SPOT, OK, LaserMeasurement, ZoneResult
 from edge.rig import default_rig
 
 RIG = default_rig()
+WALL_X, FLOOR_Z = 2.0, -1.0
+# A box on the floor in front of the wall: x, y, z extents (base frame, metres).
+BOX = ((1.2, 1.6), (-0.25, 0.25), (FLOOR_Z, -0.45))
 
 
-def corner_scan() -> tuple[list[ZoneResult], list[np.ndarray]]:
-    """Zones looking at a wall 2 m ahead (x = 2) and the floor 1 m below (z = -1), and the true
-    normal of what each zone's beam met."""
-    results, normals = [], []
-    for j, tilt in enumerate(range(-45, 1, 9)):
-        for i, pan in enumerate(range(-30, 31, 6)):
+def cast(o: np.ndarray, d: np.ndarray, box: bool, wall_x: float = WALL_X) -> tuple[float, int, np.ndarray]:
+    """Distance along the ray to the first surface, which one (0 wall, 1 floor, 2.. box faces)
+    and its normal."""
+    hits = [((wall_x - o[0]) / d[0], 0, np.array([-1.0, 0, 0]))]
+    if d[2] < 0:
+        hits.append(((FLOOR_Z - o[2]) / d[2], 1, np.array([0, 0, 1.0])))
+    if box:  # slabs
+        lo, hi = np.array([b[0] for b in BOX]), np.array([b[1] for b in BOX])
+        with np.errstate(divide="ignore"):
+            t1, t2 = (lo - o) / d, (hi - o) / d
+        near, far = np.minimum(t1, t2), np.maximum(t1, t2)
+        axis = int(np.argmax(near))
+        if near[axis] < far.min() and near[axis] > 0:
+            n = np.zeros(3)
+            n[axis] = -np.sign(d[axis])
+            hits.append((float(near[axis]), 2 + axis, n))
+    return min(hits, key=lambda h: h[0])
+
+
+Truth = dict[tuple[int, int], tuple[int, np.ndarray, float]]
+
+
+def scan(pans: range, tilts: range, box: bool = False, noise: float = 0.0, seed: int = 0,
+         lasers: bool = False, wall_x: float = WALL_X) -> tuple[list[ZoneResult], Truth]:
+    """Zones over a pan/tilt lattice of the wall, the floor (and the box), ranged exactly or with
+    relative range noise; and per (pan, tilt) the surface met, its true normal and the beam's
+    angle from it (degrees)."""
+    rng = np.random.default_rng(seed)
+    results: list[ZoneResult] = []
+    truth: Truth = {}
+    for j, tilt in enumerate(tilts):
+        for i, pan in enumerate(pans):
             pose = RIG.camera_to_base(pan, tilt)
             o, d = pose.apply(RIG.reference.o), pose.rotate(RIG.reference.d)
-            t_wall = (2.0 - o[0]) / d[0]
-            t_floor = (-1.0 - o[2]) / d[2] if d[2] < 0 else math.inf
-            t, n = (t_wall, np.array([-1.0, 0, 0])) if t_wall < t_floor else (t_floor, np.array([0, 0, 1.0]))
-            p = o + t * d
+            t, surface, n = cast(o, d, box, wall_x)
+            p = o + t * (1.0 + noise * rng.standard_normal()) * d
             cam = pose.inverse().apply(p)
-            results.append(ZoneResult(j * 100 + i, pan, tilt, OK, float(cam[2]), 0.002 * t, cam, p))
-            normals.append(n)
+            sigma = max(noise, 0.001) * t
+            measured = {}
+            if lasers:  # the other lasers' spots on the same surface
+                for name in ("parallel", "sloped"):
+                    laser = RIG.laser(name)
+                    lo, ld = pose.apply(laser.o), pose.rotate(laser.d)
+                    tl, other, _ = cast(lo, ld, box, wall_x)
+                    if other == surface:
+                        q = pose.inverse().apply(lo + tl * ld)
+                        measured[name] = LaserMeasurement(name, np.zeros(2), 0.1, q, float(q[2]), sigma, 50.0, 1)
+            results.append(ZoneResult(j * 100 + i, pan, tilt, OK, float(cam[2]), sigma, cam, p, lasers=measured))
+            truth[(pan, tilt)] = (surface, n, math.degrees(math.acos(abs(float(d @ n)))))
+    return results, truth
+
+
+def angles_deg(cloud: Cloud, results: list[ZoneResult], truth: dict) -> np.ndarray:
+    """Each point's normal's angle from its surface's (nan where it has none)."""
+    ok = [r for r in results if r.status == OK]
+    out = np.full(len(ok), np.nan)
+    for k, r in enumerate(ok):
+        if np.linalg.norm(cloud.normals[k]) > 0.5:
+            cos = float(cloud.normals[k] @ truth[(int(r.pan_deg), int(r.tilt_deg))][1])
+            out[k] = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+    return out
+
+
+def surrounded(pans: range, tilts: range, truth: dict, pan: int, tilt: int, reach: int = 1) -> bool:
+    """Whether the zones within `reach` lattice steps of (pan, tilt) all exist and see its surface,
+    and it is not seen edge-on (more than 55° from its normal: beyond 60°, range steps between
+    neighbours are taken for depth edges)."""
+    p, t = list(pans).index(pan), list(tilts).index(tilt)
+    here = truth[(pan, tilt)][0]
+    if truth[(pan, tilt)][2] > 55.0:
+        return False
+    for dp in range(-reach, reach + 1):
+        for dt in range(-reach, reach + 1):
+            if not (0 <= p + dp < len(pans) and 0 <= t + dt < len(tilts)):
+                return False
+            if truth[(pans[p + dp], tilts[t + dt])][0] != here:
+                return False
+    return True
+
+
+PANS, TILTS = range(-30, 31, 6), range(-45, 1, 9)
+
+
+def test_normals_from_the_lattice_follow_the_wall_and_the_floor_and_are_refused_at_their_crease() -> None:
+    results, truth = scan(PANS, TILTS)
     results.append(ZoneResult(999, 0.0, 10.0, NO_SPOT))
-    return results, normals
-
-
-def test_normals_from_neighbours_follow_the_wall_and_the_floor_up_to_their_corner() -> None:
-    results, truth = corner_scan()
     cloud = scan_cloud(RIG, results)
-    assert len(cloud) == len(truth)  # the no_spot zone has no point
-    angles = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", cloud.normals, np.array(truth)), -1, 1)))
-    # Points at the corner itself lie on both surfaces; every point gets its own surface's normal.
-    assert np.all(angles < 3.0), angles.max()
+    assert len(cloud) == len(results) - 1  # the no_spot zone has no point
+    angles = angles_deg(cloud, results, truth)
+    given = ~np.isnan(angles)
+    assert np.all(angles[given] < 1.0), np.nanmax(angles)
+    for k, r in enumerate(results[:-1]):
+        pan, tilt = int(r.pan_deg), int(r.tilt_deg)
+        if surrounded(PANS, TILTS, truth, pan, tilt):
+            assert given[k], (pan, tilt)  # all round on one surface: a normal
+        p, t = PANS.index(pan), TILTS.index(tilt)
+        straddles = any(truth[(pan, TILTS[t + dt])][0] != truth[(pan, tilt)][0]
+                        for dt in (-1, 1) if 0 <= t + dt < len(TILTS))
+        if straddles or t in (0, len(TILTS) - 1) or p in (0, len(PANS) - 1):
+            assert not given[k], (pan, tilt)  # a crease, or the scan's edge: no other side to confirm
+    assert given.sum() >= 15
+
+
+def test_normals_survive_noise_as_large_as_the_ranging_targets() -> None:
+    pans, tilts = range(-40, 41, 5), range(-45, 16, 10)
+    results, truth = scan(pans, tilts, noise=0.005, seed=3)
+    angles = angles_deg(scan_cloud(RIG, results), results, truth)
+    given = angles[~np.isnan(angles)]
+    assert len(given) >= 0.4 * len(angles)
+    assert np.percentile(given, 95) < 6.0 and given.max() < 10.0, np.sort(given)[-5:]
+
+
+def test_a_fine_lattice_reaches_further_than_the_next_zone_and_gives_more_normals() -> None:
+    """Zones 2° apart are 7 cm apart at 2 m, too near to pin a plane against 0.5 % noise: the
+    neighbours reach 2, 4 and 8 zones away, and most points get a normal."""
+    pans, tilts = range(-30, 31, 2), range(-45, 16, 2)
+    results, truth = scan(pans, tilts, noise=0.005, seed=1)
+    angles = angles_deg(scan_cloud(RIG, results), results, truth)
+    given = angles[~np.isnan(angles)]
+    assert len(given) >= 0.5 * len(angles)
+    assert np.percentile(given, 95) < 5.0, np.sort(given)[-10:]
+
+
+def test_no_normal_across_a_depth_edge() -> None:
+    """A box on the floor in front of the wall: the plane through the box's top row and the wall's
+    row above it is a slope that exists nowhere, and no point gets it."""
+    pans, tilts = range(-30, 31, 4), range(-50, 11, 5)
+    results, truth = scan(pans, tilts, box=True)
+    assert {t[0] for t in truth.values()} >= {0, 1, 2, 4}  # wall, floor, box front and top
+    angles = angles_deg(scan_cloud(RIG, results), results, truth)
+    given = ~np.isnan(angles)
+    # A point by an edge may take in a neighbour on the edge (on both planes): a few degrees.
+    assert np.all(angles[given] < 6.0), np.nanmax(angles)
+    for k, r in enumerate(results):
+        pan, tilt = int(r.pan_deg), int(r.tilt_deg)
+        if surrounded(pans, tilts, truth, pan, tilt):
+            assert given[k], (pan, tilt)
+        if surrounded(pans, tilts, truth, pan, tilt, reach=2):  # as far as its neighbours reach
+            assert angles[k] < 1.0, (pan, tilt)
+    box = [k for k, r in enumerate(results) if truth[(r.pan_deg, r.tilt_deg)][0] >= 2]
+    assert any(given[k] for k in box) and not all(given[k] for k in box)
+
+
+def test_one_tilt_level_takes_its_normals_from_the_zones_own_lasers() -> None:
+    """A sweep at one tilt has no rows above and below: the parallel laser's spot (4 cm above)
+    and the sloped one's (10° below) stand in for them, on a wall near enough (0.8 m) for 4 cm
+    to pin the plane's slope."""
+    pans, tilts = range(-30, 31, 6), range(0, 1)
+    results, truth = scan(pans, tilts, lasers=True, wall_x=0.8)
+    angles = angles_deg(scan_cloud(RIG, results), results, truth)
+    inner = angles[1:-1]  # the first and last have a neighbour on one side only
+    assert not np.isnan(inner).any() and np.all(inner < 1.0), angles
+    plain = [ZoneResult(r.index, r.pan_deg, r.tilt_deg, r.status, r.range_m, r.sigma_m, r.point_m,
+                        r.point_base_m) for r in results]
+    assert np.all(scan_cloud(RIG, plain).normals == 0.0)  # without them: nothing to confirm a plane
+
+
+def test_the_lattice_wraps_round_a_full_turn_and_breaks_at_a_missing_zone() -> None:
+    pans = [i * 5.625 - 180.0 for i in range(64)]
+    poses = [(p, t) for t in (-20.0, 0.0) for p in pans]
+    keep = [k for k, pose in enumerate(poses) if pose != (-90.0, -20.0)]  # one zone of the lower row missing
+    reached = [(p, t + 0.01 * (k % 3)) for k, (p, t) in enumerate(poses)]  # a position or two off
+    nb = lattice_neighbours([reached[k][0] for k in keep], [reached[k][1] for k in keep], reached)
+    index = {poses[k]: n for n, k in enumerate(keep)}
+    beside = lambda pose: sorted(keep[j] for j, level, _ in nb[index[pose]] if level == 0)  # noqa: E731
+    assert beside((-180.0, 0.0)) == [64 + 1, 64 + 63]  # across ±180°
+    assert beside((-95.625, -20.0)) == [14]  # -90° is missing: not next to -84.375°
+    column = [keep[j] for j, level, col in nb[index[(-90.0, 0.0)]] if col]
+    assert column == []  # nothing above, and the zone below is missing
+    above = sorted(keep[j] for j, level, _ in nb[index[(0.0, -20.0)]] if level == 1)
+    assert above == [64 + 31, 64 + 32, 64 + 33]
 
 
 def test_the_ply_reads_back_with_plyfile() -> None:
-    results, _ = corner_scan()
+    results, _ = scan(PANS, TILTS)
     cloud = scan_cloud(RIG, results)
     ply = PlyData.read(io.BytesIO(ply_bytes(cloud, "a corner")))
     assert not ply.text and ply.byte_order == "<" and "a corner" in ply.comments

@@ -186,3 +186,52 @@ def test_the_state_comes_back_and_another_grids_is_refused() -> None:
         grid_from_state(GridConfig(resolution_m=0.1), state_bytes(grid), grid.half_size_m)
     with pytest.raises(ValueError, match="not a saved grid"):
         grid_from_state(GridConfig(), b"garbage", grid.half_size_m)
+
+
+def square_room(door: tuple[float, float] = (-0.45, 0.45), cupboards: bool = False) -> list[ZoneResult]:
+    """64 zones in a room 4 m square about the unit, a doorway in the wall ahead (x = 2, y within
+    `door`) onto a dark corridor (no_spot); with `cupboards`, two in front of the wall to the left
+    (y = 2) with a gap of 0.6 m between them."""
+    out = []
+    for i in range(64):
+        pan = i * 5.625 - 180.0
+        o, d = beam(pan)
+        hits = [(s - o[k]) / d[k] for k in (0, 1) for s in (-2.0, 2.0) if abs(d[k]) > 1e-9 and (s - o[k]) / d[k] > 0]
+        t = min(hits)
+        p = o + t * d
+        if cupboards and abs(p[1] - 2.0) < 1e-6 and not -0.3 <= p[0] <= 0.3:
+            t = (1.6 - o[1]) / d[1]  # the cupboards' fronts, 0.4 m before the wall
+        if abs(p[0] - 2.0) < 1e-6 and door[0] <= p[1] <= door[1]:
+            out.append(ZoneResult(i, pan, 0.0, NO_SPOT))
+        else:
+            out.append(hit_zone(pan, t, index=i))
+    return out
+
+
+def test_a_ray_through_a_doorway_onto_a_dark_corridor_leaves_the_room_a_metre_past_the_door() -> None:
+    from edge.maps import doorways_m
+
+    results = square_room(cupboards=True)
+    grid = OccupancyGrid.for_rig(GridConfig(), RIG)
+    for _ in range(3):
+        grid.add_results(RIG, results)
+    doors = doorways_m(grid, RIG, results)
+    through = {r.index for r in results if r.status == NO_SPOT}
+    assert {31, 32, 33} <= set(doors) <= through  # pans -5.6°, 0, 5.6°: the door's middle
+    for k in doors:
+        assert 2.3 <= doors[k] <= 3.3, doors  # past the door (x = 2), within about a metre
+    # The gap between the cupboards has the wall behind it: no doorway.
+    gap = [r.index for r in results if r.point_base_m is not None and abs(r.point_base_m[1] - 2.0) < 0.01]
+    assert gap and not set(gap) & set(doors)
+    # A zone's ray that met a wall, and one through the door onto a lit corridor wall, end in the
+    # room. (Between two zones' rays a wall seen by a sweep is dotted: the map knows its own rays.)
+    o, d = beam(-28.125)
+    assert grid.doorway_m(o[:2], d[:2], 5.0) is None
+    corridor = grid.cell_of(np.array([4.0, 0.035]))
+    grid.log_odds[corridor[1], corridor[0]] = 4.0
+    assert grid.doorway_m(np.zeros(2), np.array([1.0, 0.0]), 5.0) is None
+
+
+def test_an_empty_grid_has_no_doorways() -> None:
+    grid = OccupancyGrid.for_rig(GridConfig(), RIG)
+    assert grid.doorway_m(np.zeros(2), np.array([1.0, 0.0]), 5.0) is None

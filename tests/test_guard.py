@@ -579,3 +579,34 @@ def test_sim_empty_office_200_sweeps_raise_nothing(office):
     state = guard.state()
     assert state["open_zones"] == [3, 4, 5]  # the doorway
     assert state["zones_with_background"] == N - 3
+
+
+# --- doorways: the map says where the room ends along a ray -----------------------------------
+
+
+def test_someone_beyond_a_doorway_is_not_an_intruder_but_someone_in_it_is() -> None:
+    """Zones 10-12 look through a doorway onto a dark corridor (no range: open zones); the map
+    says the room ends 3 m along them. Someone walking in the corridor at 3.5-4 m raises nothing;
+    someone in the doorway (2.5 m) does; without the map the corridor raised an intrusion."""
+    bg = with_object(list(room()), {10: None, 11: None, 12: None})
+    outside = {10: 3.0, 11: 3.0, 12: 3.0}
+    guard, rng, _ = learned(background=bg)
+    plain, rng2, _ = learned(background=bg, seed=1)
+    s = 10
+    for r in (3.5, 3.7, 4.0, 3.6, 3.8):
+        walking = sweep(with_object(bg, {10: r, 11: r}), rng)
+        assert guard.update(walking, s, float(s), outside_m=outside) == []
+        s += 1
+    assert any(e.event == INTRUSION for k in range(3)
+               for e in plain.update(sweep(with_object(bg, {10: 3.6, 11: 3.6}), rng2), 30 + k, 30.0 + k))
+    events = []
+    for _ in range(3):
+        events += guard.update(sweep(with_object(bg, {11: 2.5, 12: 2.5}), rng), s, float(s), outside_m=outside)
+        s += 1
+    assert [e.event for e in events] == [INTRUSION] and set(events[0].zones) == {11, 12}
+    # Walking out through the door: beyond the room's end it is gone, and cleared.
+    events = []
+    for _ in range(3):
+        events += guard.update(sweep(with_object(bg, {11: 3.5, 12: 3.5}), rng), s, float(s), outside_m=outside)
+        s += 1
+    assert [e.event for e in events] == [CLEARED]

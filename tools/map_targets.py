@@ -2,18 +2,23 @@
 """Issue 18's map targets, measured on simulated recordings against the scenes' truth.
 
     ./dev edge sim record --scene office --out rec/o1 --frames 2 --seed 1     # and seeds 2, 3
-    ./dev edge sim record --scene office --out rec/o3d --frames 2 --set 'sweep.tilts_deg=[-40.0,-20.0,0.0,15.0,30.0]'
-    .venv/bin/python tools/map_targets.py --grid office rec/o1 rec/o2 rec/o3 --cloud office rec/o3d
+    ./dev edge sim record --scene kitchen --out rec/k1 --frames 2 --seed 1    # and seeds 2, 3
+    ./dev edge sim record --scene office --out rec/o3d --frames 4 --set 'sweep.tilts_deg=[-40.0,-20.0,0.0,15.0,30.0]'
+    .venv/bin/python tools/map_targets.py --grid office rec/o1 rec/o2 rec/o3 --grid kitchen rec/k1 rec/k2 rec/k3
+    .venv/bin/python tools/map_targets.py --cloud office rec/o3d --worst 10
 
 --grid SCENE DIR…: the sweeps fused into one 5 cm grid, scored (occupied near a surface, surface
 cells occupied, cells along rays free). --cloud SCENE DIR: one scan's cloud, scored (points'
-error against the truth relative to range, normals on walls and floor). --out DIR writes each
-map's files there as `edge map` does.
+error against the truth relative to range, normals on walls and floor); `--frames 4` is the
+configured two frame pairs a zone, what `edge sweep` takes (`--frames 2`, one pair, is noisier).
+--worst N lists the cloud's N points farthest from the truth, for whoever looks into ranging.
+--out DIR writes each map's files there as `edge map` does.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -43,6 +48,7 @@ def main() -> int:
     ap.add_argument("--cloud", nargs=2, action="append", default=[], metavar=("SCENE", "DIR"))
     ap.add_argument("--resolution", type=float, default=0.05)
     ap.add_argument("--out", help="write each map's files into OUT/<scene>[-3d]")
+    ap.add_argument("--worst", type=int, default=0, metavar="N", help="list the cloud's N worst points")
     args = ap.parse_args()
     for scene_name, *dirs in args.grid:
         scene = load_scene(scene_name, [scene_dir()])
@@ -78,6 +84,16 @@ def main() -> int:
         print(f"{scene_name} 3D scan, tilts {tilts}, {len(rec.zones)} zones, {len(ok)} ok:")
         for line in score.lines():
             print("  " + line)
+        worst = sorted(((r, z.truth) for r, z in ok), reverse=True,
+                       key=lambda rz: abs(rz[0].range_m - rz[1]["range_m"]) / rz[1]["range_m"])
+        for r, truth in worst[:args.worst]:
+            true_m = truth["range_m"]
+            err = r.range_m - true_m
+            alone = r.lasers[ref].depth_m if ref in r.lasers else math.nan
+            print(f"  zone {r.index}: pan {r.pan_deg:.2f}°, tilt {r.tilt_deg:.2f}°, range {r.range_m:.3f} m, "
+                  f"true {true_m:.3f} m ({100 * err / true_m:+.2f} %, {err / (r.sigma_m or 1e-9):+.1f} σ; "
+                  f"{ref} alone {100 * (alone - true_m) / true_m:+.2f} %), lasers {'+'.join(sorted(r.lasers))}, "
+                  f"true point z {truth['point_base_m'][2]:+.2f} m")
         if args.out:
             grid, _ = build_map(GridConfig(resolution_m=args.resolution), [Scan(d, rec.rig, results)])
             write_map(Path(args.out) / f"{scene_name}-3d", grid, cloud, title=f"{scene_name} 3D scan")

@@ -37,6 +37,12 @@ quarter of its observations). Anything else — ``fault``, ``ambiguous``, a zone
 sweep, an unusual ``no_spot``/``out_of_range`` (a dark coat hides the spot), a zone still learning — is
 *unknown*: it neither raises nor clears.
 
+**Doorways.** Given the map (``outside_m`` of :meth:`Guard.update`, from the occupancy grid: see
+``OccupancyGrid.doorway_m``), a zone whose ray leaves the room through a doorway onto a dark or
+long corridor ignores readings beyond the room's end along it (about a metre past the door):
+someone walking in the corridor is not in the guarded room. Someone in the doorway or in the room
+is, as before.
+
 **Blobs.** Foreground zones that are neighbours (index ±1 modulo ``zone_count``: zones 63 and 0 of a
 full turn are neighbours) and whose ranges differ by at most ``blob_range_tol_m`` form one blob; the
 gap between them may hold up to ``bridge_zones`` unknown zones. A blob's position is the mean of its
@@ -257,6 +263,13 @@ class _Zone:
         return _Background(_RANGED, med, scale, ok_fraction, usual)
 
 
+def _horizontal_m(res: ZoneResult, range_m: float) -> float:
+    """How far from the pan axis a zone's point lies, horizontally (base frame)."""
+    if res.point_base_m is not None:
+        return float(math.hypot(res.point_base_m[0], res.point_base_m[1]))
+    return range_m * math.cos(math.radians(res.tilt_deg))
+
+
 def _ok_range(res: ZoneResult) -> float | None:
     """The range of an ok zone, if it is a usable one (finite, positive); else None."""
     r = res.range_m
@@ -434,10 +447,15 @@ class Guard:
         sweep: int,
         t_s: float,
         zone_t_s: Mapping[int, float] | None = None,
+        outside_m: Mapping[int, float] | None = None,
     ) -> list[GuardEvent]:
         """Take one sweep's zone results (any order; zones may be missing or not ok) and return
         the events it raises. `t_s` is the sweep's time in seconds; `zone_t_s`, when given, the
-        time each zone was measured (zones absent from it take `t_s`), for better velocities."""
+        time each zone was measured (zones absent from it take `t_s`), for better velocities.
+        `outside_m`, when given, says for the zones whose rays leave the room through a doorway
+        how far (horizontally from the pan axis) the room ends (``GridKeeper.outside_m``, from the
+        map): a reading beyond is outside the guarded room — someone passing in the corridor —
+        and is background, never foreground, and not learnt."""
         by_zone: dict[int, ZoneResult] = {}
         for res in results:
             if not 0 <= res.index < self.zone_count:
@@ -453,14 +471,15 @@ class Guard:
                     z.learned = z.observations >= self._zone_min_observations
             return []
         times = zone_t_s or {}
-        states, readings = self._classify(by_zone, times, t_s)
+        states, readings = self._classify(by_zone, times, t_s, outside_m or {})
         blobs = self._blobs(readings, states)
         return self._follow(blobs, states, sweep)
 
     # --- zones ----------------------------------------------------------------------------
 
     def _classify(
-        self, by_zone: Mapping[int, ZoneResult], times: Mapping[int, float], t_s: float
+        self, by_zone: Mapping[int, ZoneResult], times: Mapping[int, float], t_s: float,
+        outside_m: Mapping[int, float],
     ) -> tuple[list[str], dict[int, _Reading]]:
         cfg = self.config
         states = [_UNKNOWN] * self.zone_count
@@ -477,6 +496,9 @@ class Guard:
                 continue
             bg = zone.background(cfg)
             r = _ok_range(res)
+            if r is not None and k in outside_m and _horizontal_m(res, r) > outside_m[k]:
+                states[k] = _BG  # seen through a doorway, beyond the room: not the guard's
+                continue
             if r is not None:
                 sigma = max(bg.scale_m, float(res.sigma_m or 0.0))
                 if r < bg.ref_m - max(cfg.k_sigma * sigma, cfg.min_drop_m):

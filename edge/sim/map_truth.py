@@ -136,6 +136,7 @@ class CloudScore:
     points: int
     rms_rel: float  # RMS of |point − true point| / true range
     normals: int  # points on walls and floor with a normal
+    surface_points: int  # points on walls and floor
     normal_rms_deg: float
     normal_p95_deg: float
     within_10deg: float
@@ -144,8 +145,8 @@ class CloudScore:
         return [
             f"points: {self.points}; error against the true points, RMS {100 * self.rms_rel:.2f} % of range "
             f"(target <= 1 %)",
-            f"normals on walls and floor: {self.normals}; angle from the true normal RMS "
-            f"{self.normal_rms_deg:.1f}°, 95th percentile {self.normal_p95_deg:.1f}°, "
+            f"normals on walls and floor: {self.normals} of {self.surface_points} points; angle from the true "
+            f"normal RMS {self.normal_rms_deg:.1f}°, 95th percentile {self.normal_p95_deg:.1f}°, "
             f"{100 * self.within_10deg:.1f} % within 10°",
         ]
 
@@ -168,8 +169,9 @@ def score_cloud(points: np.ndarray, normals: np.ndarray, truths: Sequence[dict],
                 true_normals: Sequence[np.ndarray | None], on_surface: Sequence[bool]) -> CloudScore:
     """`points`/`normals` (N, 3) base frame, with each point's truth, its surface's true normal (base
     frame) and whether that surface is a wall or the floor."""
-    rel, angles = [], []
+    rel, angles, surface = [], [], 0
     for p, n, truth, tn, flat in zip(points, normals, truths, true_normals, on_surface):
+        surface += bool(flat and tn is not None)
         tp = np.asarray(truth["point_base_m"], float)
         rel.append(float(np.linalg.norm(p - tp)) / float(truth["range_m"]))
         if flat and tn is not None and np.linalg.norm(n) > 0.5:
@@ -177,7 +179,7 @@ def score_cloud(points: np.ndarray, normals: np.ndarray, truths: Sequence[dict],
     a = np.array(angles)
     return CloudScore(
         len(rel), float(np.sqrt(np.mean(np.square(rel)))) if rel else float("nan"),
-        len(a), float(np.sqrt(np.mean(a**2))) if a.size else float("nan"),
+        len(a), surface, float(np.sqrt(np.mean(a**2))) if a.size else float("nan"),
         float(np.percentile(a, 95)) if a.size else float("nan"),
         float(np.mean(a <= 10.0)) if a.size else float("nan"),
     )
