@@ -71,3 +71,55 @@ def check_calibration(recording: Recording, distances_m: Sequence[float], cal: C
                     if total > 0 else None)
         out.append(CheckedZone(dist, depth, combined))
     return out
+
+
+def check_lines(zones: Sequence[CheckedZone], cal: Calibration) -> list[str]:
+    """The check for people: per distance each laser's error, their mean and RMS, the lasers
+    combined, and beside them the 1-σ error the calibration predicts for one range at rest there;
+    then the RMS over all distances against the prediction."""
+    names = [ln.name for ln in cal.lasers]
+    predicted = cal.range_errors(tuple(z.distance_m for z in zones)) if zones else {}
+
+    def mm(x: float | None) -> str:
+        return f"{'-':>9}" if x is None else f"{1000 * x:+9.1f}"
+
+    head = "".join(f"{n:>9}" for n in names)
+    lines = [f"{'m':>8}{head}{'mean':>9}{'rms':>9}{'combined':>10}   predicted 1 σ: combined (per laser)"]
+    for k, z in enumerate(zones):
+        errs = [z.error(n) for n in names]
+        got = [e for e in errs if e is not None]
+        mean = sum(got) / len(got) if got else None
+        rms = math.sqrt(sum(e * e for e in got) / len(got)) if got else None
+        pred = ""
+        if predicted:
+            pred = f"   {_sigma(predicted, 'combined', k)} ({', '.join(_sigma(predicted, n, k) for n in names)})"
+        rms_text = f"{'-':>9}" if rms is None else f"{1000 * rms:9.1f}"
+        lines.append(f"{z.distance_m:8g}{''.join(mm(e) for e in errs)}{mm(mean)}{rms_text}"
+                     f"{mm(z.combined_error):>10}{pred}")
+    lines.append(_summary(zones, names, predicted))
+    return lines
+
+
+def _sigma(predicted: dict, name: str, k: int) -> str:
+    v = predicted[name].one_range[k] if name in predicted else None
+    return "-" if v is None else f"{1000 * v:.1f}"
+
+
+def _summary(zones: Sequence[CheckedZone], names: list[str], predicted: dict) -> str:
+    errs = [e for z in zones for e in (z.error(n) for n in names) if e is not None]
+    if not errs:
+        return "no laser's spot was found: nothing to check"
+    rel = [abs(e) / z.distance_m for z in zones for e in (z.error(n) for n in names) if e is not None]
+    rms = math.sqrt(sum(e * e for e in errs) / len(errs))
+    line = (f"{len(errs)} spots at {len(zones)} distances: rms error {1000 * rms:.1f} mm, "
+            f"mean |error| {100 * sum(rel) / len(rel):.2f} % of range")
+    if predicted:
+        pred = [p for z_k in range(len(zones)) for n in names
+                if zones[z_k].error(n) is not None
+                and (p := predicted[n].one_range[z_k] if n in predicted else None) is not None]
+        if pred:
+            expected = math.sqrt(sum(p * p for p in pred) / len(pred))
+            line += f"; predicted rms {1000 * expected:.1f} mm (measured ÷ predicted {rms / expected:.2f})"
+    else:
+        line += "; the calibration predicts nothing (it keeps no covariance)"
+    return line
