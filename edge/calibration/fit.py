@@ -421,7 +421,7 @@ def _laser_data(rig: Rig, chosen: dict[str, dict[int, Blob]], D: tuple[float, ..
 # degrees of freedom an axis, not 4): s² is what makes χ² equal its degrees of freedom, or 0 when
 # the sensor noise already explains the residuals. Each spot then weighs 1/(σᵢ² + s²).
 
-OUTLIER_SIGMAS = 4.5  # a spot this far from its line, in its own σ (2-D), is another blob
+OUTLIER_SIGMAS = 5.5  # a spot this far from the line through the others (robust σ, 2-D) is another blob
 
 
 def _wls(inv_depth: np.ndarray, y: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -483,36 +483,55 @@ def _extra_per_axis(camera: CameraModel, data: dict[str, Spots]) -> np.ndarray:
     return out
 
 
+def _without_worst(inv_depth: np.ndarray, xy: np.ndarray) -> tuple[int, np.ndarray, float]:
+    """The point whose removal leaves the best line through the others (both axes): its index,
+    its standardised residual (2,) from that line (divided by √(1 + aₖᵀ(A₋ₖᵀA₋ₖ)⁻¹aₖ)), and the
+    others' sum of squared residuals. One stray point cannot hide by pulling the line to itself."""
+    A = np.stack([np.ones_like(inv_depth), inv_depth], axis=1)
+    best: tuple[int, np.ndarray, float] | None = None
+    for k in range(len(inv_depth)):
+        keep = np.arange(len(inv_depth)) != k
+        inv = np.linalg.inv(A[keep].T @ A[keep])
+        theta = inv @ (A[keep].T @ xy[keep])
+        rss = float(((xy[keep] - A[keep] @ theta) ** 2).sum())
+        if best is None or rss < best[2]:
+            r = (xy[k] - A[k] @ theta) / math.sqrt(1.0 + float(A[k] @ inv @ A[k]))
+            best = (k, r, rss)
+    assert best is not None
+    return best
+
+
 def _outliers(camera: CameraModel, data: dict[str, Spots]) -> dict[str, Spots]:
-    """Each laser's spots without one that lies far off its line while the other lasers' spots
-    at that distance do not (a stray blob taken for the spot). A distance where every laser's
-    spot is off is left in: that is a wrong distance, which the residual check then refuses."""
+    """Each laser's spots without one that lies far off the line through its others while the
+    other lasers' spots at that distance do not (a stray blob taken for the spot). A distance
+    where every laser's spot is off is left in: that is a wrong distance, which the residual check
+    then refuses. The scale is that of all lasers' other spots about their lines, pooled."""
     while True:
-        extra = _extra_per_axis(camera, data)
-        worst: dict[str, tuple[float, int]] = {}
+        worst: dict[str, tuple[int, np.ndarray]] = {}
+        rss, dof = 0.0, 0
         for name, spots in data.items():
-            xy, var = _normalised_data(camera, spots)
-            q2 = np.zeros(len(spots.depths))
-            for axis in range(2):
-                v = var[:, axis] + extra[axis]
-                theta, _, _ = _wls(1.0 / spots.depths, xy[:, axis], v)
-                q2 += (xy[:, axis] - theta[0] - theta[1] / spots.depths) ** 2 / v
-            k = int(np.argmax(q2))
-            worst[name] = (float(np.sqrt(q2[k])), k)
-        bad = [n for n, (q, _) in worst.items()
-               if q > OUTLIER_SIGMAS and len(data[n].depths) > MIN_POINTS]
+            if len(spots.depths) <= MIN_POINTS:
+                continue
+            k, r, rest = _without_worst(1.0 / spots.depths, _normalised_data(camera, spots)[0])
+            worst[name] = (k, r)
+            rss, dof = rss + rest, dof + 2 * (len(spots.depths) - 3)
+        if not worst or dof <= 0:
+            return data
+        scale2 = rss / dof + 1e-24  # per axis
+        q = {n: float(np.sqrt((r**2).sum() / (scale2 + _normalised_data(camera, data[n])[1][k].sum() / 2)))
+             for n, (k, r) in worst.items()}
+        bad = [n for n in worst if q[n] > OUTLIER_SIGMAS]
         drop = None
-        for name in sorted(bad, key=lambda n: -worst[n][0]):
-            zone = int(data[name].zones[worst[name][1]])
+        for name in sorted(bad, key=lambda n: -q[n]):
+            zone = int(data[name].zones[worst[name][0]])
             others = [n for n in data if n != name and zone in data[n].zones]
-            if others and not any(n in bad and int(data[n].zones[worst[n][1]]) == zone for n in others):
+            if others and not any(n in bad and int(data[n].zones[worst[n][0]]) == zone for n in others):
                 drop = name
                 break
         if drop is None:
             return data
-        k = worst[drop][1]
-        log.info("laser %s: spot at %.2f m lies %.1f σ off its line: left out",
-                 drop, data[drop].depths[k], worst[drop][0])
+        k = worst[drop][0]
+        log.info("laser %s: spot at %.2f m lies %.1f σ off its line: left out", drop, data[drop].depths[k], q[drop])
         data = {**data, drop: data[drop].subset(np.arange(len(data[drop].depths)) != k)}
 
 
