@@ -13,7 +13,14 @@ normalise(ax, ay, 1).
 
 Spots are found without the nominal rig's narrow epipolar bands (a laser a degree off puts its spot
 10 px from where the rig says): a whole-frame laser-on minus laser-off difference, thresholded,
-split into connected blobs, each localised by an iterated Gaussian-windowed centroid. Blobs are
+split into connected blobs, each localised by an iterated Gaussian-windowed centroid; spots a few
+pixels apart (which pull each other's centroids, or merge into one) are fitted together as a sum of
+Gaussians. Each spot's σ from the sensor's noise is measured around it from the frames' scatter.
+
+Weights and covariance (:func:`fit_weighted`). Each spot weighs 1/(σᵢ² + s²), s the scatter common
+to all spots that frames cannot show (at rest: one speckle pattern per distance), measured from the
+residuals of all lasers pooled; a stray spot is left out. Each ray comes with the covariance of its
+(ax, x0, ay, y0), which :mod:`edge.calibration.uncertainty` turns into range errors. Blobs are
 given to lasers from the nearest target to the farthest, each laser's nominal prediction corrected
 by what the nearer distances showed: after one, by its pixel offset (an angular error shifts a spot
 by a nearly constant number of pixels at every distance); after two or more, by the line through
