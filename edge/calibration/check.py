@@ -75,7 +75,8 @@ def check_calibration(recording: Recording, distances_m: Sequence[float], cal: C
 
 def check_lines(zones: Sequence[CheckedZone], cal: Calibration) -> list[str]:
     """The check for people: per distance each laser's error, their mean and RMS, the lasers
-    combined, and beside them the 1-σ error the calibration predicts for one range at rest there;
+    combined, and beside them the 1-σ error the calibration predicts for one range there (taken as
+    its own frames were);
     then the RMS over all distances against the prediction."""
     names = [ln.name for ln in cal.lasers]
     predicted = cal.range_errors(tuple(z.distance_m for z in zones)) if zones else {}

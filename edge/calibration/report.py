@@ -34,7 +34,8 @@ CALIBRATION_SHARE = 0.25
 
 def range_error_lines(cal: Calibration) -> list[str]:
     """What the calibration's uncertainty means for ranging: per laser and combined, the 1-σ range
-    error it adds at 1, 2 and 4 m, and that of one range taken at rest with it; and whether more
+    error it adds at 1, 2 and 4 m, and that of one range taken as its frames were (a board at rest:
+    one view); and whether more
     distances would help."""
     errors = cal.range_errors()
     if not errors:
@@ -47,13 +48,14 @@ def range_error_lines(cal: Calibration) -> list[str]:
 
     head = "".join(f"{f'{d:g} m':>8}" for d in depths)
     width = len(head)
-    lines = [f"{'range error, 1 σ (mm)':<22}{'from the calibration':>{width}}   {'one range at rest':>{width}}",
+    lines = [f"{'range error, 1 σ (mm)':<22}{'from the calibration':>{width}}   {'one range, as recorded':>{width}}",
              f"{'':<22}{head}   {head}"]
     for name, e in errors.items():
         lines.append(f"{name:<22}{mm(e.calibration)}   {mm(e.one_range)}")
     if len(cal.spot_sigma_px) == 2:
-        lines.append(f"one spot at rest scatters {cal.spot_sigma_px[0]:.3f} px (u), "
-                     f"{cal.spot_sigma_px[1]:.3f} px (v): speckle and noise, which one view cannot average")
+        lines.append(f"one spot scatters {cal.spot_sigma_px[0]:.3f} px (u), "
+                     f"{cal.spot_sigma_px[1]:.3f} px (v) about its line as recorded: speckle and noise that "
+                     "these frames do not average (a board at rest: one view per distance)")
     combined = errors.get("combined")
     if combined is not None:
         worst = [(d, c * c / o / o) for d, c, o in zip(depths, combined.calibration, combined.one_range)

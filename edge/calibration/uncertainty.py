@@ -6,9 +6,11 @@ covariance of (ax, x0, ay, y0) per laser. At depth D a spot moves with depth alo
 epipolar direction e = (x0, y0)/|b|, |b| = hypot(x0, y0) its baseline, by |b|/D² per metre; an
 error δp of where the calibration puts the spot (δp = J δθ, J = [[1, 1/D, 0, 0], [0, 0, 1, 1/D]])
 therefore reads as a range error D²/|b| · e·δp. So at depth D a laser's range error from its
-calibration has σ_cal² = (D²/|b|)² · eᵀ J C Jᵀ e, and one range measured at rest (one speckle
-pattern, as the fit saw at each distance) adds the spot's own σ_spot² = (D²/|b|)² · eᵀ S e with
-S = diag(σu/fx, σv/fy)², the spot scatter the fit measured (``spot_sigma_px``).
+calibration has σ_cal² = (D²/|b|)² · eᵀ J C Jᵀ e, and one range measured as the calibration's frames
+were (a board at rest: one view, one speckle pattern) adds the spot's own σ_spot² = (D²/|b|)² · eᵀ S e
+with S = diag(σu/fx, σv/fy)², the spot scatter the fit measured (``spot_sigma_px``). A calibration
+recorded with nudges (several views a distance) measured a smaller scatter, which one view's range
+will exceed.
 
 The lasers of one range are combined as ranging combines them on a surface facing the camera: by
 weights 1/σ_spot², i.e. ∝ |b|² for spots located equally well. Calibration errors of different lasers
@@ -32,7 +34,8 @@ MIN_BASELINE_M = 0.001  # a beam through the optical centre cannot range at all
 @dataclass(frozen=True)
 class RangeError:
     """1-σ range errors (metres) at `depths_m`: from the calibration alone, and for one range
-    measured at rest with it (calibration and the spot's own scatter). None: cannot range."""
+    measured as the calibration's frames were (calibration and the spot's own scatter). None:
+    cannot range."""
 
     depths_m: tuple[float, ...]
     calibration: tuple[float | None, ...]
