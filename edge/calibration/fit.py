@@ -250,8 +250,9 @@ def _profile(x: np.ndarray, mu: float, sigma: float) -> tuple[np.ndarray, np.nda
 def _fit_group(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray | float
                ) -> list[tuple[np.ndarray, np.ndarray]] | None:
     """Spots close together as one picture: a sum of pixel-integrated Gaussians of one shared
-    width on a flat background, by Gauss-Newton from the windowed centroids `seeds`. Each spot's
-    position and its 1-σ per axis (from the pixels' noise `var`), or None if it does not settle."""
+    width on a flat background, by Gauss-Newton from `seeds` (windowed centroids, or maxima of the
+    sharper picture). Each spot's position and its 1-σ per axis (from the pixels' noise `var`), or
+    None if it does not settle."""
     pts = np.array(seeds)
     h = 4
     u0, v0 = (np.floor(pts.min(axis=0)).astype(int) - h).tolist()
