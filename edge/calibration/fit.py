@@ -685,19 +685,23 @@ def _outliers(camera: CameraModel, data: dict[str, Spots]) -> dict[str, Spots]:
 
 def fit_weighted(camera: CameraModel, data: dict[str, Spots]) -> WeightedFit:
     """Every laser's line by weighted least squares (weights 1/(σᵢ² + s²)), stray spots left
-    out, with the covariance of each line's parameters."""
+    out, with the covariance of each line's parameters (scaled by the laser's own χ² per degree
+    of freedom where that exceeds 1)."""
     data = _outliers(camera, data)
     extra = _extra_per_axis(camera, data)
     lasers, covs, noise = {}, {}, []
     for name, spots in data.items():
         xy, var = _normalised_data(camera, spots)
         noise.append(var)
-        (ax, x0), cx, _ = _wls(1.0 / spots.depths, xy[:, 0], var[:, 0] + extra[0])
-        (ay, y0), cy, _ = _wls(1.0 / spots.depths, xy[:, 1], var[:, 1] + extra[1])
+        (ax, x0), cx, chi_x = _wls(1.0 / spots.depths, xy[:, 0], var[:, 0] + extra[0])
+        (ay, y0), cy, chi_y = _wls(1.0 / spots.depths, xy[:, 1], var[:, 1] + extra[1])
         lasers[name] = _line(np.array([x0, y0]), np.array([ax, ay]), name)
         cov = np.zeros((4, 4))
         cov[:2, :2], cov[2:, 2:] = cx, cy
-        covs[name] = cov
+        # A laser whose spots scatter more than the pooled scatter says: its own χ² per degree
+        # of freedom scales its covariance (never down: the pooled scatter is the better estimate).
+        dof = 2 * (len(spots.depths) - 2)
+        covs[name] = cov * max(1.0, (chi_x + chi_y) / dof)
     typical = np.median(np.concatenate(noise), axis=0)  # one spot's sensor noise, normalised²
     spot = np.sqrt(typical + extra) * np.array([camera.fx, camera.fy])
     return WeightedFit(lasers, covs, (float(spot[0]), float(spot[1])), data)
