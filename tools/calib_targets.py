@@ -11,8 +11,8 @@ nudges) at the calibration distances, fitted as ``edge calibrate`` does; then
 - a sweep of the office ranged with the fitted and with the true rig: the ratio of their mean
   |relative error| over the zones both range.
 
-    nice -n 19 ./dev python tools/calib_targets.py --seeds 6
-    .venv/bin/python tools/calib_targets.py --seeds 6 --json out.json
+    nice -n 19 .venv/bin/python tools/calib_targets.py --seeds 20     # after ./dev has made .venv
+    .venv/bin/python tools/calib_targets.py --seeds 10 --first 11 --json out.json
 
 It asserts nothing: it prints figures (and writes them as JSON with --json).
 """
