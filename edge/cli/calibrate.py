@@ -1,5 +1,5 @@
-"""`edge calibrate`: fit the laser rays from a recording of a flat target, or have a running device
-calibrate itself over MQTT. The work is in :mod:`edge.calibration` and :mod:`edge.monitor`; it is
+"""`edge calibrate`: fit the laser rays from a recording of a flat target, check a calibration on
+another such recording (``--check``), or have a running device calibrate itself over MQTT. The work is in :mod:`edge.calibration` and :mod:`edge.monitor`; it is
 imported only when the command runs (the fit needs OpenCV, which the other commands must not wait
 for)."""
 
@@ -16,7 +16,8 @@ from edge.errors import CommandError, UsageError
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "calibrate", help="fit the laser rays from a flat target at known distances",
-        description="Either fit a recording offline (--recording, --out), or have a running device "
+        description="Either fit a recording offline (--recording, --out), check a calibration on a "
+                    "recording the fit did not use (--check, --calibration), or have a running device "
                     "calibrate itself through the broker while you carry the target (--device).")
     p.add_argument("--recording", metavar="DIR",
                    help="recording whose zone i shows a flat target squarely at distance i")
