@@ -3,19 +3,35 @@
 A calibration file is JSON: the `format`, when it was made (`created`), the target distances it was
 fitted from (`distances_m`), the `camera` and the `lasers` as in ``sweep.json``
 (``shared/spec/recording.md``), and the fit's residuals per laser (`residuals_px`: `rms`, `max`,
-`n`). Reading is strict, by the loader of :mod:`edge.schema`: every problem is a
-:class:`CalibrationError` of one line naming the file and the key. Unknown keys are ignored, as in
-recordings, so that the format can grow. Writing is atomic: a power cut leaves the old file or the
-new one.
+`n`). Since issue 15 it also keeps how well the fit knows each ray: `ray_covariance`, per laser the
+4 × 4 covariance of its parameters (ax, x0, ay, y0) in the fit's line x = x0 + ax·z, y = y0 + ay·z
+(camera frame, metres), and `spot_sigma_px`, one spot's scatter per axis (u, v) that the fit
+measured; and, for people, `range_error_m`, the 1-σ range errors they imply at 1, 2 and 4 m per laser
+and combined (recomputed from the covariance when read: see :mod:`edge.calibration.uncertainty`).
+Older files without them still load; they just know nothing of their uncertainty. Reading is
+strict, by the loader of :mod:`edge.schema`: every problem is a :class:`CalibrationError` of one
+line naming the file and the key. Unknown keys are ignored, as in recordings, so that the format can
+grow. Writing is atomic: a power cut leaves the old file or the new one.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
+
+from edge.calibration.uncertainty import (
+    REPORT_DEPTHS_M,
+    RangeError,
+    baseline,
+    combined_range_error,
+    laser_range_error,
+    ray_parameters,
+)
 from edge.errors import CalibrationError
 from edge.fsutil import atomic_write_bytes
 from edge.recording import LaserKeys, format_is, load, rig_of, rig_to_json, timestamp
@@ -34,6 +50,28 @@ class Calibration:
     distances_m: tuple[float, ...] = ()
     residuals_px: dict[str, dict] = field(default_factory=dict)
     created: str = ""
+    # Per laser the (4, 4) covariance of (ax, x0, ay, y0); empty: unknown (an older file, --fit-focal).
+    ray_covariance: dict[str, tuple[tuple[float, ...], ...]] = field(default_factory=dict)
+    spot_sigma_px: tuple[float, ...] = ()  # (σu, σv) of one spot as the fit saw it; () unknown
+
+    def range_errors(self, depths_m: Sequence[float] = REPORT_DEPTHS_M) -> dict[str, RangeError]:
+        """Per laser, and ``combined``, the 1-σ range errors this calibration implies at
+        `depths_m`; empty when it does not know its covariance."""
+        if not self.ray_covariance or len(self.spot_sigma_px) != 2:
+            return {}
+        spot = np.array(self.spot_sigma_px) / np.array([self.camera.fx, self.camera.fy])
+        out: dict[str, RangeError] = {}
+        bases: dict[str, float] = {}
+        for laser in self.lasers:
+            cov = self.ray_covariance.get(laser.name)
+            if cov is None:
+                continue
+            params = ray_parameters(laser)
+            out[laser.name] = laser_range_error(params, np.array(cov), spot, depths_m)
+            bases[laser.name] = baseline(params)
+        if out:
+            out["combined"] = combined_range_error(out, bases)
+        return out
 
     def apply(self, rig: Rig) -> Rig:
         """`rig` with its lasers and camera replaced by the calibrated ones (the reference flag
@@ -67,6 +105,20 @@ def _positive(distance: float) -> str | None:
     return None if distance > 0 else f"must be positive metres, got {distance:g}"
 
 
+def _square4(m: tuple[tuple[float, ...], ...]) -> str | None:
+    if len(m) != 4 or any(len(row) != 4 for row in m):
+        return "must be a 4 x 4 matrix (ax, x0, ay, y0)"
+    if any(m[k][k] < 0 for k in range(4)):
+        return "a variance (diagonal) must not be negative"
+    return None
+
+
+def _pair(s: tuple[float, ...]) -> str | None:
+    if s and (len(s) != 2 or any(x < 0 for x in s)):
+        return "must be two non-negative pixels (u, v), or absent"
+    return None
+
+
 @dataclass(frozen=True)
 class Residuals:
     """How well one laser's fitted ray matches its spots, in pixels."""
@@ -86,6 +138,8 @@ class CalibrationFile:
     camera: CameraModel
     lasers: tuple[LaserKeys, ...]
     residuals_px: dict[str, Residuals]
+    ray_covariance: dict[str, Annotated[tuple[tuple[float, ...], ...], _square4]] = field(default_factory=dict)
+    spot_sigma_px: Annotated[tuple[float, ...], _pair] = ()
 
     def __post_init__(self) -> None:
         rig_of(self.camera, self.lasers)  # Rig checks the laser names and the reference flag
@@ -93,7 +147,8 @@ class CalibrationFile:
     def calibration(self) -> Calibration:
         rig = rig_of(self.camera, self.lasers)
         return Calibration(rig.lasers, rig.camera, self.distances_m,
-                           {name: asdict(r) for name, r in self.residuals_px.items()}, self.created)
+                           {name: asdict(r) for name, r in self.residuals_px.items()}, self.created,
+                           dict(self.ray_covariance), self.spot_sigma_px)
 
 
 def read_calibration(path: str | Path) -> Calibration:
@@ -108,6 +163,10 @@ def write_calibration(path: str | Path, cal: Calibration) -> None:
     rig = rig_to_json(Rig(cal.camera, cal.lasers))
     doc = {"format": FORMAT, "created": cal.created, "distances_m": list(cal.distances_m),
            "camera": rig["camera"], "lasers": rig["lasers"], "residuals_px": cal.residuals_px}
+    if cal.ray_covariance:
+        doc["ray_covariance"] = {n: [list(row) for row in m] for n, m in cal.ray_covariance.items()}
+        doc["spot_sigma_px"] = list(cal.spot_sigma_px)
+        doc["range_error_m"] = {n: e.to_json() for n, e in cal.range_errors().items()}
     try:
         atomic_write_bytes(path, (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
     except OSError as exc:

@@ -85,13 +85,15 @@ def record_sweep(
     pairs: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     extra_truth: ExtraTruth | None = None,
+    rig: Rig | None = None,
 ) -> Path:
-    """Simulate one sweep of `config` and write it to `out`. Returns `out`."""
+    """Simulate one sweep of `config` and write it to `out`. Returns `out`. `rig` is the rig as
+    built (default: the configuration's with ``sim.rig_error``)."""
     sweep = config.sweep
     if zones is not None:
         sweep = replace(sweep, zones=zones, poses_deg=())
     scene = scene_for(config)
-    renderer = Renderer(scene, true_rig(config), config.sim, config.camera)
+    renderer = Renderer(scene, true_rig(config) if rig is None else rig, config.sim, config.camera)
     views = [(renderer, pan, tilt) for pan, tilt in sweep.poses()]
     return _record(config, out, views, pairs or sweep.pairs_per_zone, f"sim-{scene.name}", progress, extra_truth)
 
@@ -104,10 +106,12 @@ def record_targets(
     material: str = "paint-white",
     progress: Callable[[int, int], None] | None = None,
     extra_truth: ExtraTruth | None = None,
+    rig: Rig | None = None,
 ) -> Path:
     """Zone i shows a flat target squarely at distances_m[i] (pan 0, tilt 0): what `edge calibrate`
-    takes, and the wall test of the ranging targets."""
-    rig = true_rig(config)
+    takes, and the wall test of the ranging targets. `rig` is the rig as built (default: the
+    configuration's with ``sim.rig_error``), for a caller that builds its own mounting errors."""
+    rig = true_rig(config) if rig is None else rig
     views = [(Renderer(flat_target_scene(d, material), rig, config.sim, config.camera), 0.0, 0.0) for d in distances_m]
     return _record(config, out, views, pairs or config.sweep.pairs_per_zone, "sim-target", progress, extra_truth)
 

@@ -1,0 +1,293 @@
+"""Calibration from a board held still (issue 15): the weighted fit, the covariance it reports and
+the range error that implies, checked against the truth and against Monte-Carlo scatter; and
+`edge calibrate --check`."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edge.calibration.check import check_calibration
+from edge.calibration.file import Calibration, read_calibration, write_calibration
+from edge.calibration.fit import Spots, fit_calibration, fit_weighted
+from edge.calibration.report import report
+from edge.calibration.uncertainty import laser_range_error, ray_parameters
+from edge.cli.calibrate import run
+from edge.config import load_config
+from edge.errors import CalibrationError, UsageError
+from edge.recording import read_recording
+from edge.rig import Rig, default_rig
+from edge.sim.record import record_targets
+
+CAL = [0.4, 0.6, 1.0, 1.5, 2.0, 3.0]
+CHECK = [1.0, 2.0, 4.0]
+
+
+def mis_built(rig: Rig, seed: int) -> Rig:
+    """Each laser tilted 0.2–0.4° about a random axis and shifted up to 2 mm (as
+    tools/calib_targets.py builds them)."""
+    rng = np.random.default_rng([seed, 0xCA1B])
+    lasers = []
+    for laser in rig.lasers:
+        axis = np.cross(laser.d, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        a = math.radians(rng.uniform(0.2, 0.4))
+        d = laser.d * math.cos(a) + np.cross(axis, laser.d) * math.sin(a)
+        shift = rng.normal(size=3)
+        o = laser.o + shift / np.linalg.norm(shift) * rng.uniform(0.0, 0.002)
+        lasers.append(replace(laser, origin_m=tuple(float(c) for c in o), direction=tuple(float(c) for c in d)))
+    return replace(rig, lasers=tuple(lasers))
+
+
+@pytest.fixture(scope="module")
+def at_rest(tmp_path_factory):
+    """A rig built with mounting errors; its board at rest (no nudges, 2 off + 2 on frames) at the
+    calibration distances, and a second recording (other seed) at 1, 2 and 4 m."""
+    config = load_config(None, ["sweep.nudge_deg=0", "sim.seed=3"])
+    truth = mis_built(config.rig.build(), 3)
+    folder = tmp_path_factory.mktemp("rest")
+    cal = record_targets(config, CAL, folder / "cal", pairs=2, rig=truth)
+    second = replace(config, sim=replace(config.sim, seed=1003))
+    check = record_targets(second, CHECK, folder / "check", pairs=2, rig=truth)
+    return truth, cal, check
+
+
+@pytest.fixture(scope="module")
+def cal(at_rest) -> Calibration:
+    return fit_calibration(read_recording(at_rest[1]), CAL)
+
+
+# --- the fit against the truth --------------------------------------------------------------------
+
+
+def test_rays_from_a_board_at_rest_are_within_what_the_frames_allow(cal, at_rest):
+    truth = at_rest[0]
+    for laser in cal.lasers:
+        true = truth.laser(laser.name)
+        angle = math.degrees(math.acos(min(1.0, float(laser.d @ true.d))))
+        origin = float(np.linalg.norm(laser.point_at_depth(0.0) - true.point_at_depth(0.0)))
+        assert angle < 0.02, (laser.name, angle)
+        assert origin < 0.0005, (laser.name, origin)
+        # ... and the error is one the covariance allows (χ² of 4 parameters, 99.9 %: 18.5).
+        delta = ray_parameters(laser) - ray_parameters(true)
+        cov = np.array(cal.ray_covariance[laser.name])
+        assert float(delta @ np.linalg.solve(cov, delta)) < 18.5, laser.name
+    assert len(cal.spot_sigma_px) == 2 and all(0.02 < s < 0.3 for s in cal.spot_sigma_px)
+
+
+def test_the_predicted_range_error_grows_with_distance_and_combines(cal):
+    errors = cal.range_errors()
+    assert set(errors) == {"center", "parallel", "sloped", "combined"}
+    for e in errors.values():
+        assert e.depths_m == (1.0, 2.0, 4.0)
+        assert all(c is not None and o is not None and 0 < c < o for c, o in zip(e.calibration, e.one_range))
+        assert e.one_range[0] < e.one_range[1] < e.one_range[2]
+    lasers = [errors[n].one_range[1] for n in ("center", "parallel", "sloped")]
+    assert errors["combined"].one_range[1] < min(lasers)
+
+
+# --- covariance against Monte-Carlo scatter -------------------------------------------------------
+
+
+def _spots(rig: Rig, depths: np.ndarray, sigma_px: float, rng: np.random.Generator) -> dict[str, Spots]:
+    out = {}
+    for laser in rig.lasers:
+        px = rig.camera.project(laser.point_at_depth(depths)) + rng.normal(0.0, sigma_px, (len(depths), 2))
+        out[laser.name] = Spots(px, depths, np.full((len(depths), 2), 0.005), np.arange(len(depths)))
+    return out
+
+
+def test_covariance_and_range_error_match_monte_carlo_scatter():
+    rig = default_rig()
+    depths = np.array(CAL)
+    rng = np.random.default_rng(7)
+    params, covs, at2 = [], [], []
+    for _ in range(300):
+        fit = fit_weighted(rig.camera, _spots(rig, depths, 0.07, rng))
+        laser = fit.lasers["center"]
+        params.append(ray_parameters(laser))
+        covs.append(fit.covariance["center"])
+        true = rig.laser("center")
+        # The depth at which the fitted beam puts the true spot at 2 m: the range error it causes.
+        spot = rig.camera.project(true.point_at_depth(2.0))[None, :]
+        from edge.ranging import triangulate
+        at2.append(float(triangulate(laser, rig.camera, spot)[0, 2]) - 2.0)
+    scatter = np.cov(np.array(params).T)
+    predicted = np.mean(covs, axis=0)
+    ratio = np.diag(predicted) / np.diag(scatter)
+    assert np.all((ratio > 1 / 1.5**2) & (ratio < 1.5**2)), ratio
+    sigma2 = laser_range_error(ray_parameters(rig.laser("center")), predicted, np.zeros(2), (2.0,)).calibration[0]
+    assert sigma2 is not None
+    assert 1 / 1.5 < sigma2 / float(np.std(at2)) < 1.5, (sigma2, np.std(at2))
+
+
+def test_a_stray_spot_is_left_out_but_a_wrong_distance_is_not():
+    rig = default_rig()
+    depths = np.array(CAL)
+    data = _spots(rig, depths, 0.05, np.random.default_rng(3))
+    stray = data["parallel"]
+    moved = stray.pixels.copy()
+    moved[2] += (3.0, -2.0)
+    data["parallel"] = replace(stray, pixels=moved)
+    fit = fit_weighted(rig.camera, data)
+    assert list(fit.data["parallel"].zones) == [0, 1, 3, 4, 5]
+    assert all(len(fit.data[n].zones) == 6 for n in ("center", "sloped"))
+    angle = math.degrees(math.acos(min(1.0, float(fit.lasers["parallel"].d @ rig.laser("parallel").d))))
+    assert angle < 0.02
+    # Every laser's spot off at one distance: the distance is wrong, and nothing is left out.
+    for name, s in data.items():
+        px = s.pixels.copy()
+        px[2] += (3.0, 0.0)
+        data[name] = replace(s, pixels=px)
+    assert all(len(s.zones) == 6 for s in fit_weighted(rig.camera, data).data.values())
+
+
+# --- the file -------------------------------------------------------------------------------------
+
+
+def test_the_covariance_is_kept_in_the_file(cal, tmp_path):
+    path = tmp_path / "cal.json"
+    write_calibration(path, cal)
+    doc = json.loads(path.read_text())
+    assert set(doc["ray_covariance"]) == {"center", "parallel", "sloped"}
+    assert doc["range_error_m"]["combined"]["depths_m"] == [1.0, 2.0, 4.0]
+    back = read_calibration(path)
+    assert back.ray_covariance == cal.ray_covariance
+    assert back.spot_sigma_px == pytest.approx(cal.spot_sigma_px)
+    assert back.range_errors()["combined"].one_range == pytest.approx(cal.range_errors()["combined"].one_range)
+
+
+def test_an_older_file_without_covariance_still_loads(cal, tmp_path):
+    path = tmp_path / "old.json"
+    write_calibration(path, replace(cal, ray_covariance={}, spot_sigma_px=()))
+    doc = json.loads(path.read_text())
+    assert "ray_covariance" not in doc and "range_error_m" not in doc
+    old = read_calibration(path)
+    assert old.range_errors() == {}
+    assert any("unknown" in line for line in report(old, default_rig()))
+
+
+def test_a_bad_covariance_is_one_line_naming_the_key(cal, tmp_path):
+    path = tmp_path / "bad.json"
+    write_calibration(path, cal)
+    doc = json.loads(path.read_text())
+    doc["ray_covariance"]["center"] = doc["ray_covariance"]["center"][:3]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(CalibrationError) as info:
+        read_calibration(path)
+    assert "ray_covariance" in str(info.value) and "center" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_report_prints_the_range_error_at_1_2_4_m(cal):
+    lines = report(cal, default_rig())
+    text = "\n".join(lines)
+    assert "1 m" in text and "2 m" in text and "4 m" in text
+    assert any(line.startswith("combined") for line in lines)
+
+
+# --- --check --------------------------------------------------------------------------------------
+
+
+def test_check_measures_errors_the_prediction_expects(cal, at_rest):
+    zones = check_calibration(read_recording(at_rest[2]), CHECK, cal)
+    predicted = cal.range_errors(CHECK)
+    for k, z in enumerate(zones):
+        assert z.distance_m == CHECK[k]
+        for name in ("center", "parallel", "sloped"):
+            err = z.error(name)
+            assert err is not None, (name, z.distance_m)
+            sigma = predicted[name].one_range[k]
+            assert sigma is not None and abs(err) < 4 * sigma, (name, z.distance_m, err, sigma)
+
+
+def _args(**kw):
+    import argparse
+    base = dict(distances="1,2,4", recording=None, out=None, fit_focal=False, device=None,
+                check=None, calibration=None, config=None, set=[])
+    base.update(kw)
+    return argparse.Namespace(**base)
+
+
+def test_check_command_prints_per_distance_errors(cal, at_rest, tmp_path, capsys):
+    path = tmp_path / "cal.json"
+    write_calibration(path, cal)
+    assert run(_args(check=str(at_rest[2]), calibration=str(path))) == 0
+    out = capsys.readouterr().out.splitlines()
+    rows = [line.split() for line in out if line.split() and line.split()[0] in ("1", "2", "4")]
+    assert [r[0] for r in rows] == ["1", "2", "4"]
+    assert "predicted" in out[-1] and "measured ÷ predicted" in out[-1]
+
+
+@pytest.mark.parametrize("kw, words", [
+    (dict(distances="1,2"), ["3 zones", "2 distances"]),
+    (dict(calibration="nope.json"), ["nope.json", "no such calibration file"]),
+    (dict(calibration=None), ["--check needs --calibration"]),
+    (dict(out="x.json"), ["--check", "--out"]),
+])
+def test_check_command_refuses_bad_input_in_one_line(cal, at_rest, tmp_path, kw, words):
+    path = tmp_path / "cal.json"
+    write_calibration(path, cal)
+    args = dict(check=str(at_rest[2]), calibration=str(path))
+    args.update({k: (str(tmp_path / v) if k == "calibration" and v else v) for k, v in kw.items()})
+    with pytest.raises((CalibrationError, UsageError)) as info:
+        run(_args(**args))
+    message = str(info.value)
+    assert "\n" not in message
+    for word in words:
+        assert word in message, message
+
+
+def test_check_with_an_older_calibration_says_it_predicts_nothing(cal, at_rest, tmp_path, capsys):
+    path = tmp_path / "old.json"
+    write_calibration(path, replace(cal, ray_covariance={}, spot_sigma_px=()))
+    assert run(_args(check=str(at_rest[2]), calibration=str(path))) == 0
+    assert "predicts nothing" in capsys.readouterr().out
+
+
+def test_recordings_are_what_the_test_says(at_rest):
+    rec = read_recording(at_rest[1])
+    assert len(rec.zones) == len(CAL)
+    for zone in rec.zones:  # at rest: every frame at the zone's pose, 2 off + 2 on
+        assert len(zone.frames) == 4
+        assert all(f.pan_deg in (None, zone.pan_deg) for f in zone.frames)
+    assert Path(at_rest[2]).exists()
+
+
+# --- spots close together -------------------------------------------------------------------------
+
+
+def _frames(spots: list[tuple[float, float]], seed: int = 1) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Two laser-off and two laser-on 16-bit grey frames with Gaussian spots (σ 0.6 px, no speckle)."""
+    from edge.sim.optics import render_spot
+
+    rng = np.random.default_rng(seed)
+    light = np.zeros((120, 160))
+    for u, v in spots:
+        img = render_spot(np.array([u, v]), np.eye(2) * 0.36, 3000.0, 160, 120)
+        assert img is not None
+        h, w = img.electrons.shape
+        light[img.y0: img.y0 + h, img.x0: img.x0 + w] += img.electrons
+    def frame(extra: np.ndarray) -> np.ndarray:
+        e = 200.0 + extra
+        return np.clip(e + rng.normal(0.0, 1.0, e.shape) * np.sqrt(e + 9.0), 0, 65535).astype(np.uint16)
+    return [frame(np.zeros_like(light)) for _ in range(2)], [frame(light) for _ in range(2)]
+
+
+@pytest.mark.parametrize("apart", [2.8, 3.4, 5.0])
+def test_spots_a_few_pixels_apart_are_located_together(apart):
+    """The `center` and `parallel` spots of a rig built a few tenths of a degree off come this
+    close at 3-4 m; below about 3.5 px the smoothed picture shows them as one spot (below about
+    2.5 px even the sharper one does: they are then one blob, which assignment leaves out)."""
+    from edge.calibration.fit import located_spots
+
+    truth = [(80.3, 60.2), (80.3 + 0.3 * apart, 60.2 + 0.954 * apart)]
+    off, on = _frames(truth)
+    found = sorted((tuple(p) for p, _ in located_spots(on, off)), key=lambda p: p[1])
+    assert len(found) == 2
+    for got, true in zip(found, truth):
+        assert np.linalg.norm(np.array(got) - np.array(true)) < 0.05, (got, true)
