@@ -1,7 +1,7 @@
 """`edge calibrate`: fit the laser rays from a recording of a flat target, check a calibration on
-another such recording (``--check``), or have a running device calibrate itself over MQTT. The work is in :mod:`edge.calibration` and :mod:`edge.monitor`; it is
-imported only when the command runs (the fit needs OpenCV, which the other commands must not wait
-for)."""
+another such recording (``--check``), or have a running device calibrate itself over MQTT. The work
+is in :mod:`edge.calibration` and :mod:`edge.monitor`; it is imported only when the command runs
+(the fit needs OpenCV, which the other commands must not wait for)."""
 
 from __future__ import annotations
 
