@@ -146,11 +146,11 @@ def triangulate(laser: Laser, camera: CameraModel, pixels: np.ndarray) -> np.nda
     return o + s[:, None] * d
 
 
-def _ray(camera: CameraModel, u: float, v: float) -> tuple[float, float, float]:
+def _ray(camera: CameraModel, u: float, v: float, distorted: bool = True) -> tuple[float, float, float]:
     """Unit camera ray through pixel (u, v), in plain floats (one spot at a time, no array
-    overhead); the same as ``CameraModel.rays``."""
+    overhead); the same as ``CameraModel.rays``. `distorted`: whether the camera has distortion."""
     x, y = (u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy
-    if camera.distorted:
+    if distorted and camera.distorted:
         x, y = (float(c) for c in camera.undistort(np.array([x, y])))
     n = math.sqrt(x * x + y * y + 1.0)
     return x / n, y / n, 1.0 / n
@@ -171,13 +171,18 @@ def measure(
     """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
     u, v = float(pixel[0]), float(pixel[1])
     o, d = laser.origin_m, laser.direction
-    p = _on_beam(o, d, _ray(camera, u, v))
+    dist = camera.distorted
+
+    def depth(uu: float, vv: float) -> float:
+        return _on_beam(o, d, _ray(camera, uu, vv, dist))[2]
+
+    p = _on_beam(o, d, _ray(camera, u, v, dist))
     h = 0.05  # central differences: depth is strongly convex in the pixel far away
-    dz_du = (_on_beam(o, d, _ray(camera, u + h, v))[2] - _on_beam(o, d, _ray(camera, u - h, v))[2]) / (2 * h)
-    dz_dv = (_on_beam(o, d, _ray(camera, u, v + h))[2] - _on_beam(o, d, _ray(camera, u, v - h))[2]) / (2 * h)
+    dz_du = (depth(u + h, v) - depth(u - h, v)) / (2 * h)
+    dz_dv = (depth(u, v + h) - depth(u, v - h)) / (2 * h)
     sigma_m = math.hypot(dz_du, dz_dv) * sigma_px
     return LaserMeasurement(
-        laser.name, np.array([u, v]), sigma_px, np.array(p), p[2], sigma_m, snr, views, laser.d
+        laser.name, np.array([u, v]), sigma_px, np.array(p), p[2], sigma_m, snr, views, np.array(d)
     )
 
 
@@ -275,7 +280,13 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
     z = sum(w * m.depth_m for w, m in zip(weights, ms)) / total
     chi2 = sum(w * (m.depth_m - z) ** 2 for w, m in zip(weights, ms))
     if len(ms) > 1:
-        chi2 = max(chi2, _chi2_inverse(np.array([m.depth_m for m in ms]), np.full(len(ms), z), np.array(weights)))
+        # _chi2_inverse in plain floats
+        zf = max(abs(z), 1e-6)
+        inverse = 0.0
+        for w, m in zip(weights, ms):
+            zm = max(abs(m.depth_m), 1e-6)
+            inverse += w * zm**4 * (1.0 / zm - 1.0 / zf) ** 2
+        chi2 = max(chi2, inverse)
     point = reference.point_m if len(ms) == 1 else _point_at_depth(reference, z)
     return Fusion(z, math.sqrt(1.0 / total), point, None, chi2, len(ms) - 1, tuple(ms))
 
@@ -394,6 +405,7 @@ class Ranger:
     def __init__(self, rig: Rig, config: RangingConfig = RangingConfig()):
         self.rig = rig
         self.config = config
+        self._lasers = {laser.name: laser for laser in rig.lasers}
         self.finder = SpotFinder(
             rig, config.band_halfwidth_px, config.min_snr, channel=config.channel,
             path_tolerance_px=config.path_tolerance_px,
@@ -506,4 +518,4 @@ class Ranger:
         sigma_px = math.sqrt(noise_var + speckle**2 / views)
         snr = sum(c.snr for c in track.found) / n
         pixel = track.pixel(speckle if views > 1 else 0.0)
-        return measure(self.rig.laser(track.laser), self.rig.camera, pixel, sigma_px, snr, views)
+        return measure(self._lasers[track.laser], self.rig.camera, pixel, sigma_px, snr, views)

@@ -15,6 +15,7 @@ Frames may be 8- or 16-bit, grey or BGR; values are scaled to [0, 1] by their ty
 
 from __future__ import annotations
 
+import bisect
 import functools
 import math
 from collections.abc import Sequence
@@ -167,6 +168,13 @@ def _powers(r: int) -> np.ndarray:
     return np.stack([np.ones_like(x), x, x * x])
 
 
+def _moments(w: np.ndarray, powers: np.ndarray) -> tuple[list[float], list[float]]:
+    """Σ w, Σ w·x, Σ w·x² and Σ w, Σ w·y, Σ w·y² of a window's weights `w` (rows y, columns x),
+    `powers` being `_powers` of its half-size."""
+    m = (powers @ w @ powers.T).tolist()  # m[j][i] = Σ w·yʲ·xⁱ
+    return m[0], [m[0][0], m[1][0], m[2][0]]
+
+
 @functools.lru_cache(maxsize=16)
 def _border_index(size: int) -> np.ndarray:
     """Flat indices of the outermost ring of a size × size window."""
@@ -271,6 +279,15 @@ class SpotFinder:
         self._near_block = slice(start, start + (1 + len(NEIGHBOURS)) * near)
         # (row, column) parity of each sample that has neighbours
         self._bg_phase = (self._bg_v[:near] % 2) * 2 + self._bg_u[:near] % 2
+        # The four parities' squared noise, from the samples and their neighbours one column, one
+        # row and one diagonal away (rows of the (6, near) block; the flip of the parity each
+        # makes): by one product with a one-hot matrix (4·near, 4), and each parity's count.
+        flips = ((0, 0), (1, NEIGHBOURS.index((1, 0)) + 1), (2, NEIGHBOURS.index((0, 1)) + 1),
+                 (3, NEIGHBOURS.index((1, 1)) + 1))
+        self._parity_rows = [row for _, row in flips]
+        parity = np.concatenate([self._bg_phase ^ flip for flip, _ in flips])
+        self._parity_onehot = (parity[:, None] == np.arange(4)[None, :]).astype(np.float32)
+        self._parity_count = [max(float(c), 1.0) for c in self._parity_onehot.sum(axis=0)]
         # Window half-size for localisation; it grows for big spots.
         self._radius = 4
         self._flat: dict[int, list[tuple[np.ndarray, float]]] = {}
@@ -354,11 +371,15 @@ class SpotFinder:
             return image[rows, cols, 2].astype(np.float32)
         return image[rows, cols, :3].astype(np.float32) @ np.array(self._weights, np.float32)
 
-    def _sum(self, frames: Sequence[np.ndarray], rows, cols) -> np.ndarray:
-        """The read channel of a region, summed over `frames` (float32, not scaled)."""
+    def _scaled(self, frames: Sequence[np.ndarray], rows, cols, scale: np.float32) -> np.ndarray:
+        """The read channel of a region, summed over `frames` and times `scale` (float32)."""
+        if len(frames) == 1 and (frames[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
+            plane = frames[0][rows, cols] if frames[0].ndim == 2 else frames[0][rows, cols, 2]
+            return np.multiply(plane, scale, dtype=np.float32)
         acc = self._plane(frames[0], rows, cols)
         for image in frames[1:]:
             acc += self._plane(image, rows, cols)
+        acc *= scale
         return acc
 
     def _window(self, frames: Sequence[np.ndarray], rows, cols) -> np.ndarray:
@@ -401,7 +422,7 @@ class SpotFinder:
         noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
-        shot = noise**2 / (2.0 * max(float(boff.mean()) if boff.size else 0.0, 1e-3))
+        shot = noise**2 / (2.0 * max(float(boff.sum()) / boff.size if boff.size else 0.0, 1e-3))
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
         strips = diff[: self._bg_slice.start].reshape(self._strip_width, -1)  # (width, samples)
@@ -414,11 +435,12 @@ class SpotFinder:
         score = np.maximum(bright, dim)
         mid = score[1:-1]
         peaks = 1 + np.flatnonzero((mid > 1.0) & (mid >= score[:-2]) & (mid > score[2:]))
+        listed = peaks.tolist()
         seeds = {}
         for name in names:
             rows = self._rows[name]
             # Local maxima inside the path (its ends lie beyond the working range's margins).
-            mine = peaks[np.searchsorted(peaks, rows.start + 1) : np.searchsorted(peaks, rows.stop - 1)]
+            mine = peaks[bisect.bisect_left(listed, rows.start + 1) : bisect.bisect_left(listed, rows.stop - 1)]
             seeds[name] = self._seeds(
                 self.bands[name], rows.start, mine, score, bright, dim, strips, box, profile, local_noise,
                 matched, on, off, gain, max_candidates,
@@ -461,16 +483,12 @@ class SpotFinder:
         bayer = None
         if colour and self._weights == CHANNEL_WEIGHTS["red"] and max(rho[(1, 0)], rho[(0, 1)]) > 0.15:
             # The four (row, column) parities: the sample's own and its neighbours' flips.
-            power = np.zeros(4)
-            count = np.zeros(4)
-            for flip, dk in ((0, d0), (1, samples[1 + NEIGHBOURS.index((1, 0))]),
-                             (2, samples[1 + NEIGHBOURS.index((0, 1))]), (3, samples[1 + NEIGHBOURS.index((1, 1))])):
-                phase = self._bg_phase ^ flip
-                power += np.bincount(phase, weights=dk.astype(np.float64) ** 2, minlength=4)
-                count += np.bincount(phase, minlength=4)
-            power /= np.maximum(count, 1)
-            if power.min() > 0 and power.max() > BAYER_CONTRAST * float(np.median(power)):
-                bayer = int(power.argmax())
+            sq = samples[self._parity_rows]
+            power = ((sq * sq).ravel() @ self._parity_onehot).tolist()
+            power = [p / c for p, c in zip(power, self._parity_count)]
+            low, mid1, mid2, high = sorted(power)
+            if low > 0 and high > BAYER_CONTRAST * 0.5 * (mid1 + mid2):
+                bayer = power.index(high)
         # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
         sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
         return _Texture(area, sites, bayer)
@@ -579,10 +597,9 @@ class SpotFinder:
             if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
                 return None  # too close to the image border to localise honestly
             rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
-            lit = self._sum(on, rows, cols)
-            lit *= scale
-            win = lit - off_scale * self._sum(off, rows, cols)
-            border = win.ravel()[_border_index(2 * r + 1)]
+            lit = self._scaled(on, rows, cols, scale)
+            win = lit - self._scaled(off, rows, cols, off_scale)
+            border = win.take(_border_index(2 * r + 1))
             level = float(np.partition(border, border.size // 2)[border.size // 2])
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
@@ -596,9 +613,8 @@ class SpotFinder:
                 for ou, ov in others:
                     mine &= (gu + (seed[0] - ou)) ** 2 + (gv + (seed[1] - ov)) ** 2 >= dist
                 signal *= mine
-            col, line = signal.sum(axis=0), signal.sum(axis=1)
             powers = _powers(r)
-            mc, ml = (powers @ col).tolist(), (powers @ line).tolist()  # Σ w, Σ w·x, Σ w·x² by axis
+            mc, ml = _moments(signal, powers)
             mass = mc[0]
             if mass <= 0.0:
                 return None
@@ -663,8 +679,7 @@ class SpotFinder:
             # including the spot's own shot noise (`shot` is per unit of the averaged frames'
             # signal), grown by the noise's correlation and the fit's misfit. By moments: σ² is
             # noise² on each pixel used and shot × its signal, and Σ (x − x̄)² w = Σ x² w − 2 x̄ Σ x w + x̄² Σ w.
-            lit_px = signal > 0
-            nc, nl = (powers @ lit_px.sum(axis=0)).tolist(), (powers @ lit_px.sum(axis=1)).tolist()
+            nc, nl = _moments(np.sign(signal), powers)  # signal ≥ 0: 1 where used
             grow = texture.area * misfit / mass**2
 
             def spread(m: list[float], x: float) -> float:
