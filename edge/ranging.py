@@ -171,13 +171,30 @@ def measure(
     """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
     u, v = float(pixel[0]), float(pixel[1])
     o, d = laser.origin_m, laser.direction
-    dist = camera.distorted
-
-    def depth(uu: float, vv: float) -> float:
-        return _on_beam(o, d, _ray(camera, uu, vv, dist))[2]
-
-    p = _on_beam(o, d, _ray(camera, u, v, dist))
     h = 0.05  # central differences: depth is strongly convex in the pixel far away
+    if camera.distorted:
+
+        def depth(uu: float, vv: float) -> float:
+            return _on_beam(o, d, _ray(camera, uu, vv))[2]
+
+        p = _on_beam(o, d, _ray(camera, u, v))
+    else:
+        # _on_beam(_ray(…)) in one, for the unnormalised ray q = (x, y, 1): the beam's parameter
+        # is s = (q·d q·o − d·o q·q) / (q·q − (q·d)²).
+        (ox, oy, oz), (dx, dy, dz) = o, d
+        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+        do = dx * ox + dy * oy + dz * oz
+
+        def beam(uu: float, vv: float) -> float:
+            x, y = (uu - cx) / fx, (vv - cy) / fy
+            qq, qd, qo = x * x + y * y + 1.0, x * dx + y * dy + dz, x * ox + y * oy + oz
+            return (qd * qo - do * qq) / max(qq - qd * qd, 1e-12 * qq)
+
+        def depth(uu: float, vv: float) -> float:
+            return oz + beam(uu, vv) * dz
+
+        s0 = beam(u, v)
+        p = (ox + s0 * dx, oy + s0 * dy, oz + s0 * dz)
     dz_du = (depth(u + h, v) - depth(u - h, v)) / (2 * h)
     dz_dv = (depth(u, v + h) - depth(u, v - h)) / (2 * h)
     sigma_m = math.hypot(dz_du, dz_dv) * sigma_px

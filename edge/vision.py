@@ -69,7 +69,7 @@ def _fit_gaussian(signal: np.ndarray, use: np.ndarray, r: int, round_: bool = Fa
     centre), weighted by I² (the variance of ln I is σ²/I²); with the pixels' flat indices and the
     fit's values there. None when too few pixels are usable or the fit is not a peak. `round_` fits
     a round spot (d = e, f = 0): fewer unknowns, for few pixels."""
-    idx = np.flatnonzero(use)
+    idx = use.ravel().nonzero()[0]
     if idx.size < (6 if round_ else 10):
         return None
     mono = _monomials(r)[idx]
@@ -334,7 +334,8 @@ class SpotFinder:
 
     @staticmethod
     def full_scale(image: np.ndarray) -> float:
-        return 65535.0 if image.dtype == np.uint16 else 255.0 if image.dtype == np.uint8 else 1.0
+        kind = image.dtype.type
+        return 65535.0 if kind is np.uint16 else 255.0 if kind is np.uint8 else 1.0
 
     def _flat_index(self, image: np.ndarray) -> list[tuple[np.ndarray, float]]:
         """(indices into ``image.ravel()``, weight) per channel read, for every strip and
@@ -351,17 +352,18 @@ class SpotFinder:
         return index
 
     def _gather(self, frames: Sequence[np.ndarray]) -> np.ndarray:
+        """The read channel at every strip and background pixel, averaged over `frames`, in [0, 1]."""
+        if not frames:
+            raise ValueError("no frames to gather: a pose needs at least one laser-on and one laser-off frame")
+        scale = 1.0 / (len(frames) * self.full_scale(frames[0]))
         acc: np.ndarray | None = None
         for image in frames:
-            flat = np.ascontiguousarray(image).reshape(-1)
+            flat = image.reshape(-1) if image.flags.c_contiguous else np.ascontiguousarray(image).reshape(-1)
             for index, weight in self._flat_index(image):
-                values = np.take(flat, index).astype(np.float32)
-                if weight != 1.0:
-                    values *= np.float32(weight)
-                acc = values if acc is None else acc + values
-        if acc is None:
-            raise ValueError("no frames to gather: a pose needs at least one laser-on and one laser-off frame")
-        return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
+                values = np.multiply(flat.take(index), np.float32(weight * scale), dtype=np.float32)
+                acc = values if acc is None else np.add(acc, values, out=acc)
+        assert acc is not None
+        return acc
 
     def _plane(self, image: np.ndarray, rows, cols) -> np.ndarray:
         """The read channel of a region of `image`, float32."""
@@ -654,12 +656,17 @@ class SpotFinder:
             # The spot's core only: a neighbouring spot's wing (the centre and parallel spots are
             # 4 px apart at 5 m) is not this spot's misfit. (u² + v² − 2·du·u − 2·dv·v, from the
             # window's monomials, against the core's radius² − du² − dv².)
-            ring = _monomials(rw) @ np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0])
-            core = ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv
-            use = core & (above.ravel() > 3.0 * noise)
-            if usable is not None:
-                use &= usable.ravel()
-            gauss = _fit_gaussian(above, use, rw)
+            # Both fits below take only pixels 3 σ above the background: with fewer than a fit
+            # needs (a small spot), neither is tried.
+            strong = above.ravel() > 3.0 * noise
+            few = int(np.count_nonzero(strong)) < 10
+            gauss = None
+            if not few:
+                ring = _monomials(rw) @ np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0])
+                use = strong & (ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv)
+                if usable is not None:
+                    use &= usable.ravel()
+                gauss = _fit_gaussian(above, use, rw)
             if gauss is not None:
                 _, idx, model = gauss
                 val = above.ravel()[idx]
@@ -667,7 +674,7 @@ class SpotFinder:
                 if dof >= 3:
                     chi2 = float((((val - model) ** 2) / (noise**2 + val * shot)).sum())
                     misfit = max(1.0, chi2 / dof)
-            if clipped:
+            if clipped and not few:
                 fitted = _fit_unsaturated(signal, saturated, rw, 3.0 * noise)
                 if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
                     du, dv = fitted
