@@ -13,6 +13,7 @@ Statuses and fields follow ``shared/spec/geometry.md`` ("What a zone's result me
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Mapping, Sequence
@@ -171,36 +172,40 @@ def measure(
     """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
     u, v = float(pixel[0]), float(pixel[1])
     o, d = laser.origin_m, laser.direction
-    h = 0.05  # central differences: depth is strongly convex in the pixel far away
     if camera.distorted:
+        h = 0.05  # central differences: depth is strongly convex in the pixel far away
 
         def depth(uu: float, vv: float) -> float:
             return _on_beam(o, d, _ray(camera, uu, vv))[2]
 
         p = _on_beam(o, d, _ray(camera, u, v))
+        dz_du = (depth(u + h, v) - depth(u - h, v)) / (2 * h)
+        dz_dv = (depth(u, v + h) - depth(u, v - h)) / (2 * h)
     else:
         # _on_beam(_ray(…)) in one, for the unnormalised ray q = (x, y, 1): the beam's parameter
         # is s = (q·d q·o − d·o q·q) / (q·q − (q·d)²).
         (ox, oy, oz), (dx, dy, dz) = o, d
         fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
         do = dx * ox + dy * oy + dz * oz
-
-        def beam(uu: float, vv: float) -> float:
-            x, y = (uu - cx) / fx, (vv - cy) / fy
-            qq, qd, qo = x * x + y * y + 1.0, x * dx + y * dy + dz, x * ox + y * oy + oz
-            return (qd * qo - do * qq) / max(qq - qd * qd, 1e-12 * qq)
-
-        def depth(uu: float, vv: float) -> float:
-            return oz + beam(uu, vv) * dz
-
-        s0 = beam(u, v)
+        x, y = (u - cx) / fx, (v - cy) / fy
+        qq, qd, qo = x * x + y * y + 1.0, x * dx + y * dy + dz, x * ox + y * oy + oz
+        num, den = qd * qo - do * qq, max(qq - qd * qd, 1e-12 * qq)
+        s0 = num / den
         p = (ox + s0 * dx, oy + s0 * dy, oz + s0 * dz)
-    dz_du = (depth(u + h, v) - depth(u - h, v)) / (2 * h)
-    dz_dv = (depth(u, v + h) - depth(u, v - h)) / (2 * h)
+        # z = oz + s·dz: its derivatives in closed form (d/du = d/dx / fx).
+        dz_du = dz * ((dx * qo + qd * ox - 2.0 * do * x) - s0 * (2.0 * x - 2.0 * qd * dx)) / den / fx
+        dz_dv = dz * ((dy * qo + qd * oy - 2.0 * do * y) - s0 * (2.0 * y - 2.0 * qd * dy)) / den / fy
     sigma_m = math.hypot(dz_du, dz_dv) * sigma_px
-    return LaserMeasurement(
-        laser.name, np.array([u, v]), sigma_px, np.array(p), p[2], sigma_m, snr, views, np.array(d)
-    )
+    return LaserMeasurement(laser.name, np.array((u, v)), sigma_px, np.array(p), p[2], sigma_m, snr, views,
+                            _beam_dir(laser.direction))
+
+
+@functools.lru_cache(maxsize=64)
+def _beam_dir(direction: tuple[float, float, float]) -> np.ndarray:
+    """A laser's direction as an array, made once (LaserMeasurement.beam_dir; never written to)."""
+    out = np.array(direction, dtype=np.float64)
+    out.flags.writeable = False
+    return out
 
 
 # --- fusion -----------------------------------------------------------------------------------

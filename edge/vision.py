@@ -255,9 +255,12 @@ class SpotFinder:
         # demosaicing) and which pixels of a Bayer filter saw red.
         # (A few hundred samples tell a correlation to ±0.05: enough, and cheap.)
         self._near_n = near = min(self._bg_v.size, 400)
-        # The samples themselves come again before their neighbours: one (6, near) block.
-        near_v = [self._bg_v[:near]] + [self._bg_v[:near] + dv for _, dv in NEIGHBOURS]
-        near_u = [self._bg_u[:near]] + [self._bg_u[:near] + du for du, _ in NEIGHBOURS]
+        # Those samples last, their neighbours right after them: one (6, near) block.
+        order = np.roll(np.arange(self._bg_v.size), -near)
+        self._bg_v, self._bg_u = self._bg_v[order], self._bg_u[order]
+        first = self._bg_v.size - near
+        near_v = [self._bg_v[first:] + dv for _, dv in NEIGHBOURS]
+        near_u = [self._bg_u[first:] + du for du, _ in NEIGHBOURS]
         # Every strip pixel in one gather: cheaper than one gather per laser.
         # The strips column by column (strip width × all paths' samples): numpy reduces across a
         # strip's few columns far faster along the first axis than along a short last one.
@@ -276,9 +279,9 @@ class SpotFinder:
         start *= self._strip_width
         self._bg_slice = slice(start, start + self._bg_v.size)
         start += self._bg_v.size
-        self._near_block = slice(start, start + (1 + len(NEIGHBOURS)) * near)
+        self._near_block = slice(start - near, start + len(NEIGHBOURS) * near)
         # (row, column) parity of each sample that has neighbours
-        self._bg_phase = (self._bg_v[:near] % 2) * 2 + self._bg_u[:near] % 2
+        self._bg_phase = (self._bg_v[first:] % 2) * 2 + self._bg_u[first:] % 2
         # The four parities' squared noise, from the samples and their neighbours one column, one
         # row and one diagonal away (rows of the (6, near) block; the flip of the parity each
         # makes): by one product with a one-hot matrix (4·near, 4), and each parity's count.
