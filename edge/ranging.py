@@ -43,7 +43,8 @@ class RangingConfig:
 
     band_halfwidth_px: float = 3.0  # how far from its ideal path a spot is searched for
     path_tolerance_px: float = 1.5  # how far from it a spot may lie and still be that laser's
-    channel: Literal["red", "luma"] = "red"  # what colour frames are read from (vision.py)
+    # What colour frames are read from (vision.py): red, luma, or auto (luma for 4:2:0 JPEG frames).
+    channel: Literal["red", "luma", "auto"] = "auto"
     min_snr: float = 6.0  # a spot's peak over the difference image's noise
     # The spot position error that laser speckle adds, per distinct view (1 σ, px). 0.1 px is the
     # order for a pointer seen at f/2; averaging views with different speckle divides it by √n.

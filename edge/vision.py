@@ -32,7 +32,15 @@ FAR_FACTOR = 1.6
 # What a colour frame's spot is read from, as weights of its B, G, R channels. `red` suits raw or
 # lossless frames of a red pointer; `luma` suits JPEG (MJPEG webcams), which keeps only luminance
 # at full resolution and blurs and shifts a small red spot's chroma by up to a pixel.
+# `auto` reads luma when the frames' chroma is at half resolution (JPEG 4:2:0), else red.
 CHANNEL_WEIGHTS = {"red": (0.0, 0.0, 1.0), "luma": (0.114, 0.587, 0.299)}
+CHANNELS = (*CHANNEL_WEIGHTS, "auto")
+# Chroma stored at half resolution (JPEG's 4:2:0) and interpolated back leaves the noise of red
+# minus green correlated 2 px apart (0.45-0.85 measured, higher at lower quality); full-resolution
+# chroma (raw, PNG, a demosaiced Bayer filter) leaves it near 0.1 or below, JPEG 4:4:4 0.3-0.65.
+CHROMA_LAG2 = 0.4
+# `auto` decides from this many frame groups (the median of their chroma correlations), then keeps it.
+AUTO_GROUPS = 8
 
 
 # Offsets (du, dv) of the neighbours of each background sample that are read too: the noise's
@@ -237,9 +245,11 @@ class SpotFinder:
         self.max_spot_px = max_spot_px
         self.halfwidth = band_halfwidth_px
         self.path_tolerance = path_tolerance_px
-        if channel not in CHANNEL_WEIGHTS:
-            raise ValueError(f"channel must be one of {', '.join(CHANNEL_WEIGHTS)}, got {channel!r}")
-        self._weights = CHANNEL_WEIGHTS[channel]  # (B, G, R) of a colour frame
+        if channel not in CHANNELS:
+            raise ValueError(f"channel must be one of {', '.join(CHANNELS)}, got {channel!r}")
+        self._auto = channel == "auto"
+        self._chroma_lag2: list[float] = []  # `auto`'s measurements so far
+        self._weights = CHANNEL_WEIGHTS["red" if self._auto else channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
         self.bands = {name: self._band(rig.laser(name)) for name in names}
         # Sparse background sample for the flicker gain: a grid over the frame minus the bands.
@@ -293,7 +303,7 @@ class SpotFinder:
         self._parity_count = [max(float(c), 1.0) for c in self._parity_onehot.sum(axis=0)]
         # Window half-size for localisation; it grows for big spots.
         self._radius = 4
-        self._flat: dict[int, list[tuple[np.ndarray, float]]] = {}
+        self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
 
     def _band(self, laser: Laser) -> _Band:
         cam = self.rig.camera
@@ -344,14 +354,14 @@ class SpotFinder:
         """(indices into ``image.ravel()``, weight) per channel read, for every strip and
         background pixel."""
         channels = image.shape[2] if image.ndim == 3 else 1
-        index = self._flat.get(channels)
+        index = self._flat.get((channels, self._weights))
         if index is None:
             pixel = self._all_v.astype(np.intp) * self.rig.camera.width + self._all_u
             if channels == 1:
                 index = [(pixel, 1.0)]
             else:
                 index = [(pixel * channels + c, w) for c, w in enumerate(self._weights) if w]
-            self._flat[channels] = index
+            self._flat[(channels, self._weights)] = index
         return index
 
     def _gather(self, frames: Sequence[np.ndarray]) -> np.ndarray:
@@ -406,6 +416,12 @@ class SpotFinder:
         `lasers`: the lasers that were on (default: all of this finder's).
         """
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
+        if self._auto and len(self._chroma_lag2) < AUTO_GROUPS and on[0].ndim == 3:
+            rho = self._chroma_correlation(on[0], off[0])
+            if rho is not None:
+                self._chroma_lag2.append(rho)
+                luma = float(np.median(self._chroma_lag2)) > CHROMA_LAG2
+                self._weights = CHANNEL_WEIGHTS["luma" if luma else "red"]
         on_vals = self._gather(on)
         off_vals = self._gather(off)
         # Room light may differ between the frames (flicker): scale the off frame to the on frame
@@ -464,6 +480,35 @@ class SpotFinder:
                     out.append(cand)
             found[name] = out
         return found
+
+    @property
+    def channel(self) -> str:
+        """What colour frames are read from now: ``red`` or ``luma`` (``auto`` has chosen one)."""
+        return "luma" if self._weights == CHANNEL_WEIGHTS["luma"] else "red"
+
+    def _chroma_correlation(self, on: np.ndarray, off: np.ndarray) -> float | None:
+        """The correlation 2 px along a row of the difference image's chroma noise (red minus
+        green) at the background samples: high when chroma was stored at half resolution (or, less
+        so, coarsely quantised: JPEG at 4:4:4 and low quality can pass for it, where luma places a
+        spot about a quarter worse than red). None when the chroma shows no noise to tell by."""
+        first = self._bg_v.size - self._near_n
+        lag = NEIGHBOURS.index((2, 0))
+        width, channels = self.rig.camera.width, on.shape[2]
+        v = np.concatenate([self._bg_v[first:], self._bg_v[first:]])
+        u = np.concatenate([self._bg_u[first:], self._bg_u[first:] + NEIGHBOURS[lag][0]])
+        pixel = (v.astype(np.intp) * width + u) * channels
+        flat_on, flat_off = on.reshape(-1), off.reshape(-1)
+        chroma = [flat_on.take(pixel + c).astype(np.float64) - flat_off.take(pixel + c) for c in (2, 1)]
+        c = (chroma[0] - chroma[1]).reshape(2, -1)
+        c -= np.median(c)
+        # Mean absolute deviation: JPEG leaves most of an 8-bit frame's chroma differences at 0,
+        # where the median's would be 0 too.
+        scale = float(np.abs(c).mean())
+        if scale <= 0.0:
+            return None  # JPEG has quantised the noise away (or there is none): no evidence
+        c = np.clip(c, -6.0 * scale, 6.0 * scale)
+        var = float(c[0] @ c[0])
+        return float(c[0] @ c[1]) / var if var > 0 else None
 
     def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:
         """How the difference image's noise is correlated, from the background samples and their

@@ -144,3 +144,33 @@ def test_luma_channel_reads_jpeg_frames() -> None:
     assert luma and np.linalg.norm(luma[0].pixel - truth) < 0.4
     with pytest.raises(ValueError, match="channel must be one of"):
         SpotFinder(renderer.rig, channel="green")
+
+
+@pytest.mark.parametrize(("sensor", "expect"), [
+    ({"jpeg_quality": 75, "jpeg_chroma": "4:2:0"}, "luma"),
+    ({"bayer": "bilinear"}, "red"),
+    ({}, "red"),
+])
+def test_auto_channel_reads_luma_from_4_2_0_jpeg(sensor: dict, expect: str) -> None:
+    # 4:2:0 stores red at half resolution: its chroma noise is correlated 2 px apart, and luma
+    # places the spot (red was off by 0.5 px rms there); lossless frames keep red.
+    renderer = _renderer(load_scene("office"), **sensor)
+    finder = SpotFinder(renderer.rig, channel="auto")
+    on, off = _pair(renderer, pan=-90.0, seed=3)  # a wall about 1.3 m away
+    found = finder.find([on], [off])["center"]
+    assert finder.channel == expect
+    truth = renderer.spots(-90.0, 0.0)["center"].pixel
+    assert found and np.linalg.norm(found[0].pixel - truth) < 0.3
+
+
+def test_auto_channel_without_chroma_noise_stays_red() -> None:
+    renderer = _renderer(flat_target_scene(1.5), colour=False)
+    finder = SpotFinder(renderer.rig, channel="auto")
+    on, off = _pair(renderer)
+    assert finder.find([on], [off])["center"]
+    assert finder.channel == "red"  # grey frames: the grey value, whatever the name
+    renderer = _renderer(flat_target_scene(1.5), jpeg_quality=75)
+    finder = SpotFinder(renderer.rig, channel="auto")
+    on, off = _pair(renderer)
+    assert finder.find([on], [off])["center"]
+    assert finder.channel == "red"  # JPEG quantised the noise away: no evidence, no change
