@@ -39,6 +39,8 @@ CHANNELS = (*CHANNEL_WEIGHTS, "auto")
 # minus green correlated 2 px apart (0.45-0.85 measured, higher at lower quality); full-resolution
 # chroma (raw, PNG, a demosaiced Bayer filter) leaves it near 0.1 or below, JPEG 4:4:4 0.3-0.65.
 CHROMA_LAG2 = 0.4
+# A spot's position error from demosaicing (1 σ, px) that red read from a demosaiced frame carries.
+DEMOSAIC_PX = 0.25
 # `auto` decides from this many frame groups (the median of their chroma correlations), then keeps it.
 AUTO_GROUPS = 8
 
@@ -213,6 +215,7 @@ class _Texture:
     area: float  # Σ of its correlation over neighbouring pixels: a centroid's variance grows by it
     sites: float  # the same over a Bayer filter's red pixels alone (2 px apart)
     bayer: int | None  # the (row, column) parity of red pixels, 2·row + column; None: no filter seen
+    demosaiced: bool = False  # red read from a colour frame whose red noise is spread over neighbours
 
 
 @dataclass(frozen=True)
@@ -531,7 +534,8 @@ class SpotFinder:
         along_v = 1.0 + 2.0 * rho[(0, 1)] + 2.0 * rho[(0, 2)]
         area = min(max(along_u * along_v, 1.0), 25.0)
         bayer = None
-        if colour and self._weights == CHANNEL_WEIGHTS["red"] and max(rho[(1, 0)], rho[(0, 1)]) > 0.15:
+        demosaiced = colour and self._weights == CHANNEL_WEIGHTS["red"] and max(rho[(1, 0)], rho[(0, 1)]) > 0.15
+        if demosaiced:
             # The four (row, column) parities: the sample's own and its neighbours' flips.
             sq = samples[self._parity_rows]
             power = ((sq * sq).ravel() @ self._parity_onehot).tolist()
@@ -541,7 +545,7 @@ class SpotFinder:
                 bayer = power.index(high)
         # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
         sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
-        return _Texture(area, sites, bayer)
+        return _Texture(area, sites, bayer, demosaiced)
 
     def _local(self, strips: np.ndarray, noise: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Along every path, in stretches of about 24 px: the level and noise (mean absolute
@@ -742,6 +746,12 @@ class SpotFinder:
 
             var_u = grow * (noise**2 * spread(nc, du) + shot * spread(mc, du))
             var_v = grow * (noise**2 * spread(nl, dv) + shot * spread(ml, dv))
+        if texture.demosaiced:
+            # Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation
+            # shifts a small spot by up to a few tenths of a pixel, depending on the method and
+            # where the spot falls (OpenCV's edge-aware one by 0.2-0.4 px on average).
+            var_u += DEMOSAIC_PX**2
+            var_v += DEMOSAIC_PX**2
         # Where along the path, and how far from it, from the strip row the seed came from.
         pu, pv = float(band.path[row, 0]), float(band.path[row, 1])
         tu, tv = float(band.tangent[row, 0]), float(band.tangent[row, 1])
