@@ -528,7 +528,8 @@ class Ranger:
         for name, ts in tracks.items():
             need = max(1, math.ceil(expected[name] / 2))
             kept = [t for t in ts if len(t.found) >= need]
-            kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
+            if len(kept) > 1:
+                kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
             out[name] = kept[:3]
         return out
 

@@ -476,7 +476,8 @@ class SpotFinder:
         for name, ss in seeds.items():
             out = []
             for u, v, peak, row, mf, here in ss:
-                others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius]
+                others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius
+                          ] if len(everywhere) > 1 else []
                 cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
                                     mf, texture)
                 if cand is not None:
@@ -597,7 +598,8 @@ class SpotFinder:
         columns 1 … width − 2), `profile` each path sample's brightest value across the strip;
         `bright` and `dim` each peak's detection score as a bright pixel and by the matched filter
         (1: at the threshold), `score` the larger."""
-        peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
+        if peaks.size > 1:
+            peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
         seeds: list[tuple[int, int, float, int, float, float]] = []
         for i in peaks.tolist():
             j = int(strips[:, i].argmax()) if bright[i] >= dim[i] else 1 + int(box[:, i].argmax())
