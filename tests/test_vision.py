@@ -195,3 +195,26 @@ def test_sigma_covers_the_shift_of_an_edge_aware_demosaicing() -> None:
                 within.append(bool(error.max() <= 2.0 * c.sigma_px))
     assert len(within) >= 8
     assert np.mean(within) >= 0.8
+
+
+def test_a_big_spot_behind_a_bayer_filter_is_localised_after_the_window_grows() -> None:
+    # A defocused spot (σ 3 px) grows the localisation window three times; the Bayer fit must use
+    # the last window's pixels (it once took the next window's size, and raised).
+    from edge.vision import _Texture
+
+    rig = load_config().rig.build()
+    finder = SpotFinder(rig)
+    band = finder.bands["center"]
+    row = len(band.path) // 2
+    cu, cv = (float(c) for c in band.path[row])
+    vv, uu = np.mgrid[0 : rig.camera.height, 0 : rig.camera.width]
+    spot = 200.0 * np.exp(-0.5 * ((uu - cu) ** 2 + (vv - cv) ** 2) / 3.0**2)
+    on = np.zeros((rig.camera.height, rig.camera.width, 3), np.uint8)
+    on[..., 2] = np.clip(np.rint(spot + 10.0), 0, 255).astype(np.uint8)
+    off = np.zeros_like(on)
+    off[..., 2] = 10
+    seed = (int(round(cu)) + 2, int(round(cv)) + 1)
+    cand = finder._refine(band, seed, row, [], [on], [off], 1.0, 2.0 / 255, 1e-4, 200.0 / 255,
+                          texture=_Texture(1.0, 1.0, 0))
+    assert cand is not None
+    assert np.linalg.norm(cand.pixel - [cu, cv]) < 0.2
