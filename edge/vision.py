@@ -744,7 +744,8 @@ class SpotFinder:
             grow = texture.area * misfit / mass**2
 
             def spread(m: list[float], x: float) -> float:
-                return m[2] - 2.0 * x * m[1] + x * x * m[0]
+                # ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
+                return max(m[2] - 2.0 * x * m[1] + x * x * m[0], 0.0)
 
             var_u = grow * (noise**2 * spread(nc, du) + shot * spread(mc, du))
             var_v = grow * (noise**2 * spread(nl, dv) + shot * spread(ml, dv))

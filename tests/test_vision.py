@@ -218,3 +218,18 @@ def test_a_big_spot_behind_a_bayer_filter_is_localised_after_the_window_grows() 
                           texture=_Texture(1.0, 1.0, 0))
     assert cand is not None
     assert np.linalg.norm(cand.pixel - [cu, cv]) < 0.2
+
+
+def test_a_one_pixel_spot_is_localised_on_its_pixel() -> None:
+    # All of a spot's signal in one pixel: its spread is 0 (the moments once rounded it below 0).
+    rig = load_config().rig.build()
+    finder = SpotFinder(rig)
+    band = finder.bands["center"]
+    row = len(band.path) // 2
+    u, v = (int(round(float(c))) for c in band.path[row])
+    on = np.full((rig.camera.height, rig.camera.width, 3), 10, np.uint8)
+    off = on.copy()
+    on[v, u, 2] = 250
+    cand = finder._refine(band, (u, v), row, [], [on], [off], 1.0, 1.0 / 255, 1e-4, 240.0 / 255)
+    assert cand is not None
+    assert np.abs(cand.pixel - [u, v]).max() < 1e-6 and cand.sigma_px >= 0.0
