@@ -701,7 +701,8 @@ class SpotFinder:
             fit = _fit_sites(above, red if usable is None else red & usable, var_all, offs, du, dv, size)
             # A fit that leaves far more than noise, or knows the centre to worse than a pixel, has
             # not found the spot's shape: the centroid then.
-            if fit is not None and fit[3] < 10.0 and float(np.trace(fit[2])) < 1.0:
+            # (Nor does one whose covariance is not positive: an ill-conditioned fit.)
+            if fit is not None and fit[3] < 10.0 and float(np.trace(fit[2])) < 1.0 and min(np.diag(fit[2])) > 0.0:
                 du, dv, cov, misfit = fit
                 misfit = max(misfit, 1.0)
                 cu, cv = u0 + du, v0 + dv
