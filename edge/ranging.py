@@ -13,6 +13,7 @@ Statuses and fields follow ``shared/spec/geometry.md`` ("What a zone's result me
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Mapping, Sequence
@@ -42,7 +43,8 @@ class RangingConfig:
 
     band_halfwidth_px: float = 3.0  # how far from its ideal path a spot is searched for
     path_tolerance_px: float = 1.5  # how far from it a spot may lie and still be that laser's
-    channel: Literal["red", "luma"] = "red"  # what colour frames are read from (vision.py)
+    # What colour frames are read from (vision.py): red, luma, or auto (luma for 4:2:0 JPEG frames).
+    channel: Literal["red", "luma", "auto"] = "auto"
     min_snr: float = 6.0  # a spot's peak over the difference image's noise
     # The spot position error that laser speckle adds, per distinct view (1 σ, px). 0.1 px is the
     # order for a pointer seen at f/2; averaging views with different speckle divides it by √n.
@@ -146,11 +148,11 @@ def triangulate(laser: Laser, camera: CameraModel, pixels: np.ndarray) -> np.nda
     return o + s[:, None] * d
 
 
-def _ray(camera: CameraModel, u: float, v: float) -> tuple[float, float, float]:
+def _ray(camera: CameraModel, u: float, v: float, distorted: bool = True) -> tuple[float, float, float]:
     """Unit camera ray through pixel (u, v), in plain floats (one spot at a time, no array
-    overhead); the same as ``CameraModel.rays``."""
+    overhead); the same as ``CameraModel.rays``. `distorted`: whether the camera has distortion."""
     x, y = (u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy
-    if camera.distorted:
+    if distorted and camera.distorted:
         x, y = (float(c) for c in camera.undistort(np.array([x, y])))
     n = math.sqrt(x * x + y * y + 1.0)
     return x / n, y / n, 1.0 / n
@@ -171,14 +173,40 @@ def measure(
     """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
     u, v = float(pixel[0]), float(pixel[1])
     o, d = laser.origin_m, laser.direction
-    p = _on_beam(o, d, _ray(camera, u, v))
-    h = 0.05  # central differences: depth is strongly convex in the pixel far away
-    dz_du = (_on_beam(o, d, _ray(camera, u + h, v))[2] - _on_beam(o, d, _ray(camera, u - h, v))[2]) / (2 * h)
-    dz_dv = (_on_beam(o, d, _ray(camera, u, v + h))[2] - _on_beam(o, d, _ray(camera, u, v - h))[2]) / (2 * h)
+    if camera.distorted:
+        h = 0.05  # central differences: depth is strongly convex in the pixel far away
+
+        def depth(uu: float, vv: float) -> float:
+            return _on_beam(o, d, _ray(camera, uu, vv))[2]
+
+        p = _on_beam(o, d, _ray(camera, u, v))
+        dz_du = (depth(u + h, v) - depth(u - h, v)) / (2 * h)
+        dz_dv = (depth(u, v + h) - depth(u, v - h)) / (2 * h)
+    else:
+        # _on_beam(_ray(…)) in one, for the unnormalised ray q = (x, y, 1): the beam's parameter
+        # is s = (q·d q·o − d·o q·q) / (q·q − (q·d)²).
+        (ox, oy, oz), (dx, dy, dz) = o, d
+        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+        do = dx * ox + dy * oy + dz * oz
+        x, y = (u - cx) / fx, (v - cy) / fy
+        qq, qd, qo = x * x + y * y + 1.0, x * dx + y * dy + dz, x * ox + y * oy + oz
+        num, den = qd * qo - do * qq, max(qq - qd * qd, 1e-12 * qq)
+        s0 = num / den
+        p = (ox + s0 * dx, oy + s0 * dy, oz + s0 * dz)
+        # z = oz + s·dz: its derivatives in closed form (d/du = d/dx / fx).
+        dz_du = dz * ((dx * qo + qd * ox - 2.0 * do * x) - s0 * (2.0 * x - 2.0 * qd * dx)) / den / fx
+        dz_dv = dz * ((dy * qo + qd * oy - 2.0 * do * y) - s0 * (2.0 * y - 2.0 * qd * dy)) / den / fy
     sigma_m = math.hypot(dz_du, dz_dv) * sigma_px
-    return LaserMeasurement(
-        laser.name, np.array([u, v]), sigma_px, np.array(p), p[2], sigma_m, snr, views, laser.d
-    )
+    return LaserMeasurement(laser.name, np.array((u, v)), sigma_px, np.array(p), p[2], sigma_m, snr, views,
+                            _beam_dir(laser.direction))
+
+
+@functools.lru_cache(maxsize=64)
+def _beam_dir(direction: tuple[float, float, float]) -> np.ndarray:
+    """A laser's direction as an array, made once (LaserMeasurement.beam_dir; never written to)."""
+    out = np.array(direction, dtype=np.float64)
+    out.flags.writeable = False
+    return out
 
 
 # --- fusion -----------------------------------------------------------------------------------
@@ -275,7 +303,13 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
     z = sum(w * m.depth_m for w, m in zip(weights, ms)) / total
     chi2 = sum(w * (m.depth_m - z) ** 2 for w, m in zip(weights, ms))
     if len(ms) > 1:
-        chi2 = max(chi2, _chi2_inverse(np.array([m.depth_m for m in ms]), np.full(len(ms), z), np.array(weights)))
+        # _chi2_inverse in plain floats
+        zf = max(abs(z), 1e-6)
+        inverse = 0.0
+        for w, m in zip(weights, ms):
+            zm = max(abs(m.depth_m), 1e-6)
+            inverse += w * zm**4 * (1.0 / zm - 1.0 / zf) ** 2
+        chi2 = max(chi2, inverse)
     point = reference.point_m if len(ms) == 1 else _point_at_depth(reference, z)
     return Fusion(z, math.sqrt(1.0 / total), point, None, chi2, len(ms) - 1, tuple(ms))
 
@@ -394,6 +428,7 @@ class Ranger:
     def __init__(self, rig: Rig, config: RangingConfig = RangingConfig()):
         self.rig = rig
         self.config = config
+        self._lasers = {laser.name: laser for laser in rig.lasers}
         self.finder = SpotFinder(
             rig, config.band_halfwidth_px, config.min_snr, channel=config.channel,
             path_tolerance_px=config.path_tolerance_px,
@@ -493,7 +528,8 @@ class Ranger:
         for name, ts in tracks.items():
             need = max(1, math.ceil(expected[name] / 2))
             kept = [t for t in ts if len(t.found) >= need]
-            kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
+            if len(kept) > 1:
+                kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
             out[name] = kept[:3]
         return out
 
@@ -506,4 +542,4 @@ class Ranger:
         sigma_px = math.sqrt(noise_var + speckle**2 / views)
         snr = sum(c.snr for c in track.found) / n
         pixel = track.pixel(speckle if views > 1 else 0.0)
-        return measure(self.rig.laser(track.laser), self.rig.camera, pixel, sigma_px, snr, views)
+        return measure(self._lasers[track.laser], self.rig.camera, pixel, sigma_px, snr, views)

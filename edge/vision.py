@@ -15,6 +15,7 @@ Frames may be 8- or 16-bit, grey or BGR; values are scaled to [0, 1] by their ty
 
 from __future__ import annotations
 
+import bisect
 import functools
 import math
 from collections.abc import Sequence
@@ -31,7 +32,17 @@ FAR_FACTOR = 1.6
 # What a colour frame's spot is read from, as weights of its B, G, R channels. `red` suits raw or
 # lossless frames of a red pointer; `luma` suits JPEG (MJPEG webcams), which keeps only luminance
 # at full resolution and blurs and shifts a small red spot's chroma by up to a pixel.
+# `auto` reads luma when the frames' chroma is at half resolution (JPEG 4:2:0), else red.
 CHANNEL_WEIGHTS = {"red": (0.0, 0.0, 1.0), "luma": (0.114, 0.587, 0.299)}
+CHANNELS = (*CHANNEL_WEIGHTS, "auto")
+# Chroma stored at half resolution (JPEG's 4:2:0) and interpolated back leaves the noise of red
+# minus green correlated 2 px apart (0.45-0.85 measured, higher at lower quality); full-resolution
+# chroma (raw, PNG, a demosaiced Bayer filter) leaves it near 0.1 or below, JPEG 4:4:4 0.3-0.65.
+CHROMA_LAG2 = 0.4
+# A spot's position error from demosaicing (1 σ, px) that red read from a demosaiced frame carries.
+DEMOSAIC_PX = 0.25
+# `auto` decides from this many frame groups (the median of their chroma correlations), then keeps it.
+AUTO_GROUPS = 8
 
 
 # Offsets (du, dv) of the neighbours of each background sample that are read too: the noise's
@@ -46,48 +57,54 @@ MATCHED_SNR = 5.0
 BAYER_CONTRAST = 1.6
 
 
+# Path samples (about half a pixel apart) whose noise `SpotFinder._local` measures together.
+_STRETCH = 48
 # A pixel at this fraction of full scale in a laser-on frame is taken as clipped.
 _SATURATED = 0.985
 
 
-def _fit_gaussian(signal: np.ndarray, use: np.ndarray, offs: np.ndarray, round_: bool = False) -> np.ndarray | None:
-    """A Gaussian fitted to the pixels `use` of `signal` (window offsets `offs` from its centre):
-    the coefficients (a, b, c, d, e, f) of ln I = a + b·u + c·v + d·u² + e·v² + f·u·v, weighted by I²
-    (the variance of ln I is σ²/I²), or None when too few pixels are usable or the fit is not a peak.
-    `round_` fits a round spot (d = e, f = 0): fewer unknowns, for few pixels."""
-    need = 6 if round_ else 10
-    if int(use.sum()) < need:
+@functools.lru_cache(maxsize=16)
+def _monomials(r: int) -> np.ndarray:
+    """(1, u, v, u², v², u·v) of every pixel of a (2r + 1)² window, row by row (v), offsets from
+    its centre: (n, 6) float64."""
+    v, u = np.divmod(np.arange((2 * r + 1) ** 2), 2 * r + 1)
+    u, v = (u - r).astype(np.float64), (v - r).astype(np.float64)
+    return np.stack([np.ones_like(u), u, v, u * u, v * v, u * v], axis=1)
+
+
+def _fit_gaussian(signal: np.ndarray, use: np.ndarray, r: int, round_: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """A Gaussian fitted to the pixels `use` of `signal`, a (2r + 1)² window: the coefficients
+    (a, b, c, d, e, f) of ln I = a + b·u + c·v + d·u² + e·v² + f·u·v (offsets from the window's
+    centre), weighted by I² (the variance of ln I is σ²/I²); with the pixels' flat indices and the
+    fit's values there. None when too few pixels are usable or the fit is not a peak. `round_` fits
+    a round spot (d = e, f = 0): fewer unknowns, for few pixels."""
+    idx = use.ravel().nonzero()[0]
+    if idx.size < (6 if round_ else 10):
         return None
-    gv, gu = np.meshgrid(offs, offs, indexing="ij")
-    u, v, val = gu[use], gv[use], signal[use].astype(np.float64)
+    mono = _monomials(r)[idx]
+    val = signal.ravel()[idx].astype(np.float64)
     if round_:
-        design = np.stack([np.ones_like(u), u, v, u * u + v * v], axis=1) * val[:, None]
-    else:
-        design = np.stack([np.ones_like(u), u, v, u * u, v * v, u * v], axis=1) * val[:, None]
+        mono = np.stack([mono[:, 0], mono[:, 1], mono[:, 2], mono[:, 3] + mono[:, 4]], axis=1)
+    design = mono * val[:, None]
     try:
         coef = np.linalg.solve(design.T @ design, design.T @ (np.log(val) * val))
     except np.linalg.LinAlgError:
         return None
+    fitted = np.exp(np.minimum(mono @ coef, 60.0))
     if round_:
         coef = np.array([coef[0], coef[1], coef[2], coef[3], coef[3], 0.0])
     _, _, _, d, e, f = coef
     if d >= 0 or e >= 0 or 4.0 * d * e - f * f <= 0:
         return None
-    return np.asarray(coef, dtype=np.float64)
+    return coef, idx, fitted
 
 
 def _centre(coef: np.ndarray) -> tuple[float, float]:
     """The peak (du, dv) of a fitted Gaussian (`_fit_gaussian`'s coefficients)."""
-    _, b, c, d, e, f = coef
-    du, dv = np.linalg.solve(np.array([[2.0 * d, f], [f, 2.0 * e]]), [-b, -c])
-    return float(du), float(dv)
-
-
-def _model(coef: np.ndarray, offs: np.ndarray) -> np.ndarray:
-    """The fitted Gaussian over the window (rows v, columns u)."""
-    a, b, c, d, e, f = coef
-    v, u = offs[:, None].astype(np.float64), offs[None, :].astype(np.float64)
-    return np.exp(np.minimum(a + b * u + c * v + d * u * u + e * v * v + f * u * v, 60.0))
+    _, b, c, d, e, f = coef.tolist()
+    det = 4.0 * d * e - f * f
+    return (f * c - 2.0 * e * b) / det, (f * b - 2.0 * d * c) / det
 
 
 def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.ndarray, du: float, dv: float,
@@ -137,17 +154,35 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
     return u, v, cov, chi2
 
 
-def _fit_unsaturated(
-    signal: np.ndarray, saturated: np.ndarray, offs: np.ndarray, floor: float
-) -> tuple[float, float] | None:
+def _fit_unsaturated(signal: np.ndarray, saturated: np.ndarray, r: int, floor: float) -> tuple[float, float] | None:
     """Centre of a spot whose core is clipped, from a Gaussian fitted to its unclipped pixels.
 
     The centroid of a clipped, pixel-sampled spot is biased by up to ~0.07 px depending on where
     the spot falls within a pixel ("pixel locking"); the wings still carry the position.
-    Returns (du, dv) relative to the window centre, or None when the fit is not a peak.
+    Returns (du, dv) relative to the centre of the (2r + 1)² window, or None when the fit is not a peak.
     """
-    coef = _fit_gaussian(signal, ~saturated & (signal > floor), offs)
-    return None if coef is None else _centre(coef)
+    fit = _fit_gaussian(signal, ~saturated & (signal > floor), r)
+    return None if fit is None else _centre(fit[0])
+
+
+@functools.lru_cache(maxsize=16)
+def _offsets(r: int) -> np.ndarray:
+    """A window's offsets from its centre, −r … r (float32)."""
+    return np.arange(-r, r + 1, dtype=np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def _powers(r: int) -> np.ndarray:
+    """1, x and x² of a window's offsets −r … r: (3, 2r + 1) float64, for its moments by matrix product."""
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    return np.stack([np.ones_like(x), x, x * x])
+
+
+def _moments(w: np.ndarray, powers: np.ndarray) -> tuple[list[float], list[float]]:
+    """Σ w, Σ w·x, Σ w·x² and Σ w, Σ w·y, Σ w·y² of a window's weights `w` (rows y, columns x),
+    `powers` being `_powers` of its half-size."""
+    m = (powers @ w @ powers.T).tolist()  # m[j][i] = Σ w·yʲ·xⁱ
+    return m[0], [m[0][0], m[1][0], m[2][0]]
 
 
 @functools.lru_cache(maxsize=16)
@@ -180,6 +215,7 @@ class _Texture:
     area: float  # Σ of its correlation over neighbouring pixels: a centroid's variance grows by it
     sites: float  # the same over a Bayer filter's red pixels alone (2 px apart)
     bayer: int | None  # the (row, column) parity of red pixels, 2·row + column; None: no filter seen
+    demosaiced: bool = False  # red read from a colour frame whose red noise is spread over neighbours
 
 
 @dataclass(frozen=True)
@@ -212,9 +248,11 @@ class SpotFinder:
         self.max_spot_px = max_spot_px
         self.halfwidth = band_halfwidth_px
         self.path_tolerance = path_tolerance_px
-        if channel not in CHANNEL_WEIGHTS:
-            raise ValueError(f"channel must be one of {', '.join(CHANNEL_WEIGHTS)}, got {channel!r}")
-        self._weights = CHANNEL_WEIGHTS[channel]  # (B, G, R) of a colour frame
+        if channel not in CHANNELS:
+            raise ValueError(f"channel must be one of {', '.join(CHANNELS)}, got {channel!r}")
+        self._auto = channel == "auto"
+        self._chroma_lag2: list[float] = []  # `auto`'s measurements so far
+        self._weights = CHANNEL_WEIGHTS["red" if self._auto else channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
         self.bands = {name: self._band(rig.laser(name)) for name in names}
         # Sparse background sample for the flicker gain: a grid over the frame minus the bands.
@@ -230,26 +268,45 @@ class SpotFinder:
         # demosaicing) and which pixels of a Bayer filter saw red.
         # (A few hundred samples tell a correlation to ±0.05: enough, and cheap.)
         self._near_n = near = min(self._bg_v.size, 400)
-        near_v = [self._bg_v[:near] + dv for _, dv in NEIGHBOURS]
-        near_u = [self._bg_u[:near] + du for du, _ in NEIGHBOURS]
+        # Those samples last, their neighbours right after them: one (6, near) block.
+        order = np.roll(np.arange(self._bg_v.size), -near)
+        self._bg_v, self._bg_u = self._bg_v[order], self._bg_u[order]
+        first = self._bg_v.size - near
+        near_v = [self._bg_v[first:] + dv for _, dv in NEIGHBOURS]
+        near_u = [self._bg_u[first:] + du for du, _ in NEIGHBOURS]
         # Every strip pixel in one gather: cheaper than one gather per laser.
-        self._all_v = np.concatenate([b.v.ravel() for b in self.bands.values()] + [self._bg_v] + near_v)
-        self._all_u = np.concatenate([b.u.ravel() for b in self.bands.values()] + [self._bg_u] + near_u)
+        # The strips column by column (strip width × all paths' samples): numpy reduces across a
+        # strip's few columns far faster along the first axis than along a short last one.
+        strip_v = np.concatenate([b.v for b in self.bands.values()]).T.ravel()
+        strip_u = np.concatenate([b.u for b in self.bands.values()]).T.ravel()
+        self._all_v = np.concatenate([strip_v, self._bg_v, *near_v])
+        self._all_u = np.concatenate([strip_u, self._bg_u, *near_u])
         self._strip_width = next(iter(self.bands.values())).v.shape[1]
         self._rows: dict[str, slice] = {}  # each laser's path samples among all strips' rows
         start = 0
         for name, band in self.bands.items():
             self._rows[name] = slice(start, start + band.v.shape[0])
             start += band.v.shape[0]
+        # Each path sample's stretch of _STRETCH samples (the last stretch takes the rest), for `_local`.
+        self._stretch = np.minimum(np.arange(start) // _STRETCH, max(1, start // _STRETCH) - 1)
         start *= self._strip_width
         self._bg_slice = slice(start, start + self._bg_v.size)
         start += self._bg_v.size
-        self._near_slices = [slice(start + k * near, start + (k + 1) * near) for k in range(len(NEIGHBOURS))]
+        self._near_block = slice(start - near, start + len(NEIGHBOURS) * near)
         # (row, column) parity of each sample that has neighbours
-        self._bg_phase = (self._bg_v[:near] % 2) * 2 + self._bg_u[:near] % 2
+        self._bg_phase = (self._bg_v[first:] % 2) * 2 + self._bg_u[first:] % 2
+        # The four parities' squared noise, from the samples and their neighbours one column, one
+        # row and one diagonal away (rows of the (6, near) block; the flip of the parity each
+        # makes): by one product with a one-hot matrix (4·near, 4), and each parity's count.
+        flips = ((0, 0), (1, NEIGHBOURS.index((1, 0)) + 1), (2, NEIGHBOURS.index((0, 1)) + 1),
+                 (3, NEIGHBOURS.index((1, 1)) + 1))
+        self._parity_rows = [row for _, row in flips]
+        parity = np.concatenate([self._bg_phase ^ flip for flip, _ in flips])
+        self._parity_onehot = (parity[:, None] == np.arange(4)[None, :]).astype(np.float32)
+        self._parity_count = [max(float(c), 1.0) for c in self._parity_onehot.sum(axis=0)]
         # Window half-size for localisation; it grows for big spots.
         self._radius = 4
-        self._flat: dict[int, list[tuple[np.ndarray, float]]] = {}
+        self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
 
     def _band(self, laser: Laser) -> _Band:
         cam = self.rig.camera
@@ -293,34 +350,36 @@ class SpotFinder:
 
     @staticmethod
     def full_scale(image: np.ndarray) -> float:
-        return 65535.0 if image.dtype == np.uint16 else 255.0 if image.dtype == np.uint8 else 1.0
+        kind = image.dtype.type
+        return 65535.0 if kind is np.uint16 else 255.0 if kind is np.uint8 else 1.0
 
     def _flat_index(self, image: np.ndarray) -> list[tuple[np.ndarray, float]]:
         """(indices into ``image.ravel()``, weight) per channel read, for every strip and
         background pixel."""
         channels = image.shape[2] if image.ndim == 3 else 1
-        index = self._flat.get(channels)
+        index = self._flat.get((channels, self._weights))
         if index is None:
             pixel = self._all_v.astype(np.intp) * self.rig.camera.width + self._all_u
             if channels == 1:
                 index = [(pixel, 1.0)]
             else:
                 index = [(pixel * channels + c, w) for c, w in enumerate(self._weights) if w]
-            self._flat[channels] = index
+            self._flat[(channels, self._weights)] = index
         return index
 
     def _gather(self, frames: Sequence[np.ndarray]) -> np.ndarray:
+        """The read channel at every strip and background pixel, averaged over `frames`, in [0, 1]."""
+        if not frames:
+            raise ValueError("no frames to gather: a pose needs at least one laser-on and one laser-off frame")
+        scale = 1.0 / (len(frames) * self.full_scale(frames[0]))
         acc: np.ndarray | None = None
         for image in frames:
-            flat = np.ascontiguousarray(image).reshape(-1)
+            flat = image.reshape(-1) if image.flags.c_contiguous else np.ascontiguousarray(image).reshape(-1)
             for index, weight in self._flat_index(image):
-                values = np.take(flat, index).astype(np.float32)
-                if weight != 1.0:
-                    values *= np.float32(weight)
-                acc = values if acc is None else acc + values
-        if acc is None:
-            raise ValueError("no frames to gather: a pose needs at least one laser-on and one laser-off frame")
-        return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
+                values = np.multiply(flat.take(index), np.float32(weight * scale), dtype=np.float32)
+                acc = values if acc is None else np.add(acc, values, out=acc)
+        assert acc is not None
+        return acc
 
     def _plane(self, image: np.ndarray, rows, cols) -> np.ndarray:
         """The read channel of a region of `image`, float32."""
@@ -329,6 +388,17 @@ class SpotFinder:
         if self._weights == (0.0, 0.0, 1.0):
             return image[rows, cols, 2].astype(np.float32)
         return image[rows, cols, :3].astype(np.float32) @ np.array(self._weights, np.float32)
+
+    def _scaled(self, frames: Sequence[np.ndarray], rows, cols, scale: np.float32) -> np.ndarray:
+        """The read channel of a region, summed over `frames` and times `scale` (float32)."""
+        if len(frames) == 1 and (frames[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
+            plane = frames[0][rows, cols] if frames[0].ndim == 2 else frames[0][rows, cols, 2]
+            return np.multiply(plane, scale, dtype=np.float32)
+        acc = self._plane(frames[0], rows, cols)
+        for image in frames[1:]:
+            acc += self._plane(image, rows, cols)
+        acc *= scale
+        return acc
 
     def _window(self, frames: Sequence[np.ndarray], rows, cols) -> np.ndarray:
         acc = self._plane(frames[0], rows, cols)
@@ -349,6 +419,12 @@ class SpotFinder:
         `lasers`: the lasers that were on (default: all of this finder's).
         """
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
+        if self._auto and len(self._chroma_lag2) < AUTO_GROUPS and on[0].ndim == 3:
+            rho = self._chroma_correlation(on[0], off[0])
+            if rho is not None:
+                self._chroma_lag2.append(rho)
+                luma = float(np.median(self._chroma_lag2)) > CHROMA_LAG2
+                self._weights = CHANNEL_WEIGHTS["luma" if luma else "red"]
         on_vals = self._gather(on)
         off_vals = self._gather(off)
         # Room light may differ between the frames (flicker): scale the off frame to the on frame
@@ -370,21 +446,29 @@ class SpotFinder:
         noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
-        shot = noise**2 / (2.0 * max(float(boff.mean()) if boff.size else 0.0, 1e-3))
+        shot = noise**2 / (2.0 * max(float(boff.sum()) / boff.size if boff.size else 0.0, 1e-3))
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
-        width = self._strip_width
-        strips = diff[: self._bg_slice.start].reshape(-1, width)
-        best = strips.argmax(axis=1)
-        profile = strips[np.arange(strips.shape[0]), best]
-        local_noise, matched, where, _ = self._local(strips, noise)
+        strips = diff[: self._bg_slice.start].reshape(self._strip_width, -1)  # (width, samples)
+        profile = strips.max(axis=0)
+        local_noise, matched, box = self._local(strips, noise)
+        # A seed is a bright pixel (`min_snr` over the noise along that stretch of the path), or a
+        # dim spot that the matched filter finds (MATCHED_SNR): every path's at once.
+        bright = profile / (np.float32(self.min_snr) * local_noise)
+        dim = matched * np.float32(1.0 / MATCHED_SNR)
+        score = np.maximum(bright, dim)
+        mid = score[1:-1]
+        peaks = 1 + np.flatnonzero((mid > 1.0) & (mid >= score[:-2]) & (mid > score[2:]))
+        listed = peaks.tolist()
         seeds = {}
         for name in names:
             rows = self._rows[name]
+            # Local maxima inside the path (its ends lie beyond the working range's margins).
+            mine = peaks[bisect.bisect_left(listed, rows.start + 1) : bisect.bisect_left(listed, rows.stop - 1)]
             seeds[name] = self._seeds(
-                self.bands[name], strips[rows], profile[rows], best[rows], local_noise[rows], matched[rows],
-                where[rows], on, off, gain, max_candidates,
-            )
+                self.bands[name], rows.start, mine, score, bright, dim, strips, box, profile, local_noise,
+                matched, on, off, gain, max_candidates,
+            ) if mine.size else []
         # Every seed of every laser: a neighbouring spot, whichever laser's, must not pull a
         # spot's centroid (the centre and parallel spots are 4 px apart at 5 m).
         everywhere = [(u, v) for ss in seeds.values() for u, v, _, _, _, _ in ss]
@@ -392,13 +476,43 @@ class SpotFinder:
         for name, ss in seeds.items():
             out = []
             for u, v, peak, row, mf, here in ss:
-                others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius]
+                others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius
+                          ] if len(everywhere) > 1 else []
                 cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
                                     mf, texture)
                 if cand is not None:
                     out.append(cand)
             found[name] = out
         return found
+
+    @property
+    def channel(self) -> str:
+        """What colour frames are read from now: ``red`` or ``luma`` (``auto`` has chosen one)."""
+        return "luma" if self._weights == CHANNEL_WEIGHTS["luma"] else "red"
+
+    def _chroma_correlation(self, on: np.ndarray, off: np.ndarray) -> float | None:
+        """The correlation 2 px along a row of the difference image's chroma noise (red minus
+        green) at the background samples: high when chroma was stored at half resolution (or, less
+        so, coarsely quantised: JPEG at 4:4:4 and low quality can pass for it, where luma places a
+        spot about a quarter worse than red). None when the chroma shows no noise to tell by."""
+        first = self._bg_v.size - self._near_n
+        lag = NEIGHBOURS.index((2, 0))
+        width, channels = self.rig.camera.width, on.shape[2]
+        v = np.concatenate([self._bg_v[first:], self._bg_v[first:]])
+        u = np.concatenate([self._bg_u[first:], self._bg_u[first:] + NEIGHBOURS[lag][0]])
+        pixel = (v.astype(np.intp) * width + u) * channels
+        flat_on, flat_off = on.reshape(-1), off.reshape(-1)
+        chroma = [flat_on.take(pixel + c).astype(np.float64) - flat_off.take(pixel + c) for c in (2, 1)]
+        c = (chroma[0] - chroma[1]).reshape(2, -1)
+        c -= np.median(c)
+        # Mean absolute deviation: JPEG leaves most of an 8-bit frame's chroma differences at 0,
+        # where the median's would be 0 too.
+        scale = float(np.abs(c).mean())
+        if scale <= 0.0:
+            return None  # JPEG has quantised the noise away (or there is none): no evidence
+        c = np.clip(c, -6.0 * scale, 6.0 * scale)
+        var = float(c[0] @ c[0])
+        return float(c[0] @ c[1]) / var if var > 0 else None
 
     def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:
         """How the difference image's noise is correlated, from the background samples and their
@@ -409,95 +523,94 @@ class SpotFinder:
         if not self._bg_v.size or noise <= 0.0:
             return _Texture(1.0, 1.0, None)
         lim = np.float32(5.0 * noise)
-        first = slice(self._bg_slice.start, self._bg_slice.start + self._near_n)
-        samples = [np.clip(diff[sl] - np.float32(centre), -lim, lim) for sl in (first, *self._near_slices)]
+        block = diff[self._near_block].reshape(1 + len(NEIGHBOURS), -1) - np.float32(centre)
+        samples = np.minimum(np.maximum(block, -lim, out=block), lim, out=block)
         d0 = samples[0]
-        var0 = float(d0 @ d0)
+        dots = samples @ d0  # (6,): the variance, then each neighbour's covariance
+        var0 = float(dots[0])
         if var0 <= 0.0:
             return _Texture(1.0, 1.0, None)
-        rho = dict(zip(NEIGHBOURS, (float(d0 @ dk) / var0 for dk in samples[1:])))
+        rho = dict(zip(NEIGHBOURS, (dots[1:] / var0).tolist()))
         along_u = 1.0 + 2.0 * rho[(1, 0)] + 2.0 * rho[(2, 0)]
         along_v = 1.0 + 2.0 * rho[(0, 1)] + 2.0 * rho[(0, 2)]
         area = min(max(along_u * along_v, 1.0), 25.0)
         bayer = None
-        if colour and self._weights == CHANNEL_WEIGHTS["red"] and max(rho[(1, 0)], rho[(0, 1)]) > 0.15:
+        demosaiced = colour and self._weights == CHANNEL_WEIGHTS["red"] and max(rho[(1, 0)], rho[(0, 1)]) > 0.15
+        if demosaiced:
             # The four (row, column) parities: the sample's own and its neighbours' flips.
-            power = np.zeros(4)
-            count = np.zeros(4)
-            for flip, dk in ((0, d0), (1, samples[1 + NEIGHBOURS.index((1, 0))]),
-                             (2, samples[1 + NEIGHBOURS.index((0, 1))]), (3, samples[1 + NEIGHBOURS.index((1, 1))])):
-                phase = self._bg_phase ^ flip
-                power += np.bincount(phase, weights=dk.astype(np.float64) ** 2, minlength=4)
-                count += np.bincount(phase, minlength=4)
-            power /= np.maximum(count, 1)
-            if power.min() > 0 and power.max() > BAYER_CONTRAST * float(np.median(power)):
-                bayer = int(power.argmax())
+            sq = samples[self._parity_rows]
+            power = ((sq * sq).ravel() @ self._parity_onehot).tolist()
+            power = [p / c for p, c in zip(power, self._parity_count)]
+            low, mid1, mid2, high = sorted(power)
+            if low > 0 and high > BAYER_CONTRAST * 0.5 * (mid1 + mid2):
+                bayer = power.index(high)
         # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
         sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
-        return _Texture(area, sites, bayer)
+        return _Texture(area, sites, bayer, demosaiced)
 
-    def _local(self, strips: np.ndarray, noise: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Along every path, in stretches of about 24 px: the level and noise (median, MAD) of the
-        strip's pixels and of a box filter of 3 columns × 5 samples (about a spot's size: a
-        matched filter). A textured surface leaves more of JPEG's and the room's noise in the
-        difference than the flat background does, and a bright window's glare more still: each
-        stretch is judged by its own. Returns, per path sample, the pixel noise (at least
-        `noise`), the box's SNR at its best column, that column, and the box's noise."""
-        n, width = strips.shape
-        cols = strips[:, :-2] + strips[:, 1:-1] + strips[:, 2:]
-        box = np.zeros((n, width - 2), np.float32)
-        box[2:-2] = cols[:-4] + cols[1:-3] + cols[2:-2] + cols[3:-1] + cols[4:]
-        block = 48
+    def _local(self, strips: np.ndarray, noise: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Along every path, in stretches of about 24 px: the level and noise (mean absolute
+        deviation) of the strip's pixels and of a box filter of 3 columns × 5 samples (about a
+        spot's size: a matched filter). A textured surface leaves more of JPEG's and the room's
+        noise in the difference than the flat background does, and a bright window's glare more
+        still: each stretch is judged by its own. `strips` is (width, path samples). Returns, per
+        path sample, the pixel noise (at least `noise`) and the box's SNR at its best column; and
+        the box filter (width − 2, path samples)."""
+        width, n = strips.shape
+        cols = strips[:-2] + strips[1:-1]
+        cols += strips[2:]
+        box = np.zeros((width - 2, n), np.float32)
+        inner = box[:, 2:-2]
+        np.add(cols[:, :-4], cols[:, 1:-3], out=inner)
+        inner += cols[:, 2:-2]
+        inner += cols[:, 3:-1]
+        inner += cols[:, 4:]
+        block = _STRETCH
         nb = max(1, n // block)
         cut = nb * block
         # Mean absolute deviation, each value clipped at 4 × the flat background's: a robust and
         # cheap scale (a spot's own pixels barely move it); × 1.2533 is σ for Gaussian noise.
         # The pixel noise from the strip's outermost columns, 3 px from the path: beside a spot,
         # not on it, so that a spot does not raise its own threshold.
-        pix = np.abs(strips[:cut, :: width - 1]).reshape(nb, -1)
-        flt = box[:cut].reshape(nb, -1)
-        pix_noise = 1.2533 * np.minimum(pix, np.float32(6.0 * noise)).mean(axis=1)
+        pix = np.abs(strips[:: width - 1, :cut]).reshape(2, nb, -1)
+        flt = box[:, :cut].reshape(width - 2, nb, -1)
+        per = 2 * pix.shape[2]
+        pix_noise = np.minimum(pix, np.float32(6.0 * noise)).sum(axis=(0, 2)) * np.float32(1.2533 / per)
         box_floor = np.float32(noise * 15.0**0.5)
-        box_level = flt.mean(axis=1, keepdims=True)
-        box_noise = 1.2533 * np.minimum(np.abs(flt - box_level), 4.0 * box_floor).mean(axis=1)
-        which = np.minimum(np.arange(n) // block, nb - 1)
+        per = flt.shape[0] * flt.shape[2]
+        box_level = flt.sum(axis=(0, 2)) * np.float32(1.0 / per)
+        dev = np.abs(flt - box_level[None, :, None])
+        box_noise = np.minimum(dev, 4.0 * box_floor, out=dev).sum(axis=(0, 2)) * np.float32(1.2533 / per)
+        which = self._stretch if self._stretch.size == n else np.minimum(np.arange(n) // block, nb - 1)
         # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
         # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
         # own neighbourhood hides it.
-        local_pix = np.sqrt(np.maximum(pix_noise[which], np.float32(noise)) * np.float32(noise))
-        local_box = np.maximum(box_noise[which], box_floor)
-        best = box.argmax(axis=1)
-        score = (box[np.arange(n), best] - box_level[which, 0]) / local_box
-        return local_pix, score, best + 1, local_box
+        local_pix = np.sqrt(np.maximum(pix_noise, np.float32(noise)) * np.float32(noise))[which]
+        local_box = np.maximum(box_noise, box_floor)[which]
+        score = (box.max(axis=0) - box_level[which]) / local_box
+        return local_pix, score, box
 
-    def _seeds(self, band, strip, profile, best, local_noise, matched, where, on, off, gain, max_candidates
-               ) -> list[tuple[int, int, float, int, float, float]]:
-        """Peaks along a laser's strip above the detection thresholds, strongest first, one per
-        blob: (u, v, peak, strip row, matched-filter SNR, the noise there). `profile` is each
-        path sample's brightest value across the strip and `best` where across it that is. A seed
-        is a bright pixel (`min_snr` over the noise along that stretch of the path), or a dim spot
-        that the matched filter finds (MATCHED_SNR)."""
-        bright = profile / (np.float32(self.min_snr) * local_noise)
-        dim = matched / np.float32(MATCHED_SNR)
-        score = np.maximum(bright, dim)
-        above = score > 1.0
-        if not above.any():
-            return []
-        # Local maxima inside the path (its ends lie beyond the working range's margins).
-        mid = score[1:-1]
-        peaks = 1 + np.flatnonzero(above[1:-1] & (mid >= score[:-2]) & (mid > score[2:]))
-        peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
+    def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, local_noise, matched, on, off,
+               gain, max_candidates) -> list[tuple[int, int, float, int, float, float]]:
+        """The peaks (`peaks`: path samples of all strips, those of `band`'s path, which starts at
+        sample `start`) strongest first, one per blob: (u, v, peak, strip row, matched-filter SNR,
+        the noise there). `strips` is (width, path samples), `box` its matched filter (the box's
+        columns 1 … width − 2), `profile` each path sample's brightest value across the strip;
+        `bright` and `dim` each peak's detection score as a bright pixel and by the matched filter
+        (1: at the threshold), `score` the larger."""
+        if peaks.size > 1:
+            peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
         seeds: list[tuple[int, int, float, int, float, float]] = []
-        for i in peaks:
-            j = int(best[i]) if bright[i] >= dim[i] else int(where[i])
-            u, v = int(band.u[i, j]), int(band.v[i, j])
-            peak = float(max(profile[i], strip[i, j]))
+        for i in peaks.tolist():
+            j = int(strips[:, i].argmax()) if bright[i] >= dim[i] else 1 + int(box[:, i].argmax())
+            u, v = int(band.u[i - start, j]), int(band.v[i - start, j])
+            peak = float(max(profile[i], strips[j, i]))
             if bright[i] < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius for su, sv, _, _, _, _ in seeds):
                 continue  # a faint blob beside a spot: its shoulder or ghost, and no spot of its own
             if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
                    for su, sv, sp, _, _, _ in seeds):
                 continue  # the same blob seen from another path sample
-            seeds.append((u, v, peak, int(i), float(matched[i]), float(local_noise[i])))
+            seeds.append((u, v, peak, i - start, float(matched[i]), float(local_noise[i])))
             if len(seeds) >= max_candidates:
                 break
         return seeds
@@ -532,34 +645,39 @@ class SpotFinder:
         cam = self.rig.camera
         r = self._radius
         cu, cv = float(seed[0]), float(seed[1])
+        scale = np.float32(1.0 / (len(on) * self.full_scale(on[0])))
+        off_scale = np.float32(gain / (len(off) * self.full_scale(off[0])))
+        mine: np.ndarray | None = None
         for _ in range(3):
             u0, v0 = int(round(cu)), int(round(cv))
             if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
                 return None  # too close to the image border to localise honestly
             rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
-            lit = self._window(on, rows, cols)
-            win = lit - np.float32(gain) * self._window(off, rows, cols)
-            border = win.ravel()[_border_index(2 * r + 1)]
+            lit = self._scaled(on, rows, cols, scale)
+            win = lit - self._scaled(off, rows, cols, off_scale)
+            border = win.take(_border_index(2 * r + 1))
             level = float(np.partition(border, border.size // 2)[border.size // 2])
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
-            signal = np.maximum(win - np.float32(level + 2.0 * noise), 0.0)
-            offs = np.arange(-r, r + 1, dtype=np.float32)
-            mine = np.ones(signal.shape, bool)
+            signal = np.maximum(win - np.float32(level + 2.0 * noise), np.float32(0.0))
+            offs = _offsets(r)
+            rw = r  # this window's half-size (r may grow below for the next one)
             if others:
-                gu, gv = np.meshgrid(offs + u0, offs + v0)
-                dist = (gu - seed[0]) ** 2 + (gv - seed[1]) ** 2
+                gu, gv = offs[None, :] + u0 - seed[0], offs[:, None] + v0 - seed[1]
+                dist = gu * gu + gv * gv
+                mine = np.ones(signal.shape, bool)
                 for ou, ov in others:
-                    mine &= (gu - ou) ** 2 + (gv - ov) ** 2 >= dist
-                signal = np.where(mine, signal, 0.0)
-            col, line = signal.sum(axis=0), signal.sum(axis=1)
-            mass = float(col.sum())
+                    mine &= (gu + (seed[0] - ou)) ** 2 + (gv + (seed[1] - ov)) ** 2 >= dist
+                signal *= mine
+            powers = _powers(r)
+            mc, ml = _moments(signal, powers)
+            mass = mc[0]
             if mass <= 0.0:
                 return None
-            du, dv = float(col @ offs) / mass, float(line @ offs) / mass
+            du, dv = mc[1] / mass, ml[1] / mass
             cu, cv = u0 + du, v0 + dv
-            var_x = float(col @ (offs - du) ** 2) / mass
-            var_y = float(line @ (offs - dv) ** 2) / mass
+            var_x = max(mc[2] / mass - du * du, 0.0)
+            var_y = max(ml[2] / mass - dv * dv, 0.0)
             size = math.sqrt((var_x + var_y) / 2)
             need = max(self._radius, int(math.ceil(3.5 * size)))
             if need <= r and abs(du) <= 1.0 and abs(dv) <= 1.0:
@@ -568,35 +686,51 @@ class SpotFinder:
         if size > self.max_spot_px:
             return None  # a lamp or a screen, not a pointer's spot
         saturated = lit >= _SATURATED
+        clipped = bool(saturated.any())
         above = win - np.float32(level)  # background-subtracted, not thresholded
-        var_all = noise**2 + np.maximum(above, 0.0) * shot  # each pixel's noise variance
+        usable = None if not clipped else ~saturated if mine is None else ~saturated & mine
+        if usable is None and mine is not None:
+            usable = mine
         misfit = 1.0
         cov = None
         if texture.bayer is not None:
             rr, rc = divmod(texture.bayer, 2)
-            red = (((v0 - r + np.arange(2 * r + 1)) % 2 == rr)[:, None]
-                   & ((u0 - r + np.arange(2 * r + 1)) % 2 == rc)[None, :])
-            fit = _fit_sites(above, red & ~saturated & mine, var_all, offs, du, dv, size)
+            red = (((v0 - rw + np.arange(2 * rw + 1)) % 2 == rr)[:, None]
+                   & ((u0 - rw + np.arange(2 * rw + 1)) % 2 == rc)[None, :])
+            var_all = noise**2 + np.maximum(above, 0.0) * shot  # each pixel's noise variance
+            fit = _fit_sites(above, red if usable is None else red & usable, var_all, offs, du, dv, size)
             # A fit that leaves far more than noise, or knows the centre to worse than a pixel, has
             # not found the spot's shape: the centroid then.
-            if fit is not None and fit[3] < 10.0 and float(np.trace(fit[2])) < 1.0:
+            # (Nor does one whose covariance is not positive: an ill-conditioned fit.)
+            if fit is not None and fit[3] < 10.0 and float(np.trace(fit[2])) < 1.0 and min(np.diag(fit[2])) > 0.0:
                 du, dv, cov, misfit = fit
                 misfit = max(misfit, 1.0)
                 cu, cv = u0 + du, v0 + dv
                 cov = cov * texture.sites * misfit
         else:
             # The spot's core only: a neighbouring spot's wing (the centre and parallel spots are
-            # 4 px apart at 5 m) is not this spot's misfit.
-            core = ((offs[None, :] - du) ** 2 + (offs[:, None] - dv) ** 2) <= (2.5 * max(size, 0.7)) ** 2
-            use = ~saturated & mine & core & (above > 3.0 * noise)
-            coef = _fit_gaussian(above, use, offs)
-            if coef is not None:
-                resid = (above - _model(coef, offs))[use]
-                dof = int(use.sum()) - 6
+            # 4 px apart at 5 m) is not this spot's misfit. (u² + v² − 2·du·u − 2·dv·v, from the
+            # window's monomials, against the core's radius² − du² − dv².)
+            # Both fits below take only pixels 3 σ above the background: with fewer than a fit
+            # needs (a small spot), neither is tried.
+            strong = above.ravel() > 3.0 * noise
+            few = int(np.count_nonzero(strong)) < 10
+            gauss = None
+            if not few:
+                ring = _monomials(rw) @ np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0])
+                use = strong & (ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv)
+                if usable is not None:
+                    use &= usable.ravel()
+                gauss = _fit_gaussian(above, use, rw)
+            if gauss is not None:
+                _, idx, model = gauss
+                val = above.ravel()[idx]
+                dof = idx.size - 6
                 if dof >= 3:
-                    misfit = max(1.0, float((resid * resid / var_all[use]).sum()) / dof)
-            if saturated.any():
-                fitted = _fit_unsaturated(signal, saturated, offs, 3.0 * noise)
+                    chi2 = float((((val - model) ** 2) / (noise**2 + val * shot)).sum())
+                    misfit = max(1.0, chi2 / dof)
+            if clipped and not few:
+                fitted = _fit_unsaturated(signal, saturated, rw, 3.0 * noise)
                 if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
                     du, dv = fitted
                     cu, cv = u0 + du, v0 + dv
@@ -605,11 +739,23 @@ class SpotFinder:
         else:
             # Position variance from pixel noise: Σ (x − x̄)² σ² / (Σ I)² over the pixels used, σ²
             # including the spot's own shot noise (`shot` is per unit of the averaged frames'
-            # signal), grown by the noise's correlation and the fit's misfit.
-            var_pix = np.where(signal > 0, noise**2 + signal * shot, 0.0)
-            grow = texture.area * misfit
-            var_u = grow * float(((offs - du) ** 2) @ var_pix.sum(axis=0)) / mass**2
-            var_v = grow * float(((offs - dv) ** 2) @ var_pix.sum(axis=1)) / mass**2
+            # signal), grown by the noise's correlation and the fit's misfit. By moments: σ² is
+            # noise² on each pixel used and shot × its signal, and Σ (x − x̄)² w = Σ x² w − 2 x̄ Σ x w + x̄² Σ w.
+            nc, nl = _moments(np.sign(signal), powers)  # signal ≥ 0: 1 where used
+            grow = texture.area * misfit / mass**2
+
+            def spread(m: list[float], x: float) -> float:
+                # ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
+                return max(m[2] - 2.0 * x * m[1] + x * x * m[0], 0.0)
+
+            var_u = grow * (noise**2 * spread(nc, du) + shot * spread(mc, du))
+            var_v = grow * (noise**2 * spread(nl, dv) + shot * spread(ml, dv))
+        if texture.demosaiced:
+            # Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation
+            # shifts a small spot by up to a few tenths of a pixel, depending on the method and
+            # where the spot falls (OpenCV's edge-aware one by 0.2-0.4 px on average).
+            var_u += DEMOSAIC_PX**2
+            var_v += DEMOSAIC_PX**2
         # Where along the path, and how far from it, from the strip row the seed came from.
         pu, pv = float(band.path[row, 0]), float(band.path[row, 1])
         tu, tv = float(band.tangent[row, 0]), float(band.tangent[row, 1])

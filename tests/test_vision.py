@@ -144,3 +144,92 @@ def test_luma_channel_reads_jpeg_frames() -> None:
     assert luma and np.linalg.norm(luma[0].pixel - truth) < 0.4
     with pytest.raises(ValueError, match="channel must be one of"):
         SpotFinder(renderer.rig, channel="green")
+
+
+@pytest.mark.parametrize(("sensor", "expect"), [
+    ({"jpeg_quality": 75, "jpeg_chroma": "4:2:0"}, "luma"),
+    ({"bayer": "bilinear"}, "red"),
+    ({}, "red"),
+])
+def test_auto_channel_reads_luma_from_4_2_0_jpeg(sensor: dict, expect: str) -> None:
+    # 4:2:0 stores red at half resolution: its chroma noise is correlated 2 px apart, and luma
+    # places the spot (red was off by 0.5 px rms there); lossless frames keep red.
+    renderer = _renderer(load_scene("office"), **sensor)
+    finder = SpotFinder(renderer.rig, channel="auto")
+    on, off = _pair(renderer, pan=-90.0, seed=3)  # a wall about 1.3 m away
+    found = finder.find([on], [off])["center"]
+    assert finder.channel == expect
+    truth = renderer.spots(-90.0, 0.0)["center"].pixel
+    assert found and np.linalg.norm(found[0].pixel - truth) < 0.3
+
+
+def test_auto_channel_without_chroma_noise_stays_red() -> None:
+    renderer = _renderer(flat_target_scene(1.5), colour=False)
+    finder = SpotFinder(renderer.rig, channel="auto")
+    on, off = _pair(renderer)
+    assert finder.find([on], [off])["center"]
+    assert finder.channel == "red"  # grey frames: the grey value, whatever the name
+    renderer = _renderer(flat_target_scene(1.5), jpeg_quality=75)
+    finder = SpotFinder(renderer.rig, channel="auto")
+    on, off = _pair(renderer)
+    assert finder.find([on], [off])["center"]
+    assert finder.channel == "red"  # JPEG quantised the noise away: no evidence, no change
+
+
+def test_sigma_covers_the_shift_of_an_edge_aware_demosaicing() -> None:
+    # OpenCV's edge-aware demosaicing moves a small red spot by a few tenths of a pixel: red read
+    # from such frames carries that in its σ (without it, 1 spot in 4 was within 2σ here).
+    renderer = _renderer(load_scene("office"), speckle=0.0, bayer="ea")
+    finder = SpotFinder(renderer.rig)
+    within = []
+    for k, pan in enumerate(np.arange(-180.0, 180.0, 60.0)):
+        on, off = _pair(renderer, pan=float(pan), seed=k)
+        truth = renderer.spots(float(pan), 0.0)
+        for name, cands in finder.find([on], [off]).items():
+            spot = truth.get(name)
+            if spot is None or spot.pixel is None or not cands:
+                continue
+            c = min(cands, key=lambda c: float(np.linalg.norm(c.pixel - spot.pixel)))
+            error = np.abs(c.pixel - spot.pixel)
+            if error.max() < 3.0:  # the spot, not another blob
+                within.append(bool(error.max() <= 2.0 * c.sigma_px))
+    assert len(within) >= 8
+    assert np.mean(within) >= 0.8
+
+
+def test_a_big_spot_behind_a_bayer_filter_is_localised_after_the_window_grows() -> None:
+    # A defocused spot (σ 3 px) grows the localisation window three times; the Bayer fit must use
+    # the last window's pixels (it once took the next window's size, and raised).
+    from edge.vision import _Texture
+
+    rig = load_config().rig.build()
+    finder = SpotFinder(rig)
+    band = finder.bands["center"]
+    row = len(band.path) // 2
+    cu, cv = (float(c) for c in band.path[row])
+    vv, uu = np.mgrid[0 : rig.camera.height, 0 : rig.camera.width]
+    spot = 200.0 * np.exp(-0.5 * ((uu - cu) ** 2 + (vv - cv) ** 2) / 3.0**2)
+    on = np.zeros((rig.camera.height, rig.camera.width, 3), np.uint8)
+    on[..., 2] = np.clip(np.rint(spot + 10.0), 0, 255).astype(np.uint8)
+    off = np.zeros_like(on)
+    off[..., 2] = 10
+    seed = (int(round(cu)) + 2, int(round(cv)) + 1)
+    cand = finder._refine(band, seed, row, [], [on], [off], 1.0, 2.0 / 255, 1e-4, 200.0 / 255,
+                          texture=_Texture(1.0, 1.0, 0))
+    assert cand is not None
+    assert np.linalg.norm(cand.pixel - [cu, cv]) < 0.2
+
+
+def test_a_one_pixel_spot_is_localised_on_its_pixel() -> None:
+    # All of a spot's signal in one pixel: its spread is 0 (the moments once rounded it below 0).
+    rig = load_config().rig.build()
+    finder = SpotFinder(rig)
+    band = finder.bands["center"]
+    row = len(band.path) // 2
+    u, v = (int(round(float(c))) for c in band.path[row])
+    on = np.full((rig.camera.height, rig.camera.width, 3), 10, np.uint8)
+    off = on.copy()
+    on[v, u, 2] = 250
+    cand = finder._refine(band, (u, v), row, [], [on], [off], 1.0, 1.0 / 255, 1e-4, 240.0 / 255)
+    assert cand is not None
+    assert np.abs(cand.pixel - [u, v]).max() < 1e-6 and cand.sigma_px >= 0.0
