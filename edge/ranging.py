@@ -3,8 +3,9 @@
 Each laser is a known ray in the camera frame; the camera ray through its spot meets it where the
 light landed, so each found spot gives a depth (*triangulation*) with an uncertainty propagated from
 the spot's pixel uncertainty. The spots of several lasers are then *fused* into the reference
-laser's range through a local surface model (depth varying linearly across the lasers' hit points),
-which is checked against the measurements (χ²) before it is trusted. Candidates that fit no laser,
+laser's range through a local surface model (depth varying linearly across the lasers' hit points:
+first with the slope a wall or a floor has at the unit's tilt, else with a fitted one), which is
+checked against the measurements (χ²) before it is trusted. Candidates that fit no laser,
 or give inconsistent depths, are dropped; when the reference laser's spot cannot be told apart from
 another blob the zone is ``ambiguous``, never a guess.
 
@@ -233,18 +234,20 @@ def fuse(
     others: Sequence[LaserMeasurement],
     slopes: bool = True,
     surface_sigma_per_m: float = 0.05,
+    slope_y: float = 0.0,
 ) -> Fusion:
     """The reference laser's range from all measurements through a locally planar surface.
 
     With `slopes`, the surface is z = a + g·(y − y_ref) + h·(x − x_ref) near the reference's point,
     the slope terms kept only where the hit points spread enough to measure them (the thesis rig's
     lasers lie in one vertical plane, so only g); without, it is z = a: a surface facing the camera
-    across the lasers, as walls and furniture fronts do in a level sweep. The reference beam is then
-    intersected with it.
+    across the lasers, as walls and furniture fronts do in a level sweep, or, with `slope_y`, a
+    surface of that known slope z = a + slope_y·(y − y_ref) (a wall or a floor seen with the unit
+    tilted: see :func:`level_slopes`). The reference beam is then intersected with it.
     """
     ms = [reference, *others]
     if not slopes:
-        return _fuse_flat(reference, ms, surface_sigma_per_m)
+        return _fuse_flat(reference, ms, surface_sigma_per_m, slope_y)
     pts = np.array([m.point_m for m in ms])
     z = pts[:, 2]
     dx, dy = pts[:, 0] - pts[0, 0], pts[:, 1] - pts[0, 1]
@@ -292,26 +295,39 @@ def fuse(
     return Fusion(float(point[2]), sigma, point, normal, chi2, dof, tuple(ms))
 
 
-def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_sigma_per_m: float) -> Fusion:
-    """`fuse` for z = a: a weighted mean, in plain floats (this runs for every zone)."""
+def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_sigma_per_m: float,
+               slope_y: float = 0.0) -> Fusion:
+    """`fuse` for z = a + slope_y·(y − y_ref), slope_y known: a weighted mean of the depths carried
+    to the reference's height, in plain floats (this runs for every zone)."""
     rx, ry = float(reference.point_m[0]), float(reference.point_m[1])
-    weights = []
+    g = slope_y
+    weights, carried = [], []
     for m in ms:
-        model = surface_sigma_per_m * math.hypot(float(m.point_m[0]) - rx, float(m.point_m[1]) - ry)
+        dy = float(m.point_m[1]) - ry
+        model = surface_sigma_per_m * math.hypot(float(m.point_m[0]) - rx, dy)
         weights.append(1.0 / (max(m.sigma_m, 1e-9) ** 2 + model * model))
+        carried.append((m.depth_m, g * dy))
     total = sum(weights)
-    z = sum(w * m.depth_m for w, m in zip(weights, ms)) / total
-    chi2 = sum(w * (m.depth_m - z) ** 2 for w, m in zip(weights, ms))
+    a = sum(w * (z - lift) for w, (z, lift) in zip(weights, carried)) / total
+    chi2 = sum(w * (z - a - lift) ** 2 for w, (z, lift) in zip(weights, carried))
     if len(ms) > 1:
         # _chi2_inverse in plain floats
-        zf = max(abs(z), 1e-6)
         inverse = 0.0
-        for w, m in zip(weights, ms):
-            zm = max(abs(m.depth_m), 1e-6)
+        for w, (z, lift) in zip(weights, carried):
+            zm, zf = max(abs(z), 1e-6), max(abs(a + lift), 1e-6)
             inverse += w * zm**4 * (1.0 / zm - 1.0 / zf) ** 2
         chi2 = max(chi2, inverse)
-    point = reference.point_m if len(ms) == 1 else _point_at_depth(reference, z)
-    return Fusion(z, math.sqrt(1.0 / total), point, None, chi2, len(ms) - 1, tuple(ms))
+    sigma = math.sqrt(1.0 / total)
+    if len(ms) == 1:
+        return Fusion(reference.depth_m, sigma, reference.point_m, None, chi2, 0, tuple(ms))
+    if g == 0.0:
+        return Fusion(a, sigma, _point_at_depth(reference, a), None, chi2, len(ms) - 1, tuple(ms))
+    # The reference beam P + s·D meets the plane z − g·y = a − g·y_ref.
+    P, D = reference.point_m, reference.beam_dir
+    den = float(D[2]) - g * float(D[1])
+    s_ = (a - g * ry - float(P[2]) + g * float(P[1])) / den
+    point = P + s_ * D
+    return Fusion(float(point[2]), sigma * abs(float(D[2]) / den), point, None, chi2, len(ms) - 1, tuple(ms))
 
 
 def _chi2_inverse(z: np.ndarray, fitted: np.ndarray, w: np.ndarray) -> float:
@@ -329,6 +345,27 @@ def _point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
     return m.point_m + (z - m.depth_m) * m.beam_dir / float(m.beam_dir[2])
 
 
+# A known slope is used while the surface it stands for is seen at most this obliquely in the
+# lasers' plane: |slope| ≤ 3 is 72° from facing the camera (a floor seen with the unit tilted less
+# than 18° down is left to the sloped model, or to the reference alone).
+_MAX_KNOWN_SLOPE = 3.0
+
+
+def level_slopes(rig: Rig, pan_deg: float, tilt_deg: float) -> tuple[float, ...]:
+    """The slopes dz/dy (camera frame) of a vertical surface (a wall, a furniture front) and of a
+    horizontal one (a floor, a table top) at this pose: the surfaces rooms are made of. Level, a
+    wall's slope is 0 (z = a) and a floor's is not seen across the lasers' column; tilted by t, a
+    wall's is ±tan t and a floor's ∓cot t. The lasers' column is vertical in the camera, so the
+    slope across it (dz/dx) is not needed."""
+    up = rig.camera_to_base(pan_deg, tilt_deg).R.T @ np.array([0.0, 0.0, 1.0])  # base's up, in the camera
+    out = []
+    if abs(up[1]) > 1e-9 and abs(up[2] / up[1]) <= _MAX_KNOWN_SLOPE:
+        out.append(0.0 if abs(up[2]) < 1e-9 else float(up[2] / up[1]))  # contains up: z changes by up_z per up_y
+    if abs(up[2]) > 1e-9 and abs(up[1] / up[2]) <= _MAX_KNOWN_SLOPE:
+        out.append(float(-up[1] / up[2]))  # normal up: up·p constant
+    return tuple(out) or (0.0,)
+
+
 def _pair_plausible(a: LaserMeasurement, b: LaserMeasurement) -> bool:
     """Could two spots lie on one surface? Their depth change across their separation must be a
     slope a surface can have while both lasers still light it."""
@@ -342,13 +379,15 @@ def best_fusion(
     reference: LaserMeasurement,
     others: Mapping[str, Sequence[LaserMeasurement]],
     surface_sigma_per_m: float = 0.05,
+    slopes_y: Sequence[float] = (0.0,),
 ) -> Fusion:
     """The most informative consistent fusion of the reference with the other lasers' spots.
 
-    First the largest set of lasers whose depths agree on a surface facing the camera (z = a, the
-    strongest model, and the common case in a level sweep); failing that, all lasers on a sloped
-    plane, which has fewer checks; failing both, the reference alone. A set counts only if every
-    pair is plausible on one surface and χ² accepts it.
+    First the largest set of lasers whose depths agree on a surface of a known slope (`slopes_y`,
+    from :func:`level_slopes`: at a level pose, z = a, a surface facing the camera across the
+    lasers; tilted, a wall's or a floor's slope), the strongest model; failing that, all lasers on
+    a sloped plane, which has fewer checks; failing both, the reference alone. A set counts only if
+    every pair is plausible on one surface and χ² accepts it.
     """
     names = [n for n, ms in others.items() if ms]
     for slopes in (False, True):
@@ -361,9 +400,10 @@ def best_fusion(
                         continue
                     if not all(_pair_plausible(reference, m) for m in choice):
                         continue
-                    fusion = fuse(rig, reference, choice, slopes, surface_sigma_per_m)
-                    if fusion.dof > 0 and fusion.consistent and (best is None or fusion.chi2 < best.chi2):
-                        best = fusion
+                    for g in ((0.0,) if slopes else slopes_y):
+                        fusion = fuse(rig, reference, choice, slopes, surface_sigma_per_m, g)
+                        if fusion.dof > 0 and fusion.consistent and (best is None or fusion.chi2 < best.chi2):
+                            best = fusion
             if best is not None:
                 return best
             if slopes:
@@ -452,13 +492,15 @@ class Ranger:
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
         others = {n: ms for n, ms in cands.items() if n != ref}
+        known = level_slopes(rig, pan_deg, tilt_deg)
         if len(refs) == 1:
             chosen = refs[0]
         else:
             # Several blobs on the reference's path: the one the other lasers agree with.
             support = []
             for r in refs:
-                f = best_fusion(rig, r, others, self.config.surface_sigma_per_m) if others else fuse(rig, r, ())
+                f = (best_fusion(rig, r, others, self.config.surface_sigma_per_m, known)
+                     if others else fuse(rig, r, ()))
                 support.append((len(f.used) - 1, r))  # other lasers that agree with it
             support.sort(key=lambda s: -s[0])
             if support[0][0] == 0 or support[0][0] == support[1][0]:
@@ -468,7 +510,7 @@ class Ranger:
                 )
             chosen = support[0][1]
         fusion = (
-            best_fusion(rig, chosen, others, self.config.surface_sigma_per_m)
+            best_fusion(rig, chosen, others, self.config.surface_sigma_per_m, known)
             if self.config.fuse and others
             else fuse(rig, chosen, ())
         )

@@ -23,7 +23,9 @@ from edge.ranging import (
     LaserMeasurement,
     Ranger,
     RangingConfig,
+    best_fusion,
     fuse,
+    level_slopes,
     measure,
     triangulate,
 )
@@ -101,6 +103,40 @@ def test_fusion_on_a_tilted_plane_gives_its_normal() -> None:
     f = fuse(rig, ms[0], ms[1:], slopes=True)
     assert f.range_m == pytest.approx(ms[0].depth_m, abs=1e-9)
     assert f.normal == pytest.approx(normal, abs=1e-9)
+
+
+def test_the_known_slopes_are_a_walls_and_a_floors_at_the_units_tilt() -> None:
+    rig = default_rig()
+    assert level_slopes(rig, 25.0, 0.0) == (0.0,)  # level: z = a, as before; no floor across the lasers
+    t = math.radians(40.0)
+    assert level_slopes(rig, 25.0, -40.0) == pytest.approx((math.tan(t), -1.0 / math.tan(t)))
+    assert level_slopes(rig, 25.0, 10.0) == pytest.approx((-math.tan(math.radians(10.0)),))  # floor unseen
+
+
+@pytest.mark.parametrize("surface", ["floor", "wall"])
+def test_a_floor_or_a_wall_seen_tilted_is_fused_without_bias(surface: str) -> None:
+    """Tilted 40° down, the lasers' spots on a floor (or a wall) lie at depths a surface facing the
+    camera would not have: fusing them as z = a put the floor 2 % long at 5σ (a 3D scan of the
+    office, zones at -40°). With the surfaces' known slopes the fused range is the true one."""
+    rig = default_rig()
+    pan, tilt = 25.0, -40.0
+    up = rig.camera_to_base(pan, tilt).R.T @ np.array([0.0, 0.0, 1.0])
+    centre = rig.laser("center")
+    hit = centre.o + 1.6 / centre.d[2] * centre.d  # the reference spot 1.6 m deep
+    # A floor: normal up through the hit; a wall: normal horizontal, facing the unit, through it.
+    normal = up if surface == "floor" else np.cross(up, np.cross(centre.d, up))
+    ms = []
+    for name in ("center", "parallel"):
+        laser = rig.laser(name)
+        s_ = float(normal @ (hit - laser.o)) / float(normal @ laser.d)
+        point = laser.o + s_ * laser.d
+        ms.append(replace(_meas(name, point, 0.02, laser), pixel=rig.camera.project(point[None])[0]))
+    known = best_fusion(rig, ms[0], {"parallel": [ms[1]]}, 0.05, level_slopes(rig, pan, tilt))
+    assert len(known.used) == 2
+    assert known.range_m == pytest.approx(1.6, abs=2e-4)
+    if surface == "floor":
+        as_facing = best_fusion(rig, ms[0], {"parallel": [ms[1]]}, 0.05, (0.0,))
+        assert abs(as_facing.range_m - 1.6) > 0.015  # what it was
 
 
 def _render_groups(renderer: Renderer, pan: float = 0.0, pairs: int = 2, seed: int = 0, edit=None):

@@ -84,6 +84,9 @@ def main() -> int:
         print(f"{scene_name} 3D scan, tilts {tilts}, {len(rec.zones)} zones, {len(ok)} ok:")
         for line in score.lines():
             print("  " + line)
+        within = [abs(r.range_m - z.truth["range_m"]) <= 2 * (r.sigma_m or 0.0) for r, z in ok]
+        print(f"  ranges within 2σ of the truth: {sum(within)} of {len(within)} "
+              f"({100 * sum(within) / max(len(within), 1):.0f} %; the contract's σ: 95 %)")
         worst = sorted(((r, z.truth) for r, z in ok), reverse=True,
                        key=lambda rz: abs(rz[0].range_m - rz[1]["range_m"]) / rz[1]["range_m"])
         for r, truth in worst[:args.worst]:
