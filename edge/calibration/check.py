@@ -14,8 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from edge.calibration.file import Calibration
-from edge.calibration.fit import assign_spots, zone_blobs
-from edge.errors import CalibrationError
+from edge.calibration.fit import assign_spots, one_per_zone, zone_blobs
 from edge.ranging import triangulate
 from edge.recording import Recording
 
@@ -42,14 +41,7 @@ def check_calibration(recording: Recording, distances_m: Sequence[float], cal: C
     """Range every laser's spot in every zone of `recording` (zone i: a flat target squarely at
     distances_m[i]) with `cal`."""
     zones = len(recording.zones)
-    d = tuple(float(x) for x in distances_m)
-    if len(d) != zones:
-        raise CalibrationError(
-            f"--distances: the recording has {zones} zones but {len(d)} distances were given: "
-            "give one distance per zone, in zone order")
-    bad = [x for x in d if not (math.isfinite(x) and x > 0)]
-    if bad:
-        raise CalibrationError(f"--distances: must be positive metres, got {bad[0]:g}")
+    d = one_per_zone(zones, distances_m, "--distances: ")
     rig = cal.apply(recording.rig)
     blobs = [zone_blobs(recording, i) for i in range(zones)]
     points = assign_spots(rig, blobs, d)

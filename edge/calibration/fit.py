@@ -78,15 +78,22 @@ MAX_FOCAL_CHANGE = 0.10
 # --- checks -------------------------------------------------------------------------------------
 
 
-def _check_distances(zones: int, distances: Sequence[float]) -> tuple[float, ...]:
+def one_per_zone(zones: int, distances: Sequence[float], prefix: str = "") -> tuple[float, ...]:
+    """The target distances, one positive number of metres per zone of the recording, or a
+    CalibrationError saying what is wrong (after `prefix`, e.g. the option's name)."""
     d = tuple(float(x) for x in distances)
     if len(d) != zones:
         raise CalibrationError(
-            f"the recording has {zones} zones but {len(d)} distances were given: "
+            f"{prefix}the recording has {zones} zones but {len(d)} distances were given: "
             "give one distance per zone, in zone order")
     bad = [x for x in d if not (math.isfinite(x) and x > 0)]
     if bad:
-        raise CalibrationError(f"distances must be positive metres, got {bad[0]:g}")
+        raise CalibrationError(f"{prefix}distances must be positive metres, got {bad[0]:g}")
+    return d
+
+
+def _check_distances(zones: int, distances: Sequence[float]) -> tuple[float, ...]:
+    d = one_per_zone(zones, distances)
     distinct = sorted(set(d))
     if len(distinct) < MIN_POINTS:
         raise CalibrationError(
