@@ -173,16 +173,19 @@ def _offsets(r: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def _powers(r: int) -> np.ndarray:
-    """1, x and x² of a window's offsets −r … r: (3, 2r + 1) float64, for its moments by matrix product."""
-    x = np.arange(-r, r + 1, dtype=np.float64)
-    return np.stack([np.ones_like(x), x, x * x])
+    """1, x, x², y and y² of every pixel of a (2r + 1)² window (offsets −r … r from its centre,
+    row by row): (5, (2r + 1)²) float64, for a window's moments by one matrix-vector product."""
+    v, u = np.divmod(np.arange((2 * r + 1) ** 2), 2 * r + 1)
+    u, v = (u - r).astype(np.float64), (v - r).astype(np.float64)
+    return np.stack([np.ones_like(u), u, u * u, v, v * v])
 
 
 def _moments(w: np.ndarray, powers: np.ndarray) -> tuple[list[float], list[float]]:
     """Σ w, Σ w·x, Σ w·x² and Σ w, Σ w·y, Σ w·y² of a window's weights `w` (rows y, columns x),
-    `powers` being `_powers` of its half-size."""
-    m = (powers @ w @ powers.T).tolist()  # m[j][i] = Σ w·yʲ·xⁱ
-    return m[0], [m[0][0], m[1][0], m[2][0]]
+    `powers` being `_powers` of its half-size. (One product: each numpy call costs more than the
+    arithmetic on a window this small.)"""
+    m0, mx, mxx, my, myy = (powers @ w.ravel()).tolist()
+    return [m0, mx, mxx], [m0, my, myy]
 
 
 @functools.lru_cache(maxsize=16)
@@ -741,15 +744,14 @@ class SpotFinder:
             # including the spot's own shot noise (`shot` is per unit of the averaged frames'
             # signal), grown by the noise's correlation and the fit's misfit. By moments: σ² is
             # noise² on each pixel used and shot × its signal, and Σ (x − x̄)² w = Σ x² w − 2 x̄ Σ x w + x̄² Σ w.
-            nc, nl = _moments(np.sign(signal), powers)  # signal ≥ 0: 1 where used
+            nc, nl = _moments(signal > 0.0, powers)  # signal ≥ 0: 1 where used
             grow = texture.area * misfit / mass**2
-
-            def spread(m: list[float], x: float) -> float:
-                # ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
-                return max(m[2] - 2.0 * x * m[1] + x * x * m[0], 0.0)
-
-            var_u = grow * (noise**2 * spread(nc, du) + shot * spread(mc, du))
-            var_v = grow * (noise**2 * spread(nl, dv) + shot * spread(ml, dv))
+            # Σ (x − x̄)² w, ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
+            noise2 = noise**2
+            var_u = grow * (noise2 * max(nc[2] - 2.0 * du * nc[1] + du * du * nc[0], 0.0)
+                            + shot * max(mc[2] - 2.0 * du * mc[1] + du * du * mc[0], 0.0))
+            var_v = grow * (noise2 * max(nl[2] - 2.0 * dv * nl[1] + dv * dv * nl[0], 0.0)
+                            + shot * max(ml[2] - 2.0 * dv * ml[1] + dv * dv * ml[0], 0.0))
         if texture.demosaiced:
             # Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation
             # shifts a small spot by up to a few tenths of a pixel, depending on the method and
@@ -757,8 +759,8 @@ class SpotFinder:
             var_u += DEMOSAIC_PX**2
             var_v += DEMOSAIC_PX**2
         # Where along the path, and how far from it, from the strip row the seed came from.
-        pu, pv = float(band.path[row, 0]), float(band.path[row, 1])
-        tu, tv = float(band.tangent[row, 0]), float(band.tangent[row, 1])
+        pu, pv = band.path[row].tolist()
+        tu, tv = band.tangent[row].tolist()
         along = (cu - pu) * tu + (cv - pv) * tv
         cross = abs((cu - pu) * tv - (cv - pv) * tu)
         if cross > self.path_tolerance:
