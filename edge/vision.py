@@ -376,10 +376,16 @@ class SpotFinder:
             raise ValueError("no frames to gather: a pose needs at least one laser-on and one laser-off frame")
         scale = 1.0 / (len(frames) * self.full_scale(frames[0]))
         acc: np.ndarray | None = None
+        cam = self.rig.camera
         for image in frames:
+            if image.shape[0] != cam.height or image.shape[1] != cam.width:
+                raise ValueError(f"a {image.shape[1]}x{image.shape[0]} frame for a {cam.width}x{cam.height} camera")
             flat = image.reshape(-1) if image.flags.c_contiguous else np.ascontiguousarray(image).reshape(-1)
             for index, weight in self._flat_index(image):
-                values = np.multiply(flat.take(index), np.float32(weight * scale), dtype=np.float32)
+                # Every index is inside a frame of the camera's size (checked above; `_band` clips
+                # the strips, the background grid keeps its neighbours inside): mode="wrap" reads
+                # the same pixels as the default "raise", whose bounds check costs a fifth of this.
+                values = np.multiply(flat.take(index, mode="wrap"), np.float32(weight * scale), dtype=np.float32)
                 acc = values if acc is None else np.add(acc, values, out=acc)
         assert acc is not None
         return acc
