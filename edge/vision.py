@@ -173,16 +173,19 @@ def _offsets(r: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def _powers(r: int) -> np.ndarray:
-    """1, x and x² of a window's offsets −r … r: (3, 2r + 1) float64, for its moments by matrix product."""
-    x = np.arange(-r, r + 1, dtype=np.float64)
-    return np.stack([np.ones_like(x), x, x * x])
+    """1, x, x², y and y² of every pixel of a (2r + 1)² window (offsets −r … r from its centre,
+    row by row): (5, (2r + 1)²) float64, for a window's moments by one matrix-vector product."""
+    v, u = np.divmod(np.arange((2 * r + 1) ** 2), 2 * r + 1)
+    u, v = (u - r).astype(np.float64), (v - r).astype(np.float64)
+    return np.stack([np.ones_like(u), u, u * u, v, v * v])
 
 
 def _moments(w: np.ndarray, powers: np.ndarray) -> tuple[list[float], list[float]]:
     """Σ w, Σ w·x, Σ w·x² and Σ w, Σ w·y, Σ w·y² of a window's weights `w` (rows y, columns x),
-    `powers` being `_powers` of its half-size."""
-    m = (powers @ w @ powers.T).tolist()  # m[j][i] = Σ w·yʲ·xⁱ
-    return m[0], [m[0][0], m[1][0], m[2][0]]
+    `powers` being `_powers` of its half-size. (One product: each numpy call costs more than the
+    arithmetic on a window this small.)"""
+    m0, mx, mxx, my, myy = np.dot(powers, w.ravel()).tolist()  # (np.dot: less overhead than @)
+    return [m0, mx, mxx], [m0, my, myy]
 
 
 @functools.lru_cache(maxsize=16)
@@ -373,10 +376,16 @@ class SpotFinder:
             raise ValueError("no frames to gather: a pose needs at least one laser-on and one laser-off frame")
         scale = 1.0 / (len(frames) * self.full_scale(frames[0]))
         acc: np.ndarray | None = None
+        cam = self.rig.camera
         for image in frames:
+            if image.shape[0] != cam.height or image.shape[1] != cam.width:
+                raise ValueError(f"a {image.shape[1]}x{image.shape[0]} frame for a {cam.width}x{cam.height} camera")
             flat = image.reshape(-1) if image.flags.c_contiguous else np.ascontiguousarray(image).reshape(-1)
             for index, weight in self._flat_index(image):
-                values = np.multiply(flat.take(index), np.float32(weight * scale), dtype=np.float32)
+                # Every index is inside a frame of the camera's size (checked above; `_band` clips
+                # the strips, the background grid keeps its neighbours inside): mode="wrap" reads
+                # the same pixels as the default "raise", whose bounds check costs a fifth of this.
+                values = np.multiply(flat.take(index, mode="wrap"), np.float32(weight * scale), dtype=np.float32)
                 acc = values if acc is None else np.add(acc, values, out=acc)
         assert acc is not None
         return acc
@@ -473,13 +482,14 @@ class SpotFinder:
         # spot's centroid (the centre and parallel spots are 4 px apart at 5 m).
         everywhere = [(u, v) for ss in seeds.values() for u, v, _, _, _, _ in ss]
         found: dict[str, list[Candidate]] = {}
+        scales = self._scales(on, off, gain)
         for name, ss in seeds.items():
             out = []
             for u, v, peak, row, mf, here in ss:
                 others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius
                           ] if len(everywhere) > 1 else []
                 cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
-                                    mf, texture)
+                                    mf, texture, scales)
                 if cand is not None:
                     out.append(cand)
             found[name] = out
@@ -629,8 +639,14 @@ class SpotFinder:
         line = self._window(on, v, u) - np.float32(gain) * self._window(off, v, u)
         return float(line.min()) < 0.5 * peak
 
+    def _scales(self, on, off, gain) -> tuple[np.float32, np.float32]:
+        """What the laser-on and laser-off frames' sums are multiplied by for `_refine`'s windows."""
+        return (np.float32(1.0 / (len(on) * self.full_scale(on[0]))),
+                np.float32(gain / (len(off) * self.full_scale(off[0]))))
+
     def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak, matched=0.0,
-                texture: _Texture | None = None) -> Candidate | None:
+                texture: _Texture | None = None, scales: tuple[np.float32, np.float32] | None = None
+                ) -> Candidate | None:
         """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
         thresholded difference in a window, which is unbiased for a symmetric spot; the window
         grows for big (near, defocused, saturated) spots so that it never clips one, and pixels
@@ -645,8 +661,7 @@ class SpotFinder:
         cam = self.rig.camera
         r = self._radius
         cu, cv = float(seed[0]), float(seed[1])
-        scale = np.float32(1.0 / (len(on) * self.full_scale(on[0])))
-        off_scale = np.float32(gain / (len(off) * self.full_scale(off[0])))
+        scale, off_scale = scales or self._scales(on, off, gain)
         mine: np.ndarray | None = None
         for _ in range(3):
             u0, v0 = int(round(cu)), int(round(cv))
@@ -656,7 +671,7 @@ class SpotFinder:
             lit = self._scaled(on, rows, cols, scale)
             win = lit - self._scaled(off, rows, cols, off_scale)
             border = win.take(_border_index(2 * r + 1))
-            level = float(np.partition(border, border.size // 2)[border.size // 2])
+            level = sorted(border.tolist())[border.size // 2]  # the median (faster than np.partition here)
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
             signal = np.maximum(win - np.float32(level + 2.0 * noise), np.float32(0.0))
@@ -686,7 +701,7 @@ class SpotFinder:
         if size > self.max_spot_px:
             return None  # a lamp or a screen, not a pointer's spot
         saturated = lit >= _SATURATED
-        clipped = bool(saturated.any())
+        clipped = np.count_nonzero(saturated) > 0  # (cheaper than .any() on a few dozen pixels)
         above = win - np.float32(level)  # background-subtracted, not thresholded
         usable = None if not clipped else ~saturated if mine is None else ~saturated & mine
         if usable is None and mine is not None:
@@ -741,15 +756,14 @@ class SpotFinder:
             # including the spot's own shot noise (`shot` is per unit of the averaged frames'
             # signal), grown by the noise's correlation and the fit's misfit. By moments: σ² is
             # noise² on each pixel used and shot × its signal, and Σ (x − x̄)² w = Σ x² w − 2 x̄ Σ x w + x̄² Σ w.
-            nc, nl = _moments(np.sign(signal), powers)  # signal ≥ 0: 1 where used
+            nc, nl = _moments(signal > 0.0, powers)  # signal ≥ 0: 1 where used
             grow = texture.area * misfit / mass**2
-
-            def spread(m: list[float], x: float) -> float:
-                # ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
-                return max(m[2] - 2.0 * x * m[1] + x * x * m[0], 0.0)
-
-            var_u = grow * (noise**2 * spread(nc, du) + shot * spread(mc, du))
-            var_v = grow * (noise**2 * spread(nl, dv) + shot * spread(ml, dv))
+            # Σ (x − x̄)² w, ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
+            noise2 = noise**2
+            var_u = grow * (noise2 * max(nc[2] - 2.0 * du * nc[1] + du * du * nc[0], 0.0)
+                            + shot * max(mc[2] - 2.0 * du * mc[1] + du * du * mc[0], 0.0))
+            var_v = grow * (noise2 * max(nl[2] - 2.0 * dv * nl[1] + dv * dv * nl[0], 0.0)
+                            + shot * max(ml[2] - 2.0 * dv * ml[1] + dv * dv * ml[0], 0.0))
         if texture.demosaiced:
             # Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation
             # shifts a small spot by up to a few tenths of a pixel, depending on the method and
@@ -757,8 +771,8 @@ class SpotFinder:
             var_u += DEMOSAIC_PX**2
             var_v += DEMOSAIC_PX**2
         # Where along the path, and how far from it, from the strip row the seed came from.
-        pu, pv = float(band.path[row, 0]), float(band.path[row, 1])
-        tu, tv = float(band.tangent[row, 0]), float(band.tangent[row, 1])
+        pu, pv = band.path[row].tolist()
+        tu, tv = band.tangent[row].tolist()
         along = (cu - pu) * tu + (cv - pv) * tv
         cross = abs((cu - pu) * tv - (cv - pv) * tu)
         if cross > self.path_tolerance:

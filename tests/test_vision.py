@@ -83,6 +83,17 @@ def test_noise_alone_gives_no_spot() -> None:
     assert all(not c for c in found.values())
 
 
+def test_a_frame_of_another_size_is_refused() -> None:
+    # The strips are gathered without a bounds check per pixel: the frame's size is checked instead.
+    renderer = _renderer(load_scene("office"))
+    on, off = _pair(renderer, pan=-90.0)
+    finder = SpotFinder(renderer.rig)
+    with pytest.raises(ValueError, match="320x240 frame for a 640x480 camera"):
+        finder.find([on[:240, :320]], [off[:240, :320]])
+    with pytest.raises(ValueError, match="640x479 frame"):
+        finder.find([on], [off[:-1]])
+
+
 def test_lights_that_are_not_lasers_are_rejected() -> None:
     renderer = _renderer(flat_target_scene(2.0))
     on, off = _pair(renderer)
