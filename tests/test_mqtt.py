@@ -188,7 +188,8 @@ def test_state_is_retained_and_sent_again_after_a_reconnect(broker, subscriber, 
     # broker, and the state is back.
     publish(broker, T.state, b"", retain=True)
     broker.restart()
-    wait_until(lambda: link.stats()["connects"] == 3 and link.connected, what="the third connect")
+    # At least a third: under load a connect may be lost and made again, which is no fault.
+    wait_until(lambda: link.stats()["connects"] >= 3 and link.connected, timeout=10.0, what="the third connect")
     late = Subscriber(broker)
     try:
         got = late.wait_for(T.state)
