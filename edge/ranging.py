@@ -23,7 +23,7 @@ from typing import Literal
 
 import numpy as np
 
-from edge.rig import CameraModel, Laser, Rig
+from edge.rig import CameraModel, Laser, Pose, Rig
 from edge.schema import require
 from edge.vision import Candidate, SpotFinder
 
@@ -351,13 +351,13 @@ def _point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
 _MAX_KNOWN_SLOPE = 3.0
 
 
-def level_slopes(rig: Rig, pan_deg: float, tilt_deg: float) -> tuple[float, ...]:
+def level_slopes(to_base: Pose) -> tuple[float, ...]:
     """The slopes dz/dy (camera frame) of a vertical surface (a wall, a furniture front) and of a
     horizontal one (a floor, a table top) at this pose: the surfaces rooms are made of. Level, a
     wall's slope is 0 (z = a) and a floor's is not seen across the lasers' column; tilted by t, a
     wall's is ±tan t and a floor's ∓cot t. The lasers' column is vertical in the camera, so the
     slope across it (dz/dx) is not needed."""
-    up = rig.camera_to_base(pan_deg, tilt_deg).R.T @ np.array([0.0, 0.0, 1.0])  # base's up, in the camera
+    up = to_base.R.T @ np.array([0.0, 0.0, 1.0])  # base's up, in the camera
     out = []
     if abs(up[1]) > 1e-9 and abs(up[2] / up[1]) <= _MAX_KNOWN_SLOPE:
         out.append(0.0 if abs(up[2]) < 1e-9 else float(up[2] / up[1]))  # contains up: z changes by up_z per up_y
@@ -492,7 +492,8 @@ class Ranger:
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
         others = {n: ms for n, ms in cands.items() if n != ref}
-        known = level_slopes(rig, pan_deg, tilt_deg)
+        to_base = rig.camera_to_base(pan_deg, tilt_deg)  # once a zone: the slopes, then the point
+        known = level_slopes(to_base)
         if len(refs) == 1:
             chosen = refs[0]
         else:
@@ -538,7 +539,7 @@ class Ranger:
                 index, pan_deg, tilt_deg, OUT_OF_RANGE, cands,
                 detail=f"{fusion.range_m:.2f} m is outside the working range {lo}-{hi} m",
             )
-        base = rig.camera_to_base(pan_deg, tilt_deg).apply(fusion.point_m)
+        base = to_base.apply(fusion.point_m)
         return ZoneResult(
             index, pan_deg, tilt_deg, OK, fusion.range_m, fusion.sigma_m, fusion.point_m, base,
             fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),

@@ -107,10 +107,11 @@ def test_fusion_on_a_tilted_plane_gives_its_normal() -> None:
 
 def test_the_known_slopes_are_a_walls_and_a_floors_at_the_units_tilt() -> None:
     rig = default_rig()
-    assert level_slopes(rig, 25.0, 0.0) == (0.0,)  # level: z = a, as before; no floor across the lasers
+    assert level_slopes(rig.camera_to_base(25.0, 0.0)) == (0.0,)  # level: z = a, as before; no floor across the lasers
     t = math.radians(40.0)
-    assert level_slopes(rig, 25.0, -40.0) == pytest.approx((math.tan(t), -1.0 / math.tan(t)))
-    assert level_slopes(rig, 25.0, 10.0) == pytest.approx((-math.tan(math.radians(10.0)),))  # floor unseen
+    assert level_slopes(rig.camera_to_base(25.0, -40.0)) == pytest.approx((math.tan(t), -1.0 / math.tan(t)))
+    # Looking 10° up: a wall's slope only, no floor across the lasers.
+    assert level_slopes(rig.camera_to_base(25.0, 10.0)) == pytest.approx((-math.tan(math.radians(10.0)),))
 
 
 @pytest.mark.parametrize("surface", ["floor", "wall"])
@@ -131,7 +132,7 @@ def test_a_floor_or_a_wall_seen_tilted_is_fused_without_bias(surface: str) -> No
         s_ = float(normal @ (hit - laser.o)) / float(normal @ laser.d)
         point = laser.o + s_ * laser.d
         ms.append(replace(_meas(name, point, 0.02, laser), pixel=rig.camera.project(point[None])[0]))
-    known = best_fusion(rig, ms[0], {"parallel": [ms[1]]}, 0.05, level_slopes(rig, pan, tilt))
+    known = best_fusion(rig, ms[0], {"parallel": [ms[1]]}, 0.05, level_slopes(rig.camera_to_base(pan, tilt)))
     assert len(known.used) == 2
     assert known.range_m == pytest.approx(1.6, abs=2e-4)
     if surface == "floor":
