@@ -33,6 +33,13 @@ STATUSES = (OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT)
 _CHI2_99 = (6.63, 9.21, 11.34, 13.28, 15.09, 16.81)
 # A faint reference spot (found by the matched filter alone) must be placed at least this well (px).
 FAINT_MAX_SIGMA_PX = 0.5
+# Of several blobs on the reference's path, one that a single other laser agrees with must be placed
+# at least this well (px); see Ranger.range_zone.
+LOOSE_WINNER_PX = 1.0
+# A reference spot this bright (peak over noise) that shows in one of the zone's views must show in
+# the others with at least this share of its light, or the beam is on an edge (Ranger._comes_and_goes).
+EDGE_MIN_SNR = 10.0
+EDGE_LIGHT_RATIO = 0.3
 # Two spots' depths may differ across their separation by at most this slope (tan of the surface's
 # angle from facing the lasers squarely): 75° still counts as one surface.
 _MAX_SLOPE = math.tan(math.radians(75.0))
@@ -58,6 +65,13 @@ class RangingConfig:
     # A reference spot that the other lasers' spots contradict is only believed this strong
     # (peak over noise): a weak blob on the path is as likely a stray light as the laser.
     lone_min_snr: float = 20.0
+    # A reference spot that no other laser's spot confirms, because no other laser's spot was found
+    # at all, is only believed this strong: in bright, cluttered rooms noise and glare make blobs
+    # up to about 10 × the noise, and a dark surface hides the other lasers just as it dims this one.
+    alone_min_snr: float = 12.0
+    # A range whose σ is more than this fraction of it is not `ok` but `ambiguous`: at 2σ it could
+    # be 10 % off, a wrong range for any user (a spot placed to a pixel on a small camera).
+    max_sigma_fraction: float = 0.05
 
     def __post_init__(self) -> None:
         require(0.5 <= self.band_halfwidth_px <= 20, "band_halfwidth_px", "must be 0.5-20 px")
@@ -66,6 +80,8 @@ class RangingConfig:
         require(self.min_snr >= 3, "min_snr", "must be >= 3")
         require(self.speckle_px >= 0, "speckle_px", "must be >= 0")
         require(self.surface_sigma_per_m >= 0, "surface_sigma_per_m", "must be >= 0")
+        require(self.alone_min_snr >= self.min_snr, "alone_min_snr", "must be >= min_snr")
+        require(0 < self.max_sigma_fraction <= 1, "max_sigma_fraction", "must be in (0, 1]")
 
 
 @dataclass(frozen=True)
@@ -482,6 +498,7 @@ class Ranger:
             return ZoneResult(index, pan_deg, tilt_deg, FAULT, detail="no usable frame pair")
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
+        sightings = {id(m): len(t.found) for t, m in zip(tracks.get(ref, ()), cands.get(ref, ()))}
         refs = cands.get(ref, [])
         if any(m.snr >= self.config.min_snr for m in refs):
             # Faint blobs (found by the matched filter alone) count only where nothing brighter is,
@@ -510,6 +527,15 @@ class Ranger:
                     detail=f"{len(refs)} blobs on the {ref} laser's path and nothing to tell them apart",
                 )
             chosen = support[0][1]
+            if support[0][0] < 2 and chosen.sigma_px > LOOSE_WINNER_PX:
+                # One other laser's agreement singles out a blob only if the blob is placed well:
+                # a blob known to ±1.5 px on a path with others on it meets the other laser's
+                # surface by chance as often as not.
+                return self._result(
+                    index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                    detail=f"{len(refs)} blobs on the {ref} laser's path; the one another laser agrees with "
+                           f"is placed only to {chosen.sigma_px:.1f} px",
+                )
         fusion = (
             best_fusion(rig, chosen, others, self.config.surface_sigma_per_m, known)
             if self.config.fuse and others
@@ -526,6 +552,16 @@ class Ranger:
                     index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                     detail=f"no other laser confirms the {ref} spot and {why}",
                 )
+        if len(fusion.used) == 1 and not any(others.values()) and chosen.snr < self.config.alone_min_snr:
+            return self._result(
+                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                detail=f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found",
+            )
+        if sightings.get(id(chosen), 0) < sum(ref in g.lasers for g in groups) and self._comes_and_goes(chosen, groups):
+            return self._result(
+                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                detail=f"the {ref} spot shows in some of the zone's views and not in others: the beam is on an edge",
+            )
         if len(fusion.used) == 1 and chosen.snr < self.config.min_snr:
             # Found by the matched filter alone, and no other laser on its surface: a dim spot
             # must be confirmed, for noise and glare make blobs as faint as it.
@@ -539,11 +575,28 @@ class Ranger:
                 index, pan_deg, tilt_deg, OUT_OF_RANGE, cands,
                 detail=f"{fusion.range_m:.2f} m is outside the working range {lo}-{hi} m",
             )
+        if fusion.sigma_m > self.config.max_sigma_fraction * fusion.range_m:
+            return self._result(
+                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                detail=f"the {ref} spot is placed too loosely to range: "
+                       f"{fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m",
+            )
         base = to_base.apply(fusion.point_m)
         return ZoneResult(
             index, pan_deg, tilt_deg, OK, fusion.range_m, fusion.sigma_m, fusion.point_m, base,
             fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),
         )
+
+    def _comes_and_goes(self, spot: LaserMeasurement, groups: Sequence[FrameGroup]) -> bool:
+        """Is a bright spot, missing from some of the zone's frame groups, really not there in
+        them? The unit is nudged between groups (for new speckle); a beam on a depth edge then
+        lights a near surface in one view and a far one, or nothing the camera sees, in the next.
+        A spot the finder merely missed (merged with a neighbour) still shows its light."""
+        if spot.snr < EDGE_MIN_SNR:
+            return False  # a weak spot comes and goes with the noise
+        ref = self.rig.reference.name
+        light = [self.finder.light_at(g.on, g.off, spot.pixel) for g in groups if ref in g.lasers]
+        return len(light) > 1 and min(light) < EDGE_LIGHT_RATIO * max(light)
 
     def _result(self, index, pan, tilt, status, cands, detail="") -> ZoneResult:
         lasers = {n: ms[0] for n, ms in cands.items() if len(ms) == 1}

@@ -495,6 +495,19 @@ class SpotFinder:
             found[name] = out
         return found
 
+    def light_at(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray], pixel: np.ndarray) -> float:
+        """The laser light in a spot-sized window at `pixel`: the on frames' read channel less the
+        off frames', less the window border's median (the room), summed; in full-scale units. 0 where
+        the window leaves the image."""
+        cam, r = self.rig.camera, self._radius
+        u0, v0 = int(round(float(pixel[0]))), int(round(float(pixel[1])))
+        if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
+            return 0.0
+        rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
+        win = self._window(on, rows, cols) - self._window(off, rows, cols)
+        level = float(np.median(win.take(_border_index(2 * r + 1))))
+        return float(win.sum()) - level * win.size
+
     @property
     def channel(self) -> str:
         """What colour frames are read from now: ``red`` or ``luma`` (``auto`` has chosen one)."""

@@ -262,6 +262,67 @@ def test_a_stray_light_alone_on_the_reference_path_is_never_a_range() -> None:
     assert result.status != OK or abs(result.range_m - 2.0) / 2.0 < 0.02
 
 
+def _alone(renderer: Renderer, power: float) -> list[FrameGroup]:
+    """Two nudged frame groups in which only the reference laser lights, at `power`."""
+    groups = []
+    for k in range(2):
+        rng = np.random.default_rng([3, k])
+        view = 0.0514 * k
+        on = renderer.render(view, 0.0, {"center": power}, 0.0, rng)
+        off = renderer.render(view, 0.0, {}, 0.0, rng)
+        groups.append(FrameGroup([on], [off], renderer.rig.laser_names, (view, 0.0)))
+    return groups
+
+
+def test_a_weak_reference_spot_that_no_other_laser_confirms_is_not_a_range() -> None:
+    """Nothing of the other lasers found (a dark surface, or lasers gone): a reference spot about
+    as bright as the blobs that glare and noise make is not believed, a strong one is."""
+    renderer = _wall(2.0)
+    ranger = Ranger(renderer.rig)
+    weak = ranger.range_zone(0, 0.0, 0.0, _alone(renderer, 0.08))
+    assert weak.status == AMBIGUOUS and weak.range_m is None
+    assert "weak" in weak.detail and "no other laser's spot was found" in weak.detail
+    assert 6.0 <= weak.lasers["center"].snr < 12.0  # found, and above min_snr: only the new rule refused it
+    strong = ranger.range_zone(0, 0.0, 0.0, _alone(renderer, 0.15))
+    assert strong.status == OK and strong.range_m == pytest.approx(2.0, rel=0.02)
+
+
+def test_a_beam_on_an_edge_is_ambiguous_not_a_range() -> None:
+    """The nudge between the zone's two views takes the reference beam off its surface: its spot
+    shows, bright, in one view and not at all in the other. Not `ok`: which surface is the zone's?"""
+    renderer = _wall(1.5)
+    rig = renderer.rig
+    ranger = Ranger(rig)
+    both = _render_groups(renderer)
+    assert ranger.range_zone(0, 0.0, 0.0, both).status == OK
+    rng = np.random.default_rng(9)
+    view = both[1].view
+    gone = FrameGroup([renderer.render(view[0], 0.0, {"parallel": 1.0, "sloped": 1.0}, 0.0, rng)],
+                      [renderer.render(view[0], 0.0, {}, 0.0, rng)], rig.laser_names, view)
+    result = ranger.range_zone(0, 0.0, 0.0, [both[0], gone])
+    assert result.status == AMBIGUOUS and result.range_m is None
+    assert "on an edge" in result.detail
+    # Where the light is there in both views, it is no edge, whatever the finder made of it.
+    finder = ranger.finder
+    spot = rig.camera.project(rig.reference.point_at_depth(1.5))
+    lit = [finder.light_at(g.on, g.off, spot) for g in both]
+    assert min(lit) > 0.5 * max(lit) > 0.0
+    assert finder.light_at(gone.on, gone.off, spot) < 0.1 * max(lit)
+
+
+def test_a_range_known_only_loosely_is_not_ok() -> None:
+    """A range whose σ is more than `max_sigma_fraction` of it could be 10 % off at 2σ: the zone
+    says it is in doubt."""
+    renderer = _wall(3.0)
+    groups = _render_groups(renderer)
+    fine = Ranger(renderer.rig).range_zone(0, 0.0, 0.0, groups)
+    assert fine.status == OK and fine.sigma_m > 0
+    strict = RangingConfig(max_sigma_fraction=0.5 * fine.sigma_m / fine.range_m)
+    loose = Ranger(renderer.rig, strict).range_zone(0, 0.0, 0.0, groups)
+    assert loose.status == AMBIGUOUS and loose.range_m is None
+    assert "too loosely" in loose.detail and f"± {fine.sigma_m:.2f} m" in loose.detail
+
+
 def test_sigma_is_honest_over_many_walls() -> None:
     config = load_config()
     rig = config.rig.build()
@@ -282,3 +343,8 @@ def test_config_validation() -> None:
         RangingConfig(band_halfwidth_px=2.0, path_tolerance_px=3.0)
     with pytest.raises(FieldError, match="min_snr"):
         replace(RangingConfig(), min_snr=1.0)
+    with pytest.raises(FieldError, match="alone_min_snr"):
+        RangingConfig(alone_min_snr=5.0)  # below min_snr: it would never refuse anything
+    for bad in (0.0, 1.5):
+        with pytest.raises(FieldError, match="max_sigma_fraction"):
+            RangingConfig(max_sigma_fraction=bad)
