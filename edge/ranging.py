@@ -557,7 +557,8 @@ class Ranger:
                 index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                 detail=f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found",
             )
-        if sightings.get(id(chosen), 0) < sum(ref in g.lasers for g in groups) and self._comes_and_goes(chosen, groups):
+        if (sightings.get(id(chosen), 0) < sum(ref in g.lasers for g in groups)
+                and self._comes_and_goes(chosen, groups, tracks)):
             return self._result(
                 index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                 detail=f"the {ref} spot shows in some of the zone's views and not in others: the beam is on an edge",
@@ -587,16 +588,27 @@ class Ranger:
             fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),
         )
 
-    def _comes_and_goes(self, spot: LaserMeasurement, groups: Sequence[FrameGroup]) -> bool:
+    def _comes_and_goes(self, spot: LaserMeasurement, groups: Sequence[FrameGroup],
+                        tracks: Mapping[str, Sequence[_Track]]) -> bool:
         """Is a bright spot, missing from some of the zone's frame groups, really not there in
         them? The unit is nudged between groups (for new speckle); a beam on a depth edge then
         lights a near surface in one view and a far one, or nothing the camera sees, in the next.
-        A spot the finder merely missed (merged with a neighbour) still shows its light."""
+        Speckle alone can dim a small spot to a fifth from one view to the next, so a dim view
+        counts only where the finder saw nothing near the spot either (a spot merged with a
+        neighbour's is found as that neighbour's)."""
         if spot.snr < EDGE_MIN_SNR:
             return False  # a weak spot comes and goes with the noise
         ref = self.rig.reference.name
-        light = [self.finder.light_at(g.on, g.off, spot.pixel) for g in groups if ref in g.lasers]
-        return len(light) > 1 and min(light) < EDGE_LIGHT_RATIO * max(light)
+        shown = [g for g in groups if ref in g.lasers]
+        light = [self.finder.light_at(g.on, g.off, spot.pixel) for g in shown]
+        if len(light) < 2 or min(light) >= EDGE_LIGHT_RATIO * max(light):
+            return False
+        dim = shown[light.index(min(light))].view
+        reach = 2.0 * self.finder.spot_radius_px
+        return not any(
+            dim in t.views and math.dist(t.pixel().tolist(), spot.pixel.tolist()) < reach
+            for ts in tracks.values() for t in ts
+        )
 
     def _result(self, index, pan, tilt, status, cands, detail="") -> ZoneResult:
         lasers = {n: ms[0] for n, ms in cands.items() if len(ms) == 1}

@@ -495,6 +495,11 @@ class SpotFinder:
             found[name] = out
         return found
 
+    @property
+    def spot_radius_px(self) -> float:
+        """The half-size of the window a spot is placed in (px)."""
+        return float(self._radius)
+
     def light_at(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray], pixel: np.ndarray) -> float:
         """The laser light in a spot-sized window at `pixel`: the on frames' read channel less the
         off frames', less the window border's median (the room), summed; in full-scale units. 0 where
