@@ -215,3 +215,58 @@ def test_the_calibrated_rig_is_fitted_from_a_simulated_board(tmp_path: Path) -> 
     assert run.rig == "calibrated" and len(run.outcomes) == 2
     board = read_recording(tmp_path / "tuning-0-calibration")
     assert [z.truth["range_m"] for z in board.zones if z.truth] == pytest.approx(CALIBRATION_DISTANCES_M, abs=0.01)
+
+
+# --- observable in the frames (edge/accuracy/observe.py) ---
+
+
+def _spot_frames(amplitude: float, noise: float, seed: int, background: float = 0.0):
+    """An 8-bit BGR laser-on and laser-off frame: a red Gaussian spot (σ 1.6 px) at (100.3, 80.6)."""
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:160, 0:200]
+    spot = amplitude * np.exp(-((u - 100.3) ** 2 + (v - 80.6) ** 2) / (2 * 1.6**2))
+    frames = []
+    for lit in (spot, 0.0):
+        img = np.full((160, 200, 3), 40.0 + background) + rng.normal(0.0, noise, (160, 200, 3))
+        img[..., 2] += lit
+        frames.append(np.clip(np.rint(img), 0, 255).astype(np.uint8))
+    return frames
+
+
+def test_frame_snr_is_the_matched_filters_in_white_noise() -> None:
+    from edge.accuracy.observe import frame_snr, mean_differences
+
+    # Amplitude A in noise σ per frame (√2 σ in a difference): the matched filter's SNR is A σ_s √π / (√2 σ).
+    expected = 6.0 * 1.6 * math.sqrt(math.pi) / (math.sqrt(2.0) * 2.0)
+    got = [frame_snr(mean_differences([on], [off]), (100.3, 80.6), []) for on, off in
+           (_spot_frames(6.0, 2.0, seed) for seed in range(8))]
+    assert np.median(got) == pytest.approx(expected, rel=0.15)
+    assert frame_snr(mean_differences(*[[f] for f in _spot_frames(0.0, 2.0, 1)]), (100.3, 80.6), []) < 4.0
+
+
+def test_a_spot_that_jpeg_rounds_away_is_not_observable_in_its_frames() -> None:
+    """A dim spot in dark, flat frames: plain to the matched filter in the raw frames, gone once
+    JPEG at quality 60 has rounded its block's coefficients."""
+    import cv2
+
+    from edge.accuracy.observe import frame_snr, mean_differences
+
+    on, off = _spot_frames(2.0, 0.4, 3, background=-38.0)
+    raw = frame_snr(mean_differences([on], [off]), (100.3, 80.6), [])
+    params = [cv2.IMWRITE_JPEG_QUALITY, 60]
+    jpeg = [cv2.imdecode(cv2.imencode(".jpg", f, params)[1], cv2.IMREAD_COLOR) for f in (on, off)]
+    compressed = frame_snr(mean_differences([jpeg[0]], [jpeg[1]]), (100.3, 80.6), [])
+    assert raw >= 1.5 * OBSERVABLE_SNR
+    assert compressed < OBSERVABLE_SNR, (raw, compressed)
+    # A brighter one survives, on a background JPEG has flattened to exactly 0: its noise is then
+    # the rounding's, not none (an SNR of millions).
+    on, off = _spot_frames(3.0, 0.4, 3, background=-38.0)
+    jpeg = [cv2.imdecode(cv2.imencode(".jpg", f, params)[1], cv2.IMREAD_COLOR) for f in (on, off)]
+    assert OBSERVABLE_SNR <= frame_snr(mean_differences([jpeg[0]], [jpeg[1]]), (100.3, 80.6), []) < 30.0
+
+
+def test_coverage_counts_the_zones_observable_in_their_frames() -> None:
+    seen = ZoneOutcome(0, "no_spot", None, None, 2.0, True, 0.01, 30.0, frame_snr=3.0)
+    assert seen.observable_model and not seen.observable
+    figures = Figures.of([seen, replace(seen, index=1, frame_snr=None)])
+    assert (figures.observable, figures.observable_model) == (1, 2)
