@@ -39,8 +39,15 @@ CHANNELS = (*CHANNEL_WEIGHTS, "auto")
 # minus green correlated 2 px apart (0.45-0.85 measured, higher at lower quality); full-resolution
 # chroma (raw, PNG, a demosaiced Bayer filter) leaves it near 0.1 or below, JPEG 4:4:4 0.3-0.65.
 CHROMA_LAG2 = 0.4
-# A spot's position error from demosaicing (1 σ, px) that red read from a demosaiced frame carries.
+# A spot's position error from demosaicing (1 σ, px) that red read from a demosaiced frame carries,
+# and what it grows to for a spot hardly bigger than one red pixel (demosaiced RMS radius
+# DEMOSAIC_SNAP_SIZE_PX or less): such a spot snaps to the red pixel it falls on, anywhere within
+# ±1 px of it (red pixels are 2 px apart: RMS 0.58 px); a site fit cannot undo that, for the red
+# pixels beside it saw nothing. On the tuning family, spots of radius 0.6 px were off by 0.4-0.85
+# px, radius 1 px by 0.2-0.45 px.
 DEMOSAIC_PX = 0.25
+DEMOSAIC_SNAP_PX = 0.55
+DEMOSAIC_SNAP_SIZE_PX = 0.6
 # `auto` decides from this many frame groups (the median of their chroma correlations), then keeps it.
 AUTO_GROUPS = 8
 
@@ -54,7 +61,7 @@ NEIGHBOURS = ((1, 0), (2, 0), (0, 1), (0, 2), (1, 1))
 MATCHED_SNR = 5.0
 # Red's noise differs this much between the four pixels of a 2 × 2 block only behind a Bayer filter
 # (demosaicing interpolates red at three of them, which averages their noise).
-BAYER_CONTRAST = 1.6
+BAYER_CONTRAST = 1.25
 
 
 # Path samples (about half a pixel apart) whose noise `SpotFinder._local` measures together.
@@ -785,9 +792,12 @@ class SpotFinder:
         if texture.demosaiced:
             # Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation
             # shifts a small spot by up to a few tenths of a pixel, depending on the method and
-            # where the spot falls (OpenCV's edge-aware one by 0.2-0.4 px on average).
-            var_u += DEMOSAIC_PX**2
-            var_v += DEMOSAIC_PX**2
+            # where the spot falls (OpenCV's edge-aware one by 0.2-0.4 px on average), and a spot
+            # of about one red pixel's size snaps to it.
+            snap = min(max((2.0 * DEMOSAIC_SNAP_SIZE_PX - size) / DEMOSAIC_SNAP_SIZE_PX, 0.0), 1.0)
+            demosaic = DEMOSAIC_PX + snap * (DEMOSAIC_SNAP_PX - DEMOSAIC_PX)
+            var_u += demosaic**2
+            var_v += demosaic**2
         # Where along the path, and how far from it, from the strip row the seed came from.
         pu, pv = band.path[row].tolist()
         tu, tv = band.tangent[row].tolist()
