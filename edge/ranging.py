@@ -23,6 +23,7 @@ from typing import Literal
 
 import numpy as np
 
+from edge.deblend import DEBLEND_PX, place_pair
 from edge.rig import CameraModel, Laser, Pose, Rig
 from edge.schema import require
 from edge.vision import Candidate, SpotFinder
@@ -40,6 +41,13 @@ LOOSE_WINNER_PX = 1.0
 # the others with at least this share of its light, or the beam is on an edge (Ranger._comes_and_goes).
 EDGE_MIN_SNR = 10.0
 EDGE_LIGHT_RATIO = 0.3
+# Two spots fitted together (edge.deblend) are fitted in a window of this half-size (px).
+DEBLEND_WINDOW_PX = 6
+# Their σ is the fit's, from its residual as if white, grown for the residual's correlation (JPEG's
+# blocks, demosaicing), with a floor for the two spots' shapes that the fit takes as one Gaussian:
+# on the tuning family the fit's own σ was half the error.
+DEBLEND_GROW = 2.0
+DEBLEND_FLOOR_PX = 0.25
 # Two spots' depths may differ across their separation by at most this slope (tan of the surface's
 # angle from facing the lasers squarely): 75° still counts as one surface.
 _MAX_SLOPE = math.tan(math.radians(75.0))
@@ -618,7 +626,7 @@ class Ranger:
         tracks: dict[str, list[_Track]] = {name: [] for name in self.rig.laser_names}
         expected: dict[str, int] = {name: 0 for name in self.rig.laser_names}
         for group in groups:
-            found = self.finder.find(group.on, group.off, group.lasers)
+            found = self._deblend(group, self.finder.find(group.on, group.off, group.lasers))
             for name, cands in found.items():
                 expected[name] += 1
                 for cand in cands:
@@ -640,6 +648,40 @@ class Ranger:
                 kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
             out[name] = kept[:3]
         return out
+
+    def _deblend(self, group: FrameGroup, found: dict[str, list[Candidate]]) -> dict[str, list[Candidate]]:
+        """Where a laser's spot was not found but its path runs through another laser's blob, the
+        blob may hold both spots (far away, or on a small camera): fit them together, each on its
+        own path (:mod:`edge.deblend`), and keep both if both are spots."""
+        finder, camera = self.finder, self.rig.camera
+        for name in list(found):
+            for c in list(found[name]):
+                for other in found:
+                    if other == name or any(math.dist(o.pixel.tolist(), c.pixel.tolist()) < 2 * DEBLEND_PX
+                                            for o in found[other]):
+                        continue
+                    gap, w_other = finder.nearest_on_path(other, c.pixel)
+                    if gap > DEBLEND_PX:
+                        continue
+                    cut = finder.window_difference(group.on, group.off, c.pixel, DEBLEND_WINDOW_PX)
+                    if cut is None:
+                        continue
+                    lo, hi = finder.inv_depth_range(name)
+                    lo2, hi2 = finder.inv_depth_range(other)
+                    pair = place_pair(cut[0], cut[1], (self._lasers[name], self._lasers[other]), camera,
+                                      (c.along, w_other), (min(lo, lo2), max(hi, hi2)))
+                    # The fit's noise is its residual, which JPEG's blocks and speckle raise well
+                    # above the pixels' noise: half min_snr, for a blob that was found as a spot.
+                    if pair is None or min(p.snr for p in pair) < 0.5 * self.config.min_snr:
+                        continue
+                    for placed in pair:
+                        kept = [o for o in found[placed.laser]
+                                if math.dist(o.pixel.tolist(), c.pixel.tolist()) >= DEBLEND_PX]
+                        sigma = math.hypot(DEBLEND_GROW * placed.sigma_px, DEBLEND_FLOOR_PX)
+                        found[placed.laser] = [*kept, Candidate(placed.laser, placed.pixel, sigma, placed.snr,
+                                                                placed.size_px, placed.inv_depth, 0.0, placed.snr)]
+                    break
+        return found
 
     def _measure(self, track: _Track) -> LaserMeasurement:
         views = len(track.views)

@@ -507,6 +507,30 @@ class SpotFinder:
         """The half-size of the window a spot is placed in (px)."""
         return float(self._radius)
 
+    def window_difference(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray], pixel: np.ndarray, r: int
+                          ) -> tuple[np.ndarray, tuple[int, int]] | None:
+        """The read channel of the on frames less the off frames' in a (2r + 1)² window centred
+        at `pixel`, in full-scale units, and the window's top-left pixel (u, v); None where the
+        window leaves the image."""
+        cam = self.rig.camera
+        u0, v0 = int(round(float(pixel[0]))), int(round(float(pixel[1])))
+        if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
+            return None
+        rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
+        return self._window(on, rows, cols) - self._window(off, rows, cols), (u0 - r, v0 - r)
+
+    def inv_depth_range(self, laser: str) -> tuple[float, float]:
+        """The inverse depths (1/m) `laser`'s path is searched over, nearest last."""
+        inv = self.bands[laser].inv_depth
+        return float(inv.min()), float(inv.max())
+
+    def nearest_on_path(self, laser: str, pixel: np.ndarray) -> tuple[float, float]:
+        """The distance (px) from `pixel` to `laser`'s path, and the inverse depth there."""
+        band = self.bands[laser]
+        d = np.hypot(band.path[:, 0] - float(pixel[0]), band.path[:, 1] - float(pixel[1]))
+        i = int(d.argmin())
+        return float(d[i]), float(band.inv_depth[i])
+
     def light_at(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray], pixel: np.ndarray) -> float:
         """The laser light in a spot-sized window at `pixel`: the on frames' read channel less the
         off frames', less the window border's median (the room), summed; in full-scale units. 0 where
