@@ -184,7 +184,9 @@ def _moments(w: np.ndarray, powers: np.ndarray) -> tuple[list[float], list[float
     """Σ w, Σ w·x, Σ w·x² and Σ w, Σ w·y, Σ w·y² of a window's weights `w` (rows y, columns x),
     `powers` being `_powers` of its half-size. (One product: each numpy call costs more than the
     arithmetic on a window this small.)"""
-    m0, mx, mxx, my, myy = np.dot(powers, w.ravel()).tolist()  # (np.dot: less overhead than @)
+    # (np.dot: less overhead than @; given float64, which it would convert `w` to, it skips its
+    # own slower conversion)
+    m0, mx, mxx, my, myy = np.dot(powers, w.ravel().astype(np.float64)).tolist()
     return [m0, mx, mxx], [m0, my, myy]
 
 
@@ -385,7 +387,10 @@ class SpotFinder:
                 # Every index is inside a frame of the camera's size (checked above; `_band` clips
                 # the strips, the background grid keeps its neighbours inside): mode="wrap" reads
                 # the same pixels as the default "raise", whose bounds check costs a fifth of this.
-                values = np.multiply(flat.take(index, mode="wrap"), np.float32(weight * scale), dtype=np.float32)
+                # (astype, then scaling in place: the float32 product np.multiply(…, dtype=float32)
+                # makes, without its buffered casting loop)
+                values = flat.take(index, mode="wrap").astype(np.float32)
+                values *= np.float32(weight * scale)
                 acc = values if acc is None else np.add(acc, values, out=acc)
         assert acc is not None
         return acc
@@ -402,7 +407,11 @@ class SpotFinder:
         """The read channel of a region, summed over `frames` and times `scale` (float32)."""
         if len(frames) == 1 and (frames[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
             plane = frames[0][rows, cols] if frames[0].ndim == 2 else frames[0][rows, cols, 2]
-            return np.multiply(plane, scale, dtype=np.float32)
+            # The same float32 product as np.multiply(plane, scale, dtype=np.float32), whose
+            # buffered casting loop costs more than the arithmetic on a window this small.
+            out = plane.astype(np.float32)
+            out *= scale
+            return out
         acc = self._plane(frames[0], rows, cols)
         for image in frames[1:]:
             acc += self._plane(image, rows, cols)
