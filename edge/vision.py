@@ -165,6 +165,13 @@ def _fit_unsaturated(signal: np.ndarray, saturated: np.ndarray, r: int, floor: f
     return None if fit is None else _centre(fit[0])
 
 
+def _kth(values: np.ndarray, k: int) -> float:
+    """The k-th smallest of `values` (reordered in place): np.partition's element, without the
+    copy and dispatch that make the function cost twice the method on a thousand values."""
+    values.partition(k)
+    return values.item(k)
+
+
 @functools.lru_cache(maxsize=16)
 def _offsets(r: int) -> np.ndarray:
     """A window's offsets from its centre, −r … r (float32)."""
@@ -232,6 +239,9 @@ class _Band:
     tangent: np.ndarray  # (L, 2) unit direction of the path
     inv_depth: np.ndarray  # (L,)
     step: float  # mean spacing of the path samples, px
+    # Per path sample (pu, pv, tu, tv, inverse depth): `path`, `tangent` and `inv_depth` as plain
+    # floats, which `_refine` reads a few of per spot (cheaper than numpy's scalar reads).
+    samples: tuple[tuple[float, float, float, float, float], ...] = ()
 
 
 class SpotFinder:
@@ -331,7 +341,8 @@ class SpotFinder:
         u = np.clip(np.rint(pts[..., 0]), 0, cam.width - 1).astype(np.intp)
         v = np.clip(np.rint(pts[..., 1]), 0, cam.height - 1).astype(np.intp)
         step = float(np.linalg.norm(np.diff(path, axis=0), axis=1).mean())
-        return _Band(laser.name, v, u, path, tangent, inv, step)
+        samples = tuple(map(tuple, np.column_stack([path, tangent, inv]).tolist()))
+        return _Band(laser.name, v, u, path, tangent, inv, step, samples)
 
     @staticmethod
     def laser_channel(image: np.ndarray) -> np.ndarray:
@@ -456,9 +467,9 @@ class SpotFinder:
         centre = 0.0
         if bg.size:
             mid = bg.size // 2
-            centre = float(np.partition(bg, mid)[mid])
+            centre = _kth(bg.copy(), mid)
             dev = np.abs(bg - np.float32(centre))
-            noise = 1.4826 * float(np.partition(dev, mid)[mid])
+            noise = 1.4826 * _kth(dev, mid)
         else:
             noise = 0.0
         noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
@@ -620,16 +631,20 @@ class SpotFinder:
         if peaks.size > 1:
             peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
         seeds: list[tuple[int, int, float, int, float, float]] = []
+        # (Values read with .item(): plain Python numbers, which compare and convert far faster than
+        # numpy's scalars; float32 to float is exact, so every comparison is as before.)
         for i in peaks.tolist():
-            j = int(strips[:, i].argmax()) if bright[i] >= dim[i] else 1 + int(box[:, i].argmax())
-            u, v = int(band.u[i - start, j]), int(band.v[i - start, j])
-            peak = float(max(profile[i], strips[j, i]))
-            if bright[i] < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius for su, sv, _, _, _, _ in seeds):
+            by_pixel = bright.item(i) >= dim.item(i)
+            j = int(strips[:, i].argmax()) if by_pixel else 1 + int(box[:, i].argmax())
+            u, v = band.u.item(i - start, j), band.v.item(i - start, j)
+            peak = max(profile.item(i), strips.item(j, i))
+            if bright.item(i) < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius
+                                            for su, sv, _, _, _, _ in seeds):
                 continue  # a faint blob beside a spot: its shoulder or ghost, and no spot of its own
             if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
                    for su, sv, sp, _, _, _ in seeds):
                 continue  # the same blob seen from another path sample
-            seeds.append((u, v, peak, i - start, float(matched[i]), float(local_noise[i])))
+            seeds.append((u, v, peak, i - start, matched.item(i), local_noise.item(i)))
             if len(seeds) >= max_candidates:
                 break
         return seeds
@@ -741,7 +756,7 @@ class SpotFinder:
             few = int(np.count_nonzero(strong)) < 10
             gauss = None
             if not few:
-                ring = _monomials(rw) @ np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0])
+                ring = np.dot(_monomials(rw), np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
                 use = strong & (ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv)
                 if usable is not None:
                     use &= usable.ravel()
@@ -780,20 +795,19 @@ class SpotFinder:
             var_u += DEMOSAIC_PX**2
             var_v += DEMOSAIC_PX**2
         # Where along the path, and how far from it, from the strip row the seed came from.
-        pu, pv = band.path[row].tolist()
-        tu, tv = band.tangent[row].tolist()
+        pu, pv, tu, tv, _ = band.samples[row]
         along = (cu - pu) * tu + (cv - pv) * tv
         cross = abs((cu - pu) * tv - (cv - pv) * tu)
         if cross > self.path_tolerance:
             return None  # not on this laser's path: another light, or another laser's spot
-        k = min(max(row + int(round(along / band.step)), 0), len(band.inv_depth) - 1)
+        k = min(max(row + int(round(along / band.step)), 0), len(band.samples) - 1)
         return Candidate(
             band.laser,
             np.array([cu, cv]),
             math.sqrt(max(var_u, var_v)),
             peak / noise,
             size,
-            float(band.inv_depth[k]),
+            band.samples[k][4],
             cross,
             matched,
             misfit,
