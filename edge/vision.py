@@ -165,6 +165,25 @@ def _fit_unsaturated(signal: np.ndarray, saturated: np.ndarray, r: int, floor: f
     return None if fit is None else _centre(fit[0])
 
 
+def _box5(cols: np.ndarray) -> np.ndarray:
+    """Each row of `cols` (rows, n) summed over 5 neighbouring columns, 0 in the two columns at
+    either end. The rows are summed as one flat run: numpy's 1-D loops take half the time of
+    the same additions over 2-D views, and the sums that straddle two rows land exactly in the
+    end columns, which are then cleared."""
+    rows, n = cols.shape
+    flat = cols.ravel()
+    out = np.empty(rows * n, np.float32)
+    inner = out[2:-2]
+    np.add(flat[:-4], flat[1:-3], out=inner)
+    inner += flat[2:-2]
+    inner += flat[3:-1]
+    inner += flat[4:]
+    box = out.reshape(rows, n)
+    box[:, :2] = 0.0
+    box[:, -2:] = 0.0
+    return box
+
+
 def _kth(values: np.ndarray, k: int) -> float:
     """The k-th smallest of `values` (reordered in place): np.partition's element, without the
     copy and dispatch that make the function cost twice the method on a thousand values."""
@@ -589,12 +608,7 @@ class SpotFinder:
         width, n = strips.shape
         cols = strips[:-2] + strips[1:-1]
         cols += strips[2:]
-        box = np.zeros((width - 2, n), np.float32)
-        inner = box[:, 2:-2]
-        np.add(cols[:, :-4], cols[:, 1:-3], out=inner)
-        inner += cols[:, 2:-2]
-        inner += cols[:, 3:-1]
-        inner += cols[:, 4:]
+        box = _box5(cols)
         block = _STRETCH
         nb = max(1, n // block)
         cut = nb * block
