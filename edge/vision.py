@@ -154,14 +154,15 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
     return u, v, cov, chi2
 
 
-def _fit_unsaturated(signal: np.ndarray, saturated: np.ndarray, r: int, floor: float) -> tuple[float, float] | None:
+def _fit_unsaturated(signal: np.ndarray, unsaturated: np.ndarray, r: int, floor: float
+                     ) -> tuple[float, float] | None:
     """Centre of a spot whose core is clipped, from a Gaussian fitted to its unclipped pixels.
 
     The centroid of a clipped, pixel-sampled spot is biased by up to ~0.07 px depending on where
     the spot falls within a pixel ("pixel locking"); the wings still carry the position.
     Returns (du, dv) relative to the centre of the (2r + 1)² window, or None when the fit is not a peak.
     """
-    fit = _fit_gaussian(signal, ~saturated & (signal > floor), r)
+    fit = _fit_gaussian(signal, unsaturated & (signal > floor), r)
     return None if fit is None else _centre(fit[0])
 
 
@@ -481,7 +482,10 @@ class SpotFinder:
         # (ndarray.dot: the same BLAS dot as @, with less overhead; so below)
         denom = float(boff.dot(boff))
         gain = float(bon.dot(boff)) / denom if denom > 0 else 1.0
-        diff = on_vals - np.float32(gain) * off_vals
+        off_level = float(boff.sum()) / boff.size if boff.size else 0.0  # (before boff is scaled below)
+        # on − gain·off, in place: two fewer arrays of every strip and background pixel
+        off_vals *= np.float32(gain)
+        diff = np.subtract(on_vals, off_vals, out=on_vals)
         # Pixel noise of the difference, robustly (MAD), from the background sample.
         bg = diff[self._bg_slice]
         centre = 0.0
@@ -495,7 +499,7 @@ class SpotFinder:
         noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
-        shot = noise**2 / (2.0 * max(float(boff.sum()) / boff.size if boff.size else 0.0, 1e-3))
+        shot = noise**2 / (2.0 * max(off_level, 1e-3))
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
         strips = diff[: self._bg_slice.start].reshape(self._strip_width, -1)  # (width, samples)
@@ -744,7 +748,8 @@ class SpotFinder:
         saturated = lit >= _SATURATED
         clipped = np.count_nonzero(saturated) > 0  # (cheaper than .any() on a few dozen pixels)
         above = win - np.float32(level)  # background-subtracted, not thresholded
-        usable = None if not clipped else ~saturated if mine is None else ~saturated & mine
+        unsaturated = ~saturated if clipped else None
+        usable = None if unsaturated is None else unsaturated if mine is None else unsaturated & mine
         if usable is None and mine is not None:
             usable = mine
         misfit = 1.0
@@ -786,7 +791,8 @@ class SpotFinder:
                     chi2 = float((((val - model) ** 2) / (noise**2 + val * shot)).sum())
                     misfit = max(1.0, chi2 / dof)
             if clipped and not few:
-                fitted = _fit_unsaturated(signal, saturated, rw, 3.0 * noise)
+                assert unsaturated is not None  # (clipped)
+                fitted = _fit_unsaturated(signal, unsaturated, rw, 3.0 * noise)
                 if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
                     du, dv = fitted
                     cu, cv = u0 + du, v0 + dv
