@@ -198,7 +198,7 @@ def measure(
     """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
     u, v = float(pixel[0]), float(pixel[1])
     o, d = laser.origin_m, laser.direction
-    if camera.distorted:
+    if any(camera.dist):  # camera.distorted (a float is true unless 0), without its generator
         h = 0.05  # central differences: depth is strongly convex in the pixel far away
 
         def depth(uu: float, vv: float) -> float:
@@ -323,12 +323,13 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
                slope_y: float = 0.0) -> Fusion:
     """`fuse` for z = a + slope_y·(y − y_ref), slope_y known: a weighted mean of the depths carried
     to the reference's height, in plain floats (this runs for every zone)."""
-    rx, ry = float(reference.point_m[0]), float(reference.point_m[1])
+    # (.item: plain floats, which numpy's scalars cost several times more to make)
+    rx, ry = reference.point_m.item(0), reference.point_m.item(1)
     g = slope_y
     weights, carried = [], []
     for m in ms:
-        dy = float(m.point_m[1]) - ry
-        model = surface_sigma_per_m * math.hypot(float(m.point_m[0]) - rx, dy)
+        dy = m.point_m.item(1) - ry
+        model = surface_sigma_per_m * math.hypot(m.point_m.item(0) - rx, dy)
         weights.append(1.0 / (max(m.sigma_m, 1e-9) ** 2 + model * model))
         carried.append((m.depth_m, g * dy))
     total = sum(weights)
@@ -366,7 +367,11 @@ def _chi2_inverse(z: np.ndarray, fitted: np.ndarray, w: np.ndarray) -> float:
 
 def _point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
     """The point of `m`'s beam at depth z: from its measured point along its beam direction."""
-    return m.point_m + (z - m.depth_m) * m.beam_dir / float(m.beam_dir[2])
+    # In plain floats, the same operations as m.point_m + (z − depth)·beam_dir / beam_dir[2] on
+    # arrays: three numpy calls cost more than the arithmetic on three numbers.
+    t = z - m.depth_m
+    (px, py, pz), (bx, by, bz) = m.point_m.tolist(), m.beam_dir.tolist()
+    return np.array((px + t * bx / bz, py + t * by / bz, pz + t * bz / bz))
 
 
 # A known slope is used while the surface it stands for is seen at most this obliquely in the
@@ -623,16 +628,18 @@ class Ranger:
         return ZoneResult(index, pan, tilt, status, lasers=lasers, detail=detail, spotted=_spotted(cands))
 
     def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[_Track]]:
-        tracks: dict[str, list[_Track]] = {name: [] for name in self.rig.laser_names}
-        expected: dict[str, int] = {name: 0 for name in self.rig.laser_names}
+        names = self.rig.laser_names  # (a property that builds the tuple)
+        tracks: dict[str, list[_Track]] = {name: [] for name in names}
+        expected: dict[str, int] = {name: 0 for name in names}
         for group in groups:
             found = self._deblend(group, self.finder.find(group.on, group.off, group.lasers))
             for name, cands in found.items():
                 expected[name] += 1
                 for cand in cands:
+                    cu, cv = cand.pixel.item(0), cand.pixel.item(1)  # (plain floats: cheaper than numpy's)
                     for track in tracks[name]:
                         p = track.pixel()
-                        if math.hypot(float(p[0] - cand.pixel[0]), float(p[1] - cand.pixel[1])) < 1.5:
+                        if math.hypot(p.item(0) - cu, p.item(1) - cv) < 1.5:
                             track.found.append(cand)
                             track.views.add(group.view)
                             break
@@ -687,9 +694,10 @@ class Ranger:
         views = len(track.views)
         speckle = self.config.speckle_px
         # Pixel noise averages over every sighting, speckle only over distinct views.
+        # (Lists, not generators: the same sums, with less overhead for a sighting or two.)
         n = len(track.found)
-        noise_var = sum(c.sigma_px**2 for c in track.found) / n / n
+        noise_var = sum([c.sigma_px**2 for c in track.found]) / n / n
         sigma_px = math.sqrt(noise_var + speckle**2 / views)
-        snr = sum(c.snr for c in track.found) / n
+        snr = sum([c.snr for c in track.found]) / n
         pixel = track.pixel(speckle if views > 1 else 0.0)
         return measure(self._lasers[track.laser], self.rig.camera, pixel, sigma_px, snr, views)

@@ -161,15 +161,42 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
     return u, v, cov, chi2
 
 
-def _fit_unsaturated(signal: np.ndarray, saturated: np.ndarray, r: int, floor: float) -> tuple[float, float] | None:
+def _fit_unsaturated(signal: np.ndarray, unsaturated: np.ndarray, r: int, floor: float
+                     ) -> tuple[float, float] | None:
     """Centre of a spot whose core is clipped, from a Gaussian fitted to its unclipped pixels.
 
     The centroid of a clipped, pixel-sampled spot is biased by up to ~0.07 px depending on where
     the spot falls within a pixel ("pixel locking"); the wings still carry the position.
     Returns (du, dv) relative to the centre of the (2r + 1)² window, or None when the fit is not a peak.
     """
-    fit = _fit_gaussian(signal, ~saturated & (signal > floor), r)
+    fit = _fit_gaussian(signal, unsaturated & (signal > floor), r)
     return None if fit is None else _centre(fit[0])
+
+
+def _box5(cols: np.ndarray) -> np.ndarray:
+    """Each row of `cols` (rows, n) summed over 5 neighbouring columns, 0 in the two columns at
+    either end. The rows are summed as one flat run: numpy's 1-D loops take half the time of
+    the same additions over 2-D views, and the sums that straddle two rows land exactly in the
+    end columns, which are then cleared."""
+    rows, n = cols.shape
+    flat = cols.ravel()
+    out = np.empty(rows * n, np.float32)
+    inner = out[2:-2]
+    np.add(flat[:-4], flat[1:-3], out=inner)
+    inner += flat[2:-2]
+    inner += flat[3:-1]
+    inner += flat[4:]
+    box = out.reshape(rows, n)
+    box[:, :2] = 0.0
+    box[:, -2:] = 0.0
+    return box
+
+
+def _kth(values: np.ndarray, k: int) -> float:
+    """The k-th smallest of `values` (reordered in place): np.partition's element, without the
+    copy and dispatch that make the function cost twice the method on a thousand values."""
+    values.partition(k)
+    return values.item(k)
 
 
 @functools.lru_cache(maxsize=16)
@@ -191,7 +218,9 @@ def _moments(w: np.ndarray, powers: np.ndarray) -> tuple[list[float], list[float
     """Σ w, Σ w·x, Σ w·x² and Σ w, Σ w·y, Σ w·y² of a window's weights `w` (rows y, columns x),
     `powers` being `_powers` of its half-size. (One product: each numpy call costs more than the
     arithmetic on a window this small.)"""
-    m0, mx, mxx, my, myy = np.dot(powers, w.ravel()).tolist()  # (np.dot: less overhead than @)
+    # (np.dot: less overhead than @; given float64, which it would convert `w` to, it skips its
+    # own slower conversion)
+    m0, mx, mxx, my, myy = np.dot(powers, w.ravel().astype(np.float64)).tolist()
     return [m0, mx, mxx], [m0, my, myy]
 
 
@@ -237,6 +266,9 @@ class _Band:
     tangent: np.ndarray  # (L, 2) unit direction of the path
     inv_depth: np.ndarray  # (L,)
     step: float  # mean spacing of the path samples, px
+    # Per path sample (pu, pv, tu, tv, inverse depth): `path`, `tangent` and `inv_depth` as plain
+    # floats, which `_refine` reads a few of per spot (cheaper than numpy's scalar reads).
+    samples: tuple[tuple[float, float, float, float, float], ...] = ()
 
 
 class SpotFinder:
@@ -336,7 +368,8 @@ class SpotFinder:
         u = np.clip(np.rint(pts[..., 0]), 0, cam.width - 1).astype(np.intp)
         v = np.clip(np.rint(pts[..., 1]), 0, cam.height - 1).astype(np.intp)
         step = float(np.linalg.norm(np.diff(path, axis=0), axis=1).mean())
-        return _Band(laser.name, v, u, path, tangent, inv, step)
+        samples = tuple(map(tuple, np.column_stack([path, tangent, inv]).tolist()))
+        return _Band(laser.name, v, u, path, tangent, inv, step, samples)
 
     @staticmethod
     def laser_channel(image: np.ndarray) -> np.ndarray:
@@ -392,7 +425,10 @@ class SpotFinder:
                 # Every index is inside a frame of the camera's size (checked above; `_band` clips
                 # the strips, the background grid keeps its neighbours inside): mode="wrap" reads
                 # the same pixels as the default "raise", whose bounds check costs a fifth of this.
-                values = np.multiply(flat.take(index, mode="wrap"), np.float32(weight * scale), dtype=np.float32)
+                # (astype, then scaling in place: the float32 product np.multiply(…, dtype=float32)
+                # makes, without its buffered casting loop)
+                values = flat.take(index, mode="wrap").astype(np.float32)
+                values *= np.float32(weight * scale)
                 acc = values if acc is None else np.add(acc, values, out=acc)
         assert acc is not None
         return acc
@@ -409,7 +445,11 @@ class SpotFinder:
         """The read channel of a region, summed over `frames` and times `scale` (float32)."""
         if len(frames) == 1 and (frames[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
             plane = frames[0][rows, cols] if frames[0].ndim == 2 else frames[0][rows, cols, 2]
-            return np.multiply(plane, scale, dtype=np.float32)
+            # The same float32 product as np.multiply(plane, scale, dtype=np.float32), whose
+            # buffered casting loop costs more than the arithmetic on a window this small.
+            out = plane.astype(np.float32)
+            out *= scale
+            return out
         acc = self._plane(frames[0], rows, cols)
         for image in frames[1:]:
             acc += self._plane(image, rows, cols)
@@ -446,23 +486,27 @@ class SpotFinder:
         # Room light may differ between the frames (flicker): scale the off frame to the on frame
         # by least squares on pixels where no laser can land.
         bon, boff = on_vals[self._bg_slice], off_vals[self._bg_slice]
-        denom = float(boff @ boff)
-        gain = float(bon @ boff) / denom if denom > 0 else 1.0
-        diff = on_vals - np.float32(gain) * off_vals
+        # (ndarray.dot: the same BLAS dot as @, with less overhead; so below)
+        denom = float(boff.dot(boff))
+        gain = float(bon.dot(boff)) / denom if denom > 0 else 1.0
+        off_level = float(boff.sum()) / boff.size if boff.size else 0.0  # (before boff is scaled below)
+        # on − gain·off, in place: two fewer arrays of every strip and background pixel
+        off_vals *= np.float32(gain)
+        diff = np.subtract(on_vals, off_vals, out=on_vals)
         # Pixel noise of the difference, robustly (MAD), from the background sample.
         bg = diff[self._bg_slice]
         centre = 0.0
         if bg.size:
             mid = bg.size // 2
-            centre = float(np.partition(bg, mid)[mid])
+            centre = _kth(bg.copy(), mid)
             dev = np.abs(bg - np.float32(centre))
-            noise = 1.4826 * float(np.partition(dev, mid)[mid])
+            noise = 1.4826 * _kth(dev, mid)
         else:
             noise = 0.0
         noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
-        shot = noise**2 / (2.0 * max(float(boff.sum()) / boff.size if boff.size else 0.0, 1e-3))
+        shot = noise**2 / (2.0 * max(off_level, 1e-3))
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
         strips = diff[: self._bg_slice.start].reshape(self._strip_width, -1)  # (width, samples)
@@ -585,7 +629,7 @@ class SpotFinder:
         block = diff[self._near_block].reshape(1 + len(NEIGHBOURS), -1) - np.float32(centre)
         samples = np.minimum(np.maximum(block, -lim, out=block), lim, out=block)
         d0 = samples[0]
-        dots = samples @ d0  # (6,): the variance, then each neighbour's covariance
+        dots = samples.dot(d0)  # (6,): the variance, then each neighbour's covariance
         var0 = float(dots[0])
         if var0 <= 0.0:
             return _Texture(1.0, 1.0, None)
@@ -618,12 +662,7 @@ class SpotFinder:
         width, n = strips.shape
         cols = strips[:-2] + strips[1:-1]
         cols += strips[2:]
-        box = np.zeros((width - 2, n), np.float32)
-        inner = box[:, 2:-2]
-        np.add(cols[:, :-4], cols[:, 1:-3], out=inner)
-        inner += cols[:, 2:-2]
-        inner += cols[:, 3:-1]
-        inner += cols[:, 4:]
+        box = _box5(cols)
         block = _STRETCH
         nb = max(1, n // block)
         cut = nb * block
@@ -634,19 +673,21 @@ class SpotFinder:
         pix = np.abs(strips[:: width - 1, :cut]).reshape(2, nb, -1)
         flt = box[:, :cut].reshape(width - 2, nb, -1)
         per = 2 * pix.shape[2]
-        pix_noise = np.minimum(pix, np.float32(6.0 * noise)).sum(axis=(0, 2)) * np.float32(1.2533 / per)
+        pix_noise = np.minimum(pix, np.float32(6.0 * noise), out=pix).sum(axis=(0, 2)) * np.float32(1.2533 / per)
         box_floor = np.float32(noise * 15.0**0.5)
         per = flt.shape[0] * flt.shape[2]
         box_level = flt.sum(axis=(0, 2)) * np.float32(1.0 / per)
-        dev = np.abs(flt - box_level[None, :, None])
+        dev = flt - box_level[None, :, None]
+        np.abs(dev, out=dev)
         box_noise = np.minimum(dev, 4.0 * box_floor, out=dev).sum(axis=(0, 2)) * np.float32(1.2533 / per)
         which = self._stretch if self._stretch.size == n else np.minimum(np.arange(n) // block, nb - 1)
         # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
         # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
         # own neighbourhood hides it.
-        local_pix = np.sqrt(np.maximum(pix_noise, np.float32(noise)) * np.float32(noise))[which]
-        local_box = np.maximum(box_noise, box_floor)[which]
-        score = (box.max(axis=0) - box_level[which]) / local_box
+        # (take: fancy indexing's result, with less overhead)
+        local_pix = np.sqrt(np.maximum(pix_noise, np.float32(noise)) * np.float32(noise)).take(which)
+        local_box = np.maximum(box_noise, box_floor).take(which)
+        score = (box.max(axis=0) - box_level.take(which)) / local_box
         return local_pix, score, box
 
     def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, local_noise, matched, on, off,
@@ -660,16 +701,20 @@ class SpotFinder:
         if peaks.size > 1:
             peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
         seeds: list[tuple[int, int, float, int, float, float]] = []
+        # (Values read with .item(): plain Python numbers, which compare and convert far faster than
+        # numpy's scalars; float32 to float is exact, so every comparison is as before.)
         for i in peaks.tolist():
-            j = int(strips[:, i].argmax()) if bright[i] >= dim[i] else 1 + int(box[:, i].argmax())
-            u, v = int(band.u[i - start, j]), int(band.v[i - start, j])
-            peak = float(max(profile[i], strips[j, i]))
-            if bright[i] < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius for su, sv, _, _, _, _ in seeds):
+            by_pixel = bright.item(i) >= dim.item(i)
+            j = int(strips[:, i].argmax()) if by_pixel else 1 + int(box[:, i].argmax())
+            u, v = band.u.item(i - start, j), band.v.item(i - start, j)
+            peak = max(profile.item(i), strips.item(j, i))
+            if bright.item(i) < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius
+                                            for su, sv, _, _, _, _ in seeds):
                 continue  # a faint blob beside a spot: its shoulder or ghost, and no spot of its own
             if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
                    for su, sv, sp, _, _, _ in seeds):
                 continue  # the same blob seen from another path sample
-            seeds.append((u, v, peak, i - start, float(matched[i]), float(local_noise[i])))
+            seeds.append((u, v, peak, i - start, matched.item(i), local_noise.item(i)))
             if len(seeds) >= max_candidates:
                 break
         return seeds
@@ -752,7 +797,8 @@ class SpotFinder:
         saturated = lit >= _SATURATED
         clipped = np.count_nonzero(saturated) > 0  # (cheaper than .any() on a few dozen pixels)
         above = win - np.float32(level)  # background-subtracted, not thresholded
-        usable = None if not clipped else ~saturated if mine is None else ~saturated & mine
+        unsaturated = ~saturated if clipped else None
+        usable = None if unsaturated is None else unsaturated if mine is None else unsaturated & mine
         if usable is None and mine is not None:
             usable = mine
         misfit = 1.0
@@ -781,7 +827,7 @@ class SpotFinder:
             few = int(np.count_nonzero(strong)) < 10
             gauss = None
             if not few:
-                ring = _monomials(rw) @ np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0])
+                ring = np.dot(_monomials(rw), np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
                 use = strong & (ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv)
                 if usable is not None:
                     use &= usable.ravel()
@@ -794,7 +840,8 @@ class SpotFinder:
                     chi2 = float((((val - model) ** 2) / (noise**2 + val * shot)).sum())
                     misfit = max(1.0, chi2 / dof)
             if clipped and not few:
-                fitted = _fit_unsaturated(signal, saturated, rw, 3.0 * noise)
+                assert unsaturated is not None  # (clipped)
+                fitted = _fit_unsaturated(signal, unsaturated, rw, 3.0 * noise)
                 if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
                     du, dv = fitted
                     cu, cv = u0 + du, v0 + dv
@@ -823,20 +870,19 @@ class SpotFinder:
             var_u += demosaic**2
             var_v += demosaic**2
         # Where along the path, and how far from it, from the strip row the seed came from.
-        pu, pv = band.path[row].tolist()
-        tu, tv = band.tangent[row].tolist()
+        pu, pv, tu, tv, _ = band.samples[row]
         along = (cu - pu) * tu + (cv - pv) * tv
         cross = abs((cu - pu) * tv - (cv - pv) * tu)
         if cross > self.path_tolerance:
             return None  # not on this laser's path: another light, or another laser's spot
-        k = min(max(row + int(round(along / band.step)), 0), len(band.inv_depth) - 1)
+        k = min(max(row + int(round(along / band.step)), 0), len(band.samples) - 1)
         return Candidate(
             band.laser,
             np.array([cu, cv]),
             math.sqrt(max(var_u, var_v)),
             peak / noise,
             size,
-            float(band.inv_depth[k]),
+            band.samples[k][4],
             cross,
             matched,
             misfit,

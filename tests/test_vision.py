@@ -244,3 +244,18 @@ def test_a_one_pixel_spot_is_localised_on_its_pixel() -> None:
     cand = finder._refine(band, (u, v), row, [], [on], [off], 1.0, 1.0 / 255, 1e-4, 240.0 / 255)
     assert cand is not None
     assert np.abs(cand.pixel - [u, v]).max() < 1e-6 and cand.sigma_px >= 0.0
+
+
+def test_box5_sums_five_columns_of_each_row_as_the_2d_slices_did() -> None:
+    """_box5's flat run gives bit for bit what adding shifted 2-D views gives, ends left at 0."""
+    from edge.vision import _box5
+
+    rng = np.random.default_rng(3)
+    for n in (5, 6, 48, 634):
+        cols = (rng.standard_normal((5, n)) * 30.0).astype(np.float32)
+        expected = np.zeros_like(cols)
+        inner = expected[:, 2:-2]
+        np.add(cols[:, :-4], cols[:, 1:-3], out=inner)
+        for k in (2, 3, 4):
+            inner += cols[:, k : n - 4 + k]
+        assert np.array_equal(_box5(cols), expected)
