@@ -42,7 +42,9 @@ _COS_GRAZING = math.cos(math.radians(60.0))
 _CHI2_Z = 3.09
 _MAX_Z = 4.0
 # Where the point's layer is at one end of a window, the others must span this much of the step
-# from it to them (two tilt levels' rows with the sloped laser's spots between: about 1).
+# from it to them. Two tilt levels 20° apart with the sloped laser's spots between span about as
+# much as the step (1); a box's front below its top row, the front's parallel laser spots 4 cm
+# above it, about a tenth.
 _REST = 0.5
 # σ below a millimetre is not believed: keeps weights finite.
 _SIGMA_FLOOR = 1e-3
