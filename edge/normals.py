@@ -41,6 +41,10 @@ _COS_GRAZING = math.cos(math.radians(60.0))
 # residual of any one point, in its σ: beyond either, the window holds two surfaces.
 _CHI2_Z = 3.09
 _MAX_Z = 4.0
+# A window whose points pin its plane's tilt (1σ, about its weaker axis) more loosely than this
+# could hide a bend of several times it within its χ²: a wall's corner 15 cm beside a point 3 m
+# away (σ 3 cm) tilted a plane 11.5° in the office at 8 tilt levels, its tilt's σ 2°.
+_TILT_SIGMA = math.radians(1.75)
 # Where the point's layer is at one end of a window, the others must span this much of the step
 # from it to them. Two tilt levels 20° apart with the sloped laser's spots between span about as
 # much as the step (1); a box's front below its top row, the front's parallel laser spots 4 cm
@@ -151,12 +155,15 @@ def _pinned(position: np.ndarray, gap: float) -> bool:
 
 def _fit(rel: np.ndarray, sig: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The plane through the points `rel` weighted by 1/σ², as (unit normal, χ² per degree of
-    freedom), or None where the residuals are more than σ makes likely."""
+    freedom), or None where the residuals are more than σ makes likely, or where the points pin
+    the plane's tilt about its weaker axis to worse than _TILT_SIGMA."""
     w = 1.0 / sig**2
     mean = (w[:, None] * rel).sum(axis=0) / w.sum()
     d = rel - mean
-    _, vecs = np.linalg.eigh((w[:, None] * d).T @ d)
+    vals, vecs = np.linalg.eigh((w[:, None] * d).T @ d)
     normal = vecs[:, 0]
+    if vals[1] <= 0.0 or 1.0 / math.sqrt(vals[1]) > _TILT_SIGMA:
+        return None  # the plane's tilt is too loosely pinned for its χ² to show a bend
     z = (d @ normal) / sig
     dof = len(rel) - 3
     if dof < 1 or np.max(np.abs(z)) > _MAX_Z:
