@@ -15,8 +15,9 @@ its slope; a third row off that plane is what shows the bend. Where the point's 
 window's end, the others must reach far enough to pin the slope without it (see `_pinned`).
 
 A candidate's plane is fitted weighted by 1/σ² and kept when its residuals are what the points' σ
-makes likely (χ² within its 99.9th percentile and no point beyond _MAX_Z σ): at a crease or a
-depth edge the windows that span both surfaces fail and the ones on the point's own side fit. A
+makes likely (χ² within its 99.9th percentile and no point beyond _MAX_Z σ) and its points pin its
+tilt well enough for that test to mean something (_TILT_SIGMA): at a crease or a depth edge the
+windows that span both surfaces fail and the ones on the point's own side fit. A
 normal is given when the kept planes agree (within _AGREE_DEG of each other): that of the kept
 window with most points. Where none is kept, or the kept ones disagree, the normal is (0, 0, 0).
 """
