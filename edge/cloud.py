@@ -4,26 +4,23 @@ as a binary PLY (read by CloudCompare, MeshLab, Open3D, plyfile).
 Pure: zone results and the rig in, arrays and bytes out.
 
 Normals: a rig whose lasers are not coplanar measures one per zone (``ZoneResult.normal``); the
-thesis rig's three lasers lie in one plane and measure none. Then the normal is estimated from the
-zone's neighbours on the scan's pan/tilt lattice — the zones next to it in pan at its tilt level,
-the zone at its pan one level up and one level down and their neighbours in pan (on a lattice finer
-than 10°, also those 2, 4, 8 zones away within 10°) — and from the zone's other lasers' points (the
-thesis rig's sloped laser meets a wall about 0.18 × range below the reference's). Nearest neighbours
-by distance will not do: with tilt levels 20° apart, a point's nearest ones all lie in its own row,
-on one line, and any plane through that line fits them.
+thesis rig's three lasers lie in one plane and measure none. Then the normal is estimated
+(`edge.normals`) from the zone's neighbours on the scan's pan/tilt lattice — the zones next to it
+in pan at its tilt level, the zone at its pan one level up and one level down and their neighbours
+in pan (on a lattice finer than 10°, also those 2, 4, 8 zones away within 10°) — and from the other
+lasers' spots of the zone and of those neighbours (the thesis rig's sloped laser meets a wall about
+0.18 × range below the reference's: a layer between two tilt levels). Nearest neighbours by
+distance will not do: with tilt levels 20° apart, a point's nearest ones all lie in its own row, on
+one line, and any plane through that line fits them.
 
 A neighbour whose range differs from the point's by more than a surface seen 60° from its normal
-would make it differ is across a depth edge and left out. The normal is that of the plane through
-the point that most of the rest lie on (within 3σ, 1 % of range or 5 mm), refitted to them weighted
-by 1/σ², turned towards the unit, and given only where that plane is *confirmed all round*: its
-neighbours on both sides in its row lie on it, and so, above and below it, do the points straight up
-and down (nearest first, up to one far enough away to pin the plane's slope). One side is not
-enough: at a depth edge (a box's front, the wall behind it one level up) the plane through the box's
-row and the wall's row is a slope that exists nowhere, and at the crease of a wall and the floor a
-row's points fit the wall's plane and the floor's alike; only the other side tells which. A plane
-seen more than 60° from its normal is refused too (points at many depths, not a surface). Where no
-plane is confirmed — depth edges, creases, corners, thin things, surfaces seen edge-on, the scan's
-top and bottom rows — the normal is (0, 0, 0), which PLY readers take as "no normal". Denser tilt
+would make it differ is across a depth edge and left out. Of the rest, windows on each side of the
+point that can show a bend (three layers across the row and up the column) are fitted, weighted by
+1/σ², and a normal is given where those whose residuals σ accounts for agree: at a crease or a depth
+edge the window across it fails and the one on the point's side holds, so the scan's top and bottom
+rows and points by a crease get one from one side. Where none holds — a side of two layers only
+(the bottom row's floor under a wall: its row and its sloped laser's spots), corners, thin things,
+surfaces seen edge-on — the normal is (0, 0, 0), which PLY readers take as "no normal". Denser tilt
 levels leave fewer such points.
 """
 
@@ -35,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge.normals import Support, estimate_normals
 from edge.ranging import OK, ZoneResult
 from edge.rig import Rig
 
@@ -45,14 +43,8 @@ _LEVEL_TOL_DEG = 0.5
 _GAP_STEPS = 1.5
 # Neighbours reach this far in pan and tilt on a lattice finer than it (at least the next zone).
 _REACH_DEG = 10.0
-# A point off the zone's row pins the plane's slope about the row when the plane's tolerance is
-# at most this fraction of its distance (about ±15°).
-_PIN = math.tan(math.radians(15.0))
 # A surface seen more obliquely than this from its normal is taken for a depth edge.
 _GRAZING_DEG = 60.0
-_COS_GRAZING = math.cos(math.radians(_GRAZING_DEG))
-# A plane must spread across the row at least this many times its tolerance (not a thin pole).
-_SPREAD = 1.0
 
 
 @dataclass(frozen=True)
@@ -78,20 +70,6 @@ class Cloud:
                      np.concatenate([c.sigma for c in clouds]))
 
 
-@dataclass(frozen=True)
-class Support:
-    """A point that may share a zone's surface: `point` (3,) base frame, its 1-σ `sigma` (m), its
-    `level` (a lattice neighbour's tilt level relative to the zone's: 0 its own row, ±1; or the
-    name of one of the zone's own lasers), and `column`: whether it lies straight above or below
-    the zone's point (the zone's own lasers, the zones at its pan one level up and down) rather
-    than beside it."""
-
-    point: np.ndarray
-    sigma: float
-    level: int | str
-    column: bool
-
-
 def scan_cloud(rig: Rig, results: Sequence[ZoneResult]) -> Cloud:
     """The ok zones of one scan (one sweep, any number of tilts) as a cloud with normals."""
     ok = [r for r in results if r.status == OK and r.point_base_m is not None]
@@ -103,17 +81,29 @@ def scan_cloud(rig: Rig, results: Sequence[ZoneResult]) -> Cloud:
     origins = np.array([pose.apply(rig.reference.o) for pose in poses])
     neighbours = lattice_neighbours([r.pan_deg for r in ok], [r.tilt_deg for r in ok],
                                     [(r.pan_deg, r.tilt_deg) for r in results])
-    supports = []
+    # Each zone's other lasers' spots (by their depth): they add layers between the tilt levels (the
+    # thesis rig's sloped laser meets a wall about 0.18 × range below the reference's).
+    spots: list[list[tuple[str, np.ndarray, float]]] = []
     for i, r in enumerate(ok):
-        own = [Support(points[k], float(sigma[k]), level, column) for k, level, column in neighbours[i]
-               if not depth_edge(points[i], origins[i], points[k], origins[k])]
-        for name, m in r.lasers.items():  # the zone's other lasers' points (by their depth)
+        spots.append([])
+        for name, m in r.lasers.items():
             if name == rig.reference.name or name not in rig.laser_names or not m.depth_m:
                 continue
             laser = rig.laser(name)
             if abs(laser.d[2]) < 1e-6:
                 continue
-            own.append(Support(poses[i].apply(laser.point_at_depth(m.depth_m)), float(m.sigma_m or 0.0), name, True))
+            spots[i].append((name, poses[i].apply(laser.point_at_depth(m.depth_m)), float(m.sigma_m or 0.0)))
+    supports = []
+    for i in range(len(ok)):
+        own = [Support(q, s, 0, name, True) for name, q, s in spots[i]
+               if not depth_edge(points[i], origins[i], q, origins[i])]
+        rings = _rings(i, neighbours[i], [r.pan_deg for r in ok])
+        for (k, level, column), ring in zip(neighbours[i], rings):
+            if depth_edge(points[i], origins[i], points[k], origins[k]):
+                continue
+            own.append(Support(points[k], float(sigma[k]), level, None, column, ring))
+            own += [Support(q, s, level, name, column, ring) for name, q, s in spots[k]
+                    if not depth_edge(points[i], origins[i], q, origins[k])]
         supports.append(own)
     ups = np.array([_up(r.pan_deg, r.tilt_deg) for r in ok])
     estimated = estimate_normals(points, sigma, origins, ups, supports)
@@ -124,6 +114,23 @@ def scan_cloud(rig: Rig, results: Sequence[ZoneResult]) -> Cloud:
         else:
             normals[i] = estimated[i]
     return Cloud(points, normals, sigma)
+
+
+def _rings(i: int, neighbours: Sequence[tuple[int, int, bool]], pans: Sequence[float]) -> list[int]:
+    """How many lattice steps away each of zone i's neighbours is: beside it in its row, the
+    nearest on each side 1, the next 2, …; straight up or down, the nearest level 1, the next 2,
+    …; the zones beside those one level away, 1."""
+    out = []
+    for k, level, column in neighbours:
+        if level == 0:
+            d = float(_wrap(pans[k] - pans[i]))
+            out.append(1 + sum(1 for j, lv, _ in neighbours if lv == 0 and
+                               0 < float(_wrap(pans[j] - pans[i])) * np.sign(d) < abs(d)))
+        elif column:
+            out.append(1 + sum(1 for _, lv, col in neighbours if col and 0 < lv * np.sign(level) < abs(level)))
+        else:
+            out.append(1)
+    return out
 
 
 def _up(pan_deg: float, tilt_deg: float) -> np.ndarray:
@@ -237,108 +244,6 @@ def _power_of_two(n: int) -> bool:
     """1, 2, 4, 8, …: the neighbours taken on a fine lattice (all of them would cost much and add
     little)."""
     return n >= 1 and n & (n - 1) == 0
-
-
-def estimate_normals(points: np.ndarray, sigma: np.ndarray, viewpoints: np.ndarray, ups: np.ndarray,
-                     supports: Sequence[Sequence[Support]]) -> np.ndarray:
-    """Normals (N, 3) of points (N, 3) with 1-σ `sigma` (N,), turned towards `viewpoints` (N, 3),
-    from each point's `supports` (see the module's docstring); `ups` (N, 3): the direction in
-    which each point's row's neighbours above lie. Zero where no plane is confirmed."""
-    out = np.zeros((len(points), 3))
-    for i, own in enumerate(supports):
-        normal = _plane_of(points[i], float(sigma[i]), viewpoints[i], ups[i], own)
-        if normal is not None:
-            out[i] = normal
-    return out
-
-
-def _plane_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.ndarray,
-              own: Sequence[Support]) -> np.ndarray | None:
-    """The confirmed plane's unit normal for the point `centre` seen from `viewpoint`, or None."""
-    if len(own) < 2:
-        return None
-    rng = float(np.linalg.norm(centre - viewpoint))
-    beam = (centre - viewpoint) / max(rng, 1e-12)
-    rel = np.array([s.point - centre for s in own])
-    sig = np.array([s.sigma for s in own])
-    # Off the plane by more than this: another surface (a corner, an edge, a box on the floor).
-    tol = np.maximum(3.0 * np.hypot(sigma, sig), max(0.01 * rng, 0.005))
-    dist = np.linalg.norm(rel, axis=1)
-    in_row = [s.level == 0 for s in own]
-    # Straight above and below, nearest first: a plane holds on a side up to its first miss there;
-    # those far enough from the point to pin its slope confirm it.
-    offset = rel @ up
-    pins = dist * _PIN >= tol
-    upright = np.abs(offset) >= 0.5 * dist  # (a rolled camera's lasers may lie beside the point)
-    sides = [sorted((k for k, s in enumerate(own) if s.column and upright[k] and np.sign(offset[k]) == side),
-                    key=lambda k: abs(offset[k])) for side in (-1, 1)]
-    # And beside it, left and right in its own row: both there and on the plane (else the point
-    # may be at a corner or an edge, and the one neighbour on another surface).
-    across = rel @ np.cross(up, beam)
-    beside = [[k for k in range(len(own)) if in_row[k] and np.sign(across[k]) == side] for side in (-1, 1)]
-    # Candidate planes through the point, a neighbour in its row and one off it (the plane must
-    # hold in the row anyway; two points of the row, or of one column, are one line with it).
-    row = np.flatnonzero(in_row)
-    off = np.flatnonzero(~np.array(in_row))
-    a, b = np.repeat(row, len(off)), np.tile(off, len(row))
-    cand = np.cross(rel[a], rel[b])
-    norm = np.linalg.norm(cand, axis=1)
-    keep = norm > 0.05 * dist[a] * dist[b]  # not nearly collinear with the point (about 3°)
-    if not keep.any():
-        return None
-    cand = cand[keep] / norm[keep, None]
-    inliers = np.abs(rel @ cand.T) <= tol[:, None]  # (supports, candidates)
-    best, best_key = None, (0, -np.inf)
-    for c in np.argsort(-inliers.sum(axis=0), kind="stable"):
-        mask = inliers[:, c]
-        count = int(mask.sum())
-        if count < best_key[0]:
-            break
-        if not all(mask[side].any() for side in beside):
-            continue  # not held on both sides in its row: maybe a corner, an edge, a pole
-        if not all(_confirms(side, mask, pins) for side in sides):
-            continue  # not held both above and below: maybe across a depth edge or a crease
-        fit = _fit(sigma, rel[mask], sig[mask], tol[mask])
-        if fit is None:
-            continue
-        normal, residual = fit
-        if abs(normal @ beam) < _COS_GRAZING:
-            continue  # a plane seen edge-on: points at many depths, not a surface
-        if (count, -residual) > best_key:
-            best, best_key = normal, (count, -residual)
-    if best is None:
-        return None
-    return best if best @ (viewpoint - centre) >= 0 else -best
-
-
-def _confirms(side: list[int], on_plane: np.ndarray, pins: np.ndarray) -> bool:
-    """Whether the points of one side (nearest first) pin the plane before the first that misses it."""
-    for k in side:
-        if not on_plane[k]:
-            return False
-        if pins[k]:
-            return True
-    return False
-
-
-def _fit(sigma: float, rel: np.ndarray, sig: np.ndarray, tol: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """The plane through the zone's point and its inliers `rel` (relative to the point), weighted
-    by 1/σ², as (unit normal, RMS residual in tolerances); None where the inliers hardly spread
-    across the plane's narrower axis (a pole, a line)."""
-    pts = np.vstack([np.zeros(3), rel])
-    floor = 1e-3  # σ below a millimetre is not believed: keeps weights finite
-    w = 1.0 / np.maximum(np.concatenate([[sigma], sig]), floor) ** 2
-    mean = (w[:, None] * pts).sum(axis=0) / w.sum()
-    d = pts - mean
-    _, vecs = np.linalg.eigh((w[:, None] * d).T @ d / w.sum())
-    normal = vecs[:, 0]
-    # Spread within the plane along its narrower axis (unweighted: where the points are).
-    flat = d - np.outer(d @ normal, normal)
-    spread = float(np.sqrt(np.linalg.eigvalsh(flat.T @ flat / len(pts))[1]))
-    if spread < _SPREAD * float(np.median(tol)):
-        return None
-    residual = float(np.sqrt(np.mean((d[1:] @ normal / tol) ** 2)))
-    return normal, residual
 
 
 def ply_bytes(cloud: Cloud, comment: str = "") -> bytes:

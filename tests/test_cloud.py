@@ -209,3 +209,72 @@ def test_the_ply_reads_back_with_plyfile() -> None:
 def test_an_empty_cloud_is_a_valid_ply() -> None:
     ply = PlyData.read(io.BytesIO(ply_bytes(Cloud.empty())))
     assert len(ply["vertex"].data) == 0
+
+
+SCAN_TILTS = [-40, -20, 0, 15, 30]  # the issue's 3D scan: the top and bottom rows have one side
+
+
+def test_the_top_and_bottom_rows_take_their_normal_from_the_one_side_they_have() -> None:
+    """A wall 1 m away fills all five tilt levels. The top row has nothing above it, the bottom
+    row's sloped spots fall on the floor: each has only the rows on one side, with the sloped
+    laser's spots between them as a third layer, and that is enough."""
+    pans = range(-30, 31, 6)
+    results, truth = scan(pans, SCAN_TILTS, lasers=True, wall_x=1.0)  # type: ignore[arg-type]
+    assert {truth[(p, t)][0] for p in pans for t in SCAN_TILTS} == {0}
+    angles = angles_deg(scan_cloud(RIG, results), results, truth)
+    for k, r in enumerate(results):
+        if r.tilt_deg in (SCAN_TILTS[0], SCAN_TILTS[-1]) and r.pan_deg not in (pans[0], pans[-1]):
+            assert angles[k] < 1.0, (r.pan_deg, r.tilt_deg, angles[k])
+    plain = [ZoneResult(r.index, r.pan_deg, r.tilt_deg, r.status, r.range_m, r.sigma_m, r.point_m,
+                        r.point_base_m) for r in results]
+    bare = angles_deg(scan_cloud(RIG, plain), results, truth)
+    assert np.isnan(bare[[r.tilt_deg in (SCAN_TILTS[0], SCAN_TILTS[-1]) for r in results]]).all()
+
+
+def test_a_row_by_a_crease_takes_its_normal_from_its_own_side() -> None:
+    """The rows next to the crease of the wall and the floor have a window across it, which fails,
+    and one on their own side, which holds where it has three layers; they get their own surface's
+    normal, with noise too, and none gets a slope between the two. Levels 10° apart: the floor's
+    row below the crease (the sloped laser's spots of the wall's row fall on their own row's
+    level: two layers on that side). The issue's levels: the wall's row above it (the floor's
+    row, the scan's bottom one, has two layers of floor: its own and its sloped spots)."""
+    pans = range(-30, 31, 6)
+    for tilts, own_side in ((range(-45, 16, 10), -35), (SCAN_TILTS, -20)):
+        for seed, noise in ((0, 0.0), (1, 0.003), (2, 0.003)):
+            results, truth = scan(pans, tilts, noise=noise, seed=seed, lasers=True)  # type: ignore[arg-type]
+            surface = {pose: t[0] for pose, t in truth.items()}
+            assert surface[(0, own_side)] != surface[(0, own_side + (10 if own_side == -35 else -20))]
+            angles = angles_deg(scan_cloud(RIG, results), results, truth)
+            given = ~np.isnan(angles)
+            assert np.all(angles[given] < (1.0 if noise == 0 else 6.0)), np.nanmax(angles)
+            row = [k for k, r in enumerate(results) if r.tilt_deg == own_side and r.pan_deg not in (pans[0], pans[-1])]
+            assert given[row].all(), (tilts, seed, given[row])
+
+
+def test_no_normal_from_a_plane_through_a_box_top_row_and_the_front_below_it() -> None:
+    """A low box on the floor, 5 tilt levels: where the row at −20° meets the box's top just behind
+    its front edge and the row at −40° the front, the two rows (and the front's parallel laser
+    spots 4 cm above them) fit a plane that is neither: the window below the top row cannot pin a
+    slope past its own two layers, and the top row gets no normal from it."""
+    pans = range(-60, 61, 6)
+    for front in (1.0, 1.1, 1.15, 1.2):
+        for top in (-0.7, -0.45):
+            box = ((front, front + 0.4), (-0.25, 0.25), (FLOOR_Z, top))
+            results, truth = scan_box(pans, SCAN_TILTS, box, noise=0.004, seed=0)
+            angles = angles_deg(scan_cloud(RIG, results), results, truth)
+            given = ~np.isnan(angles)
+            assert given.sum() >= 40, (front, top)
+            assert np.all(angles[given] < 10.0), (front, top, np.nanmax(angles))
+
+
+Box = tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
+
+
+def scan_box(pans: range, tilts: list[int], box: Box, noise: float, seed: int) -> tuple[list[ZoneResult], Truth]:
+    """`scan` with the lasers' spots and another box in place of BOX (which `cast` reads)."""
+    global BOX
+    saved, BOX = BOX, box
+    try:
+        return scan(pans, tilts, box=True, noise=noise, seed=seed, lasers=True)  # type: ignore[arg-type]
+    finally:
+        BOX = saved

@@ -4,12 +4,14 @@
     ./dev edge sim record --scene office --out rec/o1 --frames 2 --seed 1     # and seeds 2, 3
     ./dev edge sim record --scene kitchen --out rec/k1 --frames 2 --seed 1    # and seeds 2, 3
     ./dev edge sim record --scene office --out rec/o3d --frames 4 --set 'sweep.tilts_deg=[-40.0,-20.0,0.0,15.0,30.0]'
+    ./dev edge sim record --scene kitchen --out rec/k3d --frames 4 --set 'sweep.tilts_deg=[-40.0,-20.0,0.0,15.0,30.0]'
     .venv/bin/python tools/map_targets.py --grid office rec/o1 rec/o2 rec/o3 --grid kitchen rec/k1 rec/k2 rec/k3
-    .venv/bin/python tools/map_targets.py --cloud office rec/o3d --worst 10
+    .venv/bin/python tools/map_targets.py --cloud office rec/o3d --cloud kitchen rec/k3d --worst 10
 
 --grid SCENE DIR…: the sweeps fused into one 5 cm grid, scored (occupied near a surface, surface
 cells occupied, cells along rays free). --cloud SCENE DIR: one scan's cloud, scored (points'
-error against the truth relative to range, normals on walls and floor); `--frames 4` is the
+error against the truth relative to range, normals on walls and floor, and the given normals'
+median and worst angle there and on the other surfaces); `--frames 4` is the
 configured two frame pairs a zone, what `edge sweep` takes (`--frames 2`, one pair, is noisier).
 --worst N lists the cloud's N points farthest from the truth, for whoever looks into ranging.
 --out DIR writes each map's files there as `edge map` does.
@@ -21,6 +23,8 @@ import argparse
 import math
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from edge.cloud import scan_cloud
 from edge.config import load_config
@@ -40,6 +44,21 @@ def ranged(path: str):
     config = load_config()
     results = list(Replayer(rec.rig, "triangulate", config.ranging).zones(rec))
     return rec, results
+
+
+def normal_errors(given: np.ndarray, true: list, flat: list[bool]) -> str:
+    """The given normals' angles from the true ones: median and worst on walls and floor, and on
+    the other surfaces (furniture, appliances: not scored, but a wrong normal there is as wrong)."""
+    parts = []
+    for name, on in (("walls and floor", True), ("other surfaces", False)):
+        angles = [math.degrees(math.acos(float(np.clip(n @ t, -1.0, 1.0))))
+                  for n, t, f in zip(given, true, flat) if f == on and t is not None and np.linalg.norm(n) > 0.5]
+        seen = sum(1 for t, f in zip(true, flat) if f == on and t is not None)
+        figures = f", median {np.median(angles):.1f}°, worst {max(angles):.1f}°" if angles else ""
+        parts.append(f"{name} {len(angles)} of {seen}{figures}")
+        if on:
+            parts[-1] = "normals given: " + parts[-1]
+    return "; ".join(parts)
 
 
 def main() -> int:
@@ -84,6 +103,7 @@ def main() -> int:
         print(f"{scene_name} 3D scan, tilts {tilts}, {len(rec.zones)} zones, {len(ok)} ok:")
         for line in score.lines():
             print("  " + line)
+        print("  " + normal_errors(cloud.normals, normals, flat))
         within = [abs(r.range_m - z.truth["range_m"]) <= 2 * (r.sigma_m or 0.0) for r, z in ok]
         print(f"  ranges within 2σ of the truth: {sum(within)} of {len(within)} "
               f"({100 * sum(within) / max(len(within), 1):.0f} %; the contract's σ: 95 %)")
