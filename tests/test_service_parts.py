@@ -10,6 +10,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
+
 from edge.commands import Command
 from edge.config import load_config
 from edge.errors import CommandError
@@ -249,6 +251,7 @@ def test_lasers_off_keeps_the_lasers_off_and_ranging_paused_until_a_mode_command
         watchdog.close()
 
 
+@pytest.mark.slow
 def test_a_burst_of_slow_commands_does_not_starve_the_watchdog(tmp_path):
     # Issue 13, item 6: forty cmd/point from -90 to +90 and back were carried out in one go, with
     # no WATCHDOG=1 between them (gaps of 48 s against WatchdogSec=30). Now the loop feeds it after
