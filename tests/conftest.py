@@ -46,9 +46,20 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                          "/etc/edge/edge.toml)")
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    # Under pytest-xdist (`./dev test`: -n auto), hand the workers one test at a time rather than
+    # in blocks of an eighth of the suite each: with blocks, every test marked `slow` (moved to
+    # the front below) went to the first worker; one at a time they share them as they come free.
+    if getattr(config.option, "maxschedchunk", 0) is None:
+        config.option.maxschedchunk = 1
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     import os
 
+    # The slow tests first (in their order), then the others: started last, a 40-s test left one
+    # worker running it alone at the end of the run while the other had nothing left to do.
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
     if config.getoption("--hardware") or os.environ.get("EDGE_HARDWARE") == "1":
         return
     skip = pytest.mark.skip(reason="needs the rig: run on the device with --hardware (or EDGE_HARDWARE=1) "

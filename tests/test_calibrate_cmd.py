@@ -115,8 +115,10 @@ def test_a_board_carried_to_each_distance_calibrates_the_rig(broker, subscriber,
 
 
 def test_a_session_refuses_other_commands_is_cancelled_by_a_mode_and_times_out(broker, subscriber, tmp_path):
+    # The session's timeout runs on the rig's clock: at up to 2 × real time its 10 s (the least
+    # calibrate_timeout_s allows) take 5 s or more of real time, which the refusals below fit in.
     proc = start(broker, tmp_path, "service.sweep_interval_s=0", "service.calibrate_timeout_s=10", 'sim.clock="paced"',
-                 run_for=600)  # stopped below; --for only if the test fails
+                 "sim.pace=2.0", run_for=600)  # stopped below; --for only if the test fails
     subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
 
     def command(name: str, body: dict) -> dict:

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from edge.calibration.file import Calibration, read_calibration, write_calibration
 from edge.fsutil import atomic_write_bytes
@@ -41,6 +42,7 @@ CHILD = textwrap.dedent('''
 ''')
 
 
+@pytest.mark.slow
 def test_killed_writers_leave_whole_files_or_none(tmp_path: Path) -> None:
     rng = random.Random(5)
     last = 0

@@ -10,6 +10,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
+
 from edge.commands import Command
 from edge.config import load_config
 from edge.errors import CommandError
@@ -249,6 +251,7 @@ def test_lasers_off_keeps_the_lasers_off_and_ranging_paused_until_a_mode_command
         watchdog.close()
 
 
+@pytest.mark.slow
 def test_a_burst_of_slow_commands_does_not_starve_the_watchdog(tmp_path):
     # Issue 13, item 6: forty cmd/point from -90 to +90 and back were carried out in one go, with
     # no WATCHDOG=1 between them (gaps of 48 s against WatchdogSec=30). Now the loop feeds it after
@@ -257,9 +260,12 @@ def test_a_burst_of_slow_commands_does_not_starve_the_watchdog(tmp_path):
     link = Recorder()
     notifier = watchdog.notifier(200_000)  # fed every 0.1 s
     # Real time: systemd's watchdog is, and on the simulated clock a turn takes none of it.
+    # Turns of 60° (about 0.55 s at the unit's 120°/s, the first one 120°): each longer than the
+    # whole watchdog period (0.2 s), so a loop that carried them out in one go would still leave
+    # no feed between two results; 180° turns (1.5 s each) only made the burst three times longer.
     service, thread = running(tmp_path, link, notifier, 'sim.clock="real"')
     try:
-        link.send(*[("point", json.dumps({"pan_deg": 90.0 if k % 2 == 0 else -90.0, "tilt_deg": 0.0,
+        link.send(*[("point", json.dumps({"pan_deg": 30.0 if k % 2 == 0 else -30.0, "tilt_deg": 0.0,
                                           "request_id": f"p{k}"}).encode()) for k in range(6)])
         wait_until(lambda: sum(r[0] == "point" for r in link.results) == 6, 120, "six point results")
         points = [t for r, t in zip(link.results, link.result_times) if r[0] == "point"]
