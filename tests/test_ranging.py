@@ -310,6 +310,37 @@ def test_a_beam_on_an_edge_is_ambiguous_not_a_range() -> None:
     assert finder.light_at(gone.on, gone.off, spot) < 0.1 * max(lit)
 
 
+def test_faint_blobs_in_one_view_alone_do_not_confirm_each_other() -> None:
+    """No laser lit; in one of the zone's two views, faint blobs where the `center` and `parallel`
+    spots of one surface would be (as JPEG makes of a textured block that changed in that frame).
+    They agree on a surface, but they show in one view: not `ok`. The same blobs in both views
+    range as any faint spots would."""
+    renderer = _wall(2.0)
+    rig = renderer.rig
+
+    def blobs(img: np.ndarray) -> np.ndarray:
+        for name in ("center", "parallel"):
+            u, v = rig.camera.project(rig.laser(name).point_at_depth(0.6))
+            cv2.circle(img, (int(round(u)), int(round(v))), 1, (0, 0, float(img[int(v), int(u), 2]) + 14), -1)
+        return img
+
+    def zone(views_with_blobs: tuple[int, ...]):
+        groups = []
+        for k in range(2):
+            rng = np.random.default_rng([5, k])
+            view = 0.0514 * k
+            on = renderer.render(view, 0.0, {}, 0.0, rng)
+            off = renderer.render(view, 0.0, {}, 0.0, rng)
+            groups.append(FrameGroup([blobs(on.copy()) if k in views_with_blobs else on], [off],
+                                     rig.laser_names, (view, 0.0)))
+        return Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+
+    once = zone((1,))
+    assert once.status == AMBIGUOUS and "1 of the zone's 2 views" in once.detail
+    both = zone((0, 1))
+    assert both.status == OK and both.range_m == pytest.approx(0.6, rel=0.01)
+
+
 def test_a_range_known_only_loosely_is_not_ok() -> None:
     """A range whose σ is more than `max_sigma_fraction` of it could be 10 % off at 2σ: the zone
     says it is in doubt."""
