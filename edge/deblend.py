@@ -63,12 +63,10 @@ def place_pair(diff: np.ndarray, origin: tuple[int, int], lasers: tuple[Laser, L
     theta = np.array([peaks[0], peaks[1], ws[0], ws[1], math.log(sigma), bg])
     J = np.zeros((y.size, 6))
     for _ in range(_ITERATIONS):
-        model, J = _model(theta, lasers, camera, us, vs, J)
+        model, J, scale = _model(theta, lasers, camera, us, vs, J)
         step = np.linalg.lstsq(J, y - model, rcond=None)[0]
         # Inverse depth moves the spot by px per (1/m) that vary a lot along a path: cap a step at
         # about a pixel, so that the fit walks rather than jumps.
-        scale = [abs(float(np.linalg.norm(_pixel(la, camera, theta[2 + k] * 1.001) - _pixel(la, camera, theta[2 + k])))
-                     / (theta[2 + k] * 0.001)) for k, la in enumerate(lasers)]
         for k in range(2):
             limit = 1.0 / max(scale[k], 1e-9)
             step[2 + k] = min(max(step[2 + k], -limit), limit)
@@ -81,7 +79,7 @@ def place_pair(diff: np.ndarray, origin: tuple[int, int], lasers: tuple[Laser, L
             break
     else:
         return None
-    model, J = _model(theta, lasers, camera, us, vs, J)
+    model, J, scale = _model(theta, lasers, camera, us, vs, J)
     dof = y.size - 6
     resid = float(((y - model) ** 2).sum()) / max(dof, 1)
     if resid <= 0.0 or theta[0] <= 0.0 or theta[1] <= 0.0:
@@ -105,16 +103,19 @@ def place_pair(diff: np.ndarray, origin: tuple[int, int], lasers: tuple[Laser, L
 
 
 def _model(theta: np.ndarray, lasers: tuple[Laser, Laser], camera: CameraModel, us: np.ndarray, vs: np.ndarray,
-           J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The two-spot picture at `theta` (A1, A2, w1, w2, ln σ, background) and its Jacobian."""
+           J: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """The two-spot picture at `theta` (A1, A2, w1, w2, ln σ, background), its Jacobian, and how
+    fast each spot moves along its path (px per 1/m)."""
     sigma = math.exp(float(theta[4]))
     model = np.full(us.shape, float(theta[5]))
     J[:, 4] = 0.0
     J[:, 5] = 1.0
+    speed = []
     for k, laser in enumerate(lasers):
         a, wk = float(theta[k]), float(theta[2 + k])
         p = _pixel(laser, camera, wk)
         dp = (_pixel(laser, camera, wk * 1.0001) - p) / (wk * 0.0001)  # d(u, v)/dw
+        speed.append(float(np.hypot(dp[0], dp[1])))
         du, dv = us - p[0], vs - p[1]
         r2 = (du * du + dv * dv) / (sigma * sigma)
         g = np.exp(-0.5 * r2)
@@ -123,4 +124,4 @@ def _model(theta: np.ndarray, lasers: tuple[Laser, Laser], camera: CameraModel, 
         # d/dw of a·g: a·g·((u − pu)·dpu/dw + (v − pv)·dpv/dw)/σ²
         J[:, 2 + k] = a * g * (du * dp[0] + dv * dp[1]) / (sigma * sigma)
         J[:, 4] += a * g * r2
-    return model, J
+    return model, J, speed

@@ -23,7 +23,7 @@ from typing import Literal
 
 import numpy as np
 
-from edge.deblend import DEBLEND_PX, place_pair
+from edge.deblend import DEBLEND_PX, Placed, place_pair
 from edge.rig import CameraModel, Laser, Pose, Rig
 from edge.schema import require
 from edge.vision import Candidate, SpotFinder
@@ -502,6 +502,10 @@ class Ranger:
             rig, config.band_halfwidth_px, config.min_snr, channel=config.channel,
             path_tolerance_px=config.path_tolerance_px,
         )
+        # Set up once, for _deblend on every frame group: the pixels near each laser's path (with
+        # a margin for rounding a spot's pixel), so that most spots need no search of the path.
+        self._near_path = {name: self.finder.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
+        self._inv_depths = self.finder.inv_depth_range()
 
     def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:
         """Range one zone from its frame groups; the result is for the zone's pose."""
@@ -672,26 +676,11 @@ class Ranger:
         """Where a laser's spot was not found but its path runs through another laser's blob, the
         blob may hold both spots (far away, or on a small camera): fit them together, each on its
         own path (:mod:`edge.deblend`), and keep both if both are spots."""
-        finder, camera = self.finder, self.rig.camera
         for name in list(found):
             for c in list(found[name]):
                 for other in found:
-                    if other == name or any(math.dist(o.pixel.tolist(), c.pixel.tolist()) < 2 * DEBLEND_PX
-                                            for o in found[other]):
-                        continue
-                    gap, w_other = finder.nearest_on_path(other, c.pixel)
-                    if gap > DEBLEND_PX:
-                        continue
-                    cut = finder.window_difference(group.on, group.off, c.pixel, DEBLEND_WINDOW_PX)
-                    if cut is None:
-                        continue
-                    lo, hi = finder.inv_depth_range(name)
-                    lo2, hi2 = finder.inv_depth_range(other)
-                    pair = place_pair(cut[0], cut[1], (self._lasers[name], self._lasers[other]), camera,
-                                      (c.along, w_other), (min(lo, lo2), max(hi, hi2)))
-                    # The fit's noise is its residual, which JPEG's blocks and speckle raise well
-                    # above the pixels' noise: half min_snr, for a blob that was found as a spot.
-                    if pair is None or min(p.snr for p in pair) < 0.5 * self.config.min_snr:
+                    pair = self._blob_pair(group, found, name, c, other)
+                    if pair is None:
                         continue
                     for placed in pair:
                         kept = [o for o in found[placed.laser]
@@ -701,6 +690,32 @@ class Ranger:
                                                                 placed.size_px, placed.inv_depth, 0.0, placed.snr)]
                     break
         return found
+
+    def _blob_pair(self, group: FrameGroup, found: Mapping[str, Sequence[Candidate]], name: str, c: Candidate,
+                   other: str) -> tuple[Placed, Placed] | None:
+        """`name`'s blob `c` and `other`'s spot in it, fitted together; None where `other` has a
+        spot of its own nearby, its path does not pass through the blob, or the fit finds no two
+        spots."""
+        if other == name or any(math.dist(o.pixel.tolist(), c.pixel.tolist()) < 2 * DEBLEND_PX
+                                for o in found[other]):
+            return None
+        u, v = int(round(float(c.pixel[0]))), int(round(float(c.pixel[1])))
+        near = self._near_path[other]
+        if not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near[v, u]):
+            return None
+        gap, w_other = self.finder.nearest_on_path(other, c.pixel)
+        if gap > DEBLEND_PX:
+            return None
+        cut = self.finder.window_difference(group.on, group.off, c.pixel, DEBLEND_WINDOW_PX)
+        if cut is None:
+            return None
+        pair = place_pair(cut[0], cut[1], (self._lasers[name], self._lasers[other]), self.rig.camera,
+                          (c.along, w_other), self._inv_depths)
+        # The fit's noise is its residual, which JPEG's blocks and speckle raise well above the
+        # pixels' noise: half min_snr, for a blob that was found as a spot.
+        if pair is None or min(p.snr for p in pair) < 0.5 * self.config.min_snr:
+            return None
+        return pair
 
     def _measure(self, track: _Track) -> LaserMeasurement:
         views = len(track.views)

@@ -563,10 +563,22 @@ class SpotFinder:
         rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
         return self._window(on, rows, cols) - self._window(off, rows, cols), (u0 - r, v0 - r)
 
-    def inv_depth_range(self, laser: str) -> tuple[float, float]:
-        """The inverse depths (1/m) `laser`'s path is searched over, nearest last."""
-        inv = self.bands[laser].inv_depth
+    def inv_depth_range(self) -> tuple[float, float]:
+        """The inverse depths (1/m) every laser's path is searched over, nearest last (one range:
+        the rig's working range with its margins)."""
+        inv = next(iter(self.bands.values())).inv_depth
         return float(inv.min()), float(inv.max())
+
+    def path_mask(self, laser: str, within_px: float) -> np.ndarray:
+        """The image's pixels within `within_px` of `laser`'s path, and some a little farther
+        (bool, height × width): a square about each path sample, which lie half a pixel apart.
+        For set-up, not per frame."""
+        cam = self.rig.camera
+        mask = np.zeros((cam.height, cam.width), bool)
+        r = math.ceil(within_px + 0.5)
+        for u, v in np.rint(self.bands[laser].path).astype(int).tolist():
+            mask[max(v - r, 0): max(v + r + 1, 0), max(u - r, 0): max(u + r + 1, 0)] = True
+        return mask
 
     def nearest_on_path(self, laser: str, pixel: np.ndarray) -> tuple[float, float]:
         """The distance (px) from `pixel` to `laser`'s path, and the inverse depth there."""
@@ -579,13 +591,11 @@ class SpotFinder:
         """The laser light in a spot-sized window at `pixel`: the on frames' read channel less the
         off frames', less the window border's median (the room), summed; in full-scale units. 0 where
         the window leaves the image."""
-        cam, r = self.rig.camera, self._radius
-        u0, v0 = int(round(float(pixel[0]))), int(round(float(pixel[1])))
-        if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
+        cut = self.window_difference(on, off, pixel, self._radius)
+        if cut is None:
             return 0.0
-        rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
-        win = self._window(on, rows, cols) - self._window(off, rows, cols)
-        level = float(np.median(win.take(_border_index(2 * r + 1))))
+        win = cut[0]
+        level = float(np.median(win.take(_border_index(2 * self._radius + 1))))
         return float(win.sum()) - level * win.size
 
     @property
