@@ -30,8 +30,8 @@ from pathlib import Path
 from edge.accuracy.conditions import Condition
 from edge.accuracy.score import Figures, ZoneOutcome, targets
 from edge.config import Config, load_config
-from edge.ranging import ZoneResult
-from edge.recording import Recording, ZoneRecord
+from edge.ranging import FrameGroup, Ranger, ZoneResult
+from edge.recording import ZoneRecord
 from edge.rig import Rig
 
 log = logging.getLogger(__name__)
@@ -62,7 +62,7 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     the `rig` asked for (one of RIGS) and score it. Recordings go to `folder`."""
     from edge.accuracy.truth import floor_truth
     from edge.recording import read_recording
-    from edge.replay import Replayer
+    from edge.replay import zone_groups
     from edge.sim.record import record_sweep, true_rig
 
     began = time.monotonic()
@@ -81,27 +81,29 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
         ranging_rig, said = recording.rig, "nominal"
     else:
         raise ValueError(f"rig must be one of {', '.join(RIGS)}, got {rig!r}")
-    replayer = Replayer(ranging_rig, "triangulate", config.ranging)
+    ranger = Ranger(ranging_rig, config.ranging)
     reference = recording.rig.reference.name
     outcomes, rows = [], []
-    for zone, result in zip(recording.zones, replayer.zones(recording)):
-        outcome = ZoneOutcome.of(result, zone.truth, reference, _frame_snr(recording, zone, reference))
+    for zone in recording.zones:
+        # The zone's frames are read once, for the ranging and for what they show (as edge replay
+        # reads them: zone_groups).
+        groups, _ = zone_groups(recording, zone)
+        result = ranger.range_zone(zone.index, zone.pan_deg, zone.tilt_deg, groups)
+        outcome = ZoneOutcome.of(result, zone.truth, reference, _frame_snr(groups, zone, reference))
         outcomes.append(outcome)
         rows.append(_row(cond, zone.pan_deg, zone.tilt_deg, outcome, result, zone.truth or {}, reference))
     return Run(cond, tuple(outcomes), said, time.monotonic() - began, tuple(rows))
 
 
-def _frame_snr(recording: Recording, zone: ZoneRecord, reference: str) -> float | None:
-    """The reference spot's matched-filter SNR in the zone's recorded frames (None: not visible,
-    or no frame pair)."""
+def _frame_snr(groups: Sequence[FrameGroup], zone: ZoneRecord, reference: str) -> float | None:
+    """The reference spot's matched-filter SNR in the zone's recorded frames, `groups` (None: not
+    visible, or no frame pair)."""
     from edge.accuracy.observe import frame_snr, mean_differences
-    from edge.replay import zone_groups
 
     lasers = (zone.truth or {}).get("lasers") or {}
     mine = lasers.get(reference) or {}
     if not mine.get("visible") or mine.get("pixel") is None:
         return None
-    groups, _ = zone_groups(recording, zone)
     if not groups:
         return None
     diffs = mean_differences([f for g in groups for f in g.on], [f for g in groups for f in g.off])

@@ -76,13 +76,15 @@ class ZoneOutcome:
     @property
     def observable(self) -> bool:
         """In the frames, where they were measured; else by the renderer's SNR."""
-        seen = self.snr if self.frame_snr is None else self.frame_snr
-        return self.visible and seen >= OBSERVABLE_SNR and self.floor_m is not None and self.floor_m > 0
+        return self._observable_at(self.snr if self.frame_snr is None else self.frame_snr)
 
     @property
     def observable_model(self) -> bool:
         """By the renderer's SNR, before the camera's pipeline (JPEG, demosaicing)."""
-        return self.visible and self.snr >= OBSERVABLE_SNR and self.floor_m is not None and self.floor_m > 0
+        return self._observable_at(self.snr)
+
+    def _observable_at(self, snr: float) -> bool:
+        return self.visible and snr >= OBSERVABLE_SNR and self.floor_m is not None and self.floor_m > 0
 
     @property
     def error_m(self) -> float | None:
