@@ -440,6 +440,13 @@ def best_fusion(
     return fuse(rig, reference, ())
 
 
+def _one_answer(fusions: Sequence[Fusion]) -> bool:
+    """Whether fusions of different reference blobs all give the same range (each pair within
+    2σ of their difference)."""
+    return all(abs(a.range_m - b.range_m) <= 2.0 * math.hypot(a.sigma_m, b.sigma_m)
+               for i, a in enumerate(fusions) for b in fusions[i + 1:])
+
+
 def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
     """Do at least two of the other lasers have spots that lie on one surface?"""
     found = [ms for ms in others.values() if ms]
@@ -538,14 +545,17 @@ class Ranger:
             for r in refs:
                 f = (best_fusion(rig, r, others, self.config.surface_sigma_per_m, known)
                      if others else fuse(rig, r, ()))
-                support.append((len(f.used) - 1, r))  # other lasers that agree with it
+                support.append((len(f.used) - 1, r, f))  # other lasers that agree with it
             support.sort(key=lambda s: -s[0])
-            if support[0][0] == 0 or support[0][0] == support[1][0]:
+            tied = [s for s in support if s[0] == support[0][0]]
+            if support[0][0] == 0 or (len(tied) > 1 and not _one_answer([f for _, _, f in tied])):
                 return self._result(
                     index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                     detail=f"{len(refs)} blobs on the {ref} laser's path and nothing to tell them apart",
                 )
-            chosen = support[0][1]
+            # Blobs that the same lasers agree with, and whose ranges agree too, give one answer
+            # whichever is the spot (a ghost or shoulder beside it, placed loosely): the surest.
+            chosen = min(tied, key=lambda s: s[2].sigma_m)[1]
             if support[0][0] < 2 and chosen.sigma_px > LOOSE_WINNER_PX:
                 # One other laser's agreement singles out a blob only if the blob is placed well:
                 # a blob known to ±1.5 px on a path with others on it meets the other laser's
