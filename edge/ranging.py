@@ -41,6 +41,10 @@ LOOSE_WINNER_PX = 1.0
 # the others with at least this share of its light, or the beam is on an edge (Ranger._comes_and_goes).
 EDGE_MIN_SNR = 10.0
 EDGE_LIGHT_RATIO = 0.3
+# Sightings in different frame groups are one spot if they are this many σ of their placing apart
+# (and at least 1.5 px, at most TRACK_JOIN_MAX_PX).
+TRACK_JOIN_SIGMAS = 2.5
+TRACK_JOIN_MAX_PX = 3.0
 # Two spots fitted together (edge.deblend) are fitted in a window of this half-size (px).
 DEBLEND_WINDOW_PX = 6
 # Their σ is the fit's, from its residual as if white, grown for the residual's correlation (JPEG's
@@ -665,7 +669,11 @@ class Ranger:
                     cu, cv = cand.pixel.item(0), cand.pixel.item(1)  # (plain floats: cheaper than numpy's)
                     for track in tracks[name]:
                         p = track.pixel()
-                        if math.hypot(p.item(0) - cu, p.item(1) - cv) < 1.5:
+                        # The same spot, if as near as the two placings' noise allows (JPEG can
+                        # place a faint spot 1.5 px apart in two views), within a spot's size.
+                        sure = min(c.sigma_px for c in track.found)
+                        near = min(max(1.5, TRACK_JOIN_SIGMAS * math.hypot(cand.sigma_px, sure)), TRACK_JOIN_MAX_PX)
+                        if math.hypot(p.item(0) - cu, p.item(1) - cv) < near:
                             track.found.append(cand)
                             track.views.add(group.view)
                             break

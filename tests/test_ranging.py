@@ -32,6 +32,7 @@ from edge.ranging import (
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Rig, default_rig
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
+from edge.vision import Candidate
 
 
 def _laser(ox: float, oy: float, ax: float, ay: float, name: str = "l") -> Laser:
@@ -355,6 +356,33 @@ def test_a_loose_blob_beside_the_spot_that_gives_the_same_range_is_no_ambiguity(
     assert ghost["status"] == OK, ghost["detail"]
     assert abs(ghost["error_m"]) <= 2 * ghost["sigma_m"]
     assert not any(row["wrong"] for row in run.rows)
+
+
+def test_sightings_in_two_views_are_one_spot_if_their_noise_allows() -> None:
+    """JPEG can place a faint spot nearly 2 px apart in a zone's two views: as loosely placed as that,
+    the two sightings are one spot, seen twice. Two sharp spots as far apart are two."""
+    rig = default_rig()
+    ranger = Ranger(rig)
+    path = rig.laser_image_path(rig.laser("center"), 400)
+    u, v = path[len(path) // 2]
+    frame = np.zeros((rig.camera.height, rig.camera.width), np.uint8)
+    # (each group its own frames: the stand-in finder below tells the views apart by them)
+    groups = [FrameGroup([frame.copy()], [frame.copy()], rig.laser_names, (0.0514 * k, 0.0)) for k in range(2)]
+
+    def zone(sigma_px: float):
+        placed = {0.0: (u, v), 0.0514: (u + 1.44, v + 1.08)}  # 1.8 px apart
+
+        def find(on, off, lasers=None):
+            view = next(g.view[0] for g in groups if g.on[0] is on[0] and g.off[0] is off[0])
+            return {"center": [Candidate("center", np.array(placed[view]), sigma_px, 30.0, 1.0, 0.5, 0.0, 30.0)],
+                    "parallel": [], "sloped": []}
+        ranger.finder.find = find  # the spots as the finder might place them
+        return ranger.range_zone(0, 0.0, 0.0, groups)
+
+    loose = zone(1.0)
+    assert loose.lasers["center"].views == 2  # one spot, both views
+    sharp = zone(0.1)
+    assert "center" not in sharp.lasers and sharp.status == AMBIGUOUS  # two spots: which?
 
 
 def test_a_range_known_only_loosely_is_not_ok() -> None:
