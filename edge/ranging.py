@@ -488,6 +488,7 @@ class _Track:
     laser: str
     found: list[Candidate]
     views: set[tuple[float, float]]
+    pooled: int = 0  # frame groups pooled into its one sighting (0: found group by group)
 
     def pixel(self, speckle_px: float = 0.0) -> np.ndarray:
         """Weighted mean position; each sighting's weight counts its speckle too, which dominates
@@ -527,7 +528,7 @@ class Ranger:
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         # How many of the frame groups each spot showed in, against how many it could have.
-        sightings = {id(m): (len(t.found), sum(name in g.lasers for g in groups))
+        sightings = {id(m): (t.pooled or len(t.found), sum(name in g.lasers for g in groups))
                      for name, ts in tracks.items() for t, m in zip(ts, cands[name])}
         refs = cands.get(ref, [])
         if any(m.snr >= self.config.min_snr for m in refs):
@@ -687,8 +688,25 @@ class Ranger:
             kept = [t for t in ts if len(t.found) >= need]
             if len(kept) > 1:
                 kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
-            out[name] = kept[:3]
+            out[name] = kept[:3] or self._pooled(groups, name)
         return out
+
+    def _pooled(self, groups: Sequence[FrameGroup], name: str) -> list[_Track]:
+        """`name`'s spots in the zone's frame groups pooled, where no group alone showed one.
+
+        Camera and lasers turn together, so a spot stays at (nearly) the same pixel in every view
+        of a zone while the room behind it shifts. The finder takes the mean of the laser-on
+        frames less the mean of the laser-off frames: pooled, that is the mean of each group's own
+        difference, in which the room cancels, and a spot too faint for any one group stands
+        √groups higher above the noise. Each spot found so is one sighting for all the groups."""
+        mine = [g for g in groups if name in g.lasers]
+        if len(mine) < 2:
+            return []
+        on = [f for g in mine for f in g.on]
+        off = [f for g in mine for f in g.off]
+        views = {g.view for g in mine}
+        found = self.finder.find(on, off, [name]).get(name, [])
+        return [_Track(name, [c], set(views), len(mine)) for c in found][:3]
 
     def _deblend(self, group: FrameGroup, found: dict[str, list[Candidate]]) -> dict[str, list[Candidate]]:
         """Where a laser's spot was not found but its path runs through another laser's blob, the

@@ -385,6 +385,34 @@ def test_sightings_in_two_views_are_one_spot_if_their_noise_allows() -> None:
     assert "center" not in sharp.lasers and sharp.status == AMBIGUOUS  # two spots: which?
 
 
+def _faint(renderer: Renderer, power: float, groups: int = 4) -> list[FrameGroup]:
+    """`groups` frame groups, in two nudged views, with every laser at `power`."""
+    out = []
+    for k in range(groups):
+        rng = np.random.default_rng([7, k])
+        view = 0.0514 * (k % 2)
+        on = renderer.render(view, 0.0, {n: power for n in renderer.rig.laser_names}, 0.0, rng)
+        off = renderer.render(view, 0.0, {}, 0.0, rng)
+        out.append(FrameGroup([on], [off], renderer.rig.laser_names, (view, 0.0)))
+    return out
+
+
+def test_spots_too_faint_for_any_one_view_are_found_in_the_views_pooled() -> None:
+    """Spots at about 4 × the noise show in one frame group of four, or none: group by group
+    the zone has no spot. Pooled, the four groups' differences hold them at twice that."""
+    renderer = _wall(2.0)
+    ranger = Ranger(renderer.rig)
+    groups = _faint(renderer, 0.02)
+    by_group = [ranger.finder.find(g.on, g.off) for g in groups]
+    assert sum(len(found["center"]) for found in by_group) <= 1
+    result = ranger.range_zone(0, 0.0, 0.0, groups)
+    assert result.status == OK, result.detail
+    assert abs(result.range_m - 2.0) <= 2.5 * result.sigma_m and abs(result.range_m - 2.0) < 0.04
+    assert result.lasers["center"].views == 2  # one sighting of all groups, in both views
+    dark = ranger.range_zone(0, 0.0, 0.0, _faint(renderer, 0.0))
+    assert dark.status == NO_SPOT  # pooled noise is no spot
+
+
 def test_a_range_known_only_loosely_is_not_ok() -> None:
     """A range whose σ is more than `max_sigma_fraction` of it could be 10 % off at 2σ: the zone
     says it is in doubt."""
