@@ -530,13 +530,14 @@ class Ranger:
         # How many of the frame groups each spot showed in, against how many it could have.
         sightings = {id(m): (t.pooled or len(t.found), sum(name in g.lasers for g in groups))
                      for name, ts in tracks.items() for t, m in zip(ts, cands[name])}
-        refs = cands.get(ref, [])
-        if any(m.snr >= self.config.min_snr for m in refs):
-            # Faint blobs (found by the matched filter alone) count only where nothing brighter is,
-            refs = [m for m in refs if m.snr >= self.config.min_snr]
-        # and only where they are a spot's size and shape: a faint blob placed to worse than half a
-        # pixel is noise that the filter lined up, or a JPEG ghost.
-        refs = [m for m in refs if m.snr >= self.config.min_snr or m.sigma_px <= FAINT_MAX_SIGMA_PX]
+        refs = self._believable(cands.get(ref, []))
+        if not refs and tracks.get(ref) and not any(t.pooled for t in tracks[ref]):
+            # Faint blobs group by group, none a spot to believe: pooled, the views may hold the
+            # spot well above them.
+            tracks[ref] = self._pooled(groups, ref)
+            cands[ref] = [self._measure(t) for t in tracks[ref]]
+            sightings.update({id(m): (t.pooled, t.pooled) for t, m in zip(tracks[ref], cands[ref])})
+            refs = self._believable(cands[ref])
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
         others = {n: ms for n, ms in cands.items() if n != ref}
@@ -631,6 +632,15 @@ class Ranger:
             index, pan_deg, tilt_deg, OK, fusion.range_m, fusion.sigma_m, fusion.point_m, base,
             fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),
         )
+
+    def _believable(self, refs: list[LaserMeasurement]) -> list[LaserMeasurement]:
+        """The reference laser's spots that may be its spot."""
+        if any(m.snr >= self.config.min_snr for m in refs):
+            # Faint blobs (found by the matched filter alone) count only where nothing brighter is,
+            refs = [m for m in refs if m.snr >= self.config.min_snr]
+        # and only where they are a spot's size and shape: a faint blob placed to worse than half a
+        # pixel is noise that the filter lined up, or a JPEG ghost.
+        return [m for m in refs if m.snr >= self.config.min_snr or m.sigma_px <= FAINT_MAX_SIGMA_PX]
 
     def _comes_and_goes(self, spot: LaserMeasurement, groups: Sequence[FrameGroup],
                         tracks: Mapping[str, Sequence[_Track]]) -> bool:

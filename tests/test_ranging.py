@@ -413,6 +413,22 @@ def test_spots_too_faint_for_any_one_view_are_found_in_the_views_pooled() -> Non
     assert dark.status == NO_SPOT  # pooled noise is no spot
 
 
+@pytest.mark.slow  # one condition of the accuracy bench's tuning family, 24 zones
+def test_a_reference_seen_only_as_faint_blobs_is_looked_for_in_the_views_pooled(tmp_path) -> None:
+    """Tuning-7 (640 px Bayer, a bright room, a dark office): in zones 6 and 21 each view shows the
+    reference spot as a faint blob too loose to believe (SNR 5, σ 0.6-1 px); the views pooled show
+    it well enough to range, and the range is right."""
+    from edge.accuracy import conditions as cond
+    from edge.accuracy.bench import run_condition
+
+    run = run_condition(None, [], cond.condition("tuning", 7), 24, "true", tmp_path)
+    rows = {row["zone"]: row for row in run.rows}
+    for zone in (6, 21):
+        assert rows[zone]["status"] == OK, rows[zone]["detail"]
+        assert abs(rows[zone]["error_m"]) <= 2 * rows[zone]["sigma_m"]
+    assert not any(row["wrong"] for row in run.rows)
+
+
 def test_a_range_known_only_loosely_is_not_ok() -> None:
     """A range whose σ is more than `max_sigma_fraction` of it could be 10 % off at 2σ: the zone
     says it is in doubt."""
