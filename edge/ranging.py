@@ -670,6 +670,7 @@ class Ranger:
 
     def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[_Track]]:
         names = self.rig.laser_names  # (a property that builds the tuple)
+        reference = self.rig.reference.name
         tracks: dict[str, list[_Track]] = {name: [] for name in names}
         expected: dict[str, int] = {name: 0 for name in names}
         for group in groups:
@@ -698,7 +699,9 @@ class Ranger:
             kept = [t for t in ts if len(t.found) >= need]
             if len(kept) > 1:
                 kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
-            out[name] = kept[:3] or self._pooled(groups, name)
+            # Pooled for the reference alone: the other lasers' faint pooled blobs, noise among
+            # them, would confirm a weak reference blob (tuning-33: 0.38 m where nothing was).
+            out[name] = kept[:3] or (self._pooled(groups, name) if name == reference else [])
         return out
 
     def _pooled(self, groups: Sequence[FrameGroup], name: str) -> list[_Track]:

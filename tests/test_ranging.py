@@ -385,21 +385,23 @@ def test_sightings_in_two_views_are_one_spot_if_their_noise_allows() -> None:
     assert "center" not in sharp.lasers and sharp.status == AMBIGUOUS  # two spots: which?
 
 
-def _faint(renderer: Renderer, power: float, groups: int = 4) -> list[FrameGroup]:
-    """`groups` frame groups, in two nudged views, with every laser at `power`."""
+def _faint(renderer: Renderer, power: float, others: float = 0.3, groups: int = 4) -> list[FrameGroup]:
+    """`groups` frame groups, in two nudged views, with the reference laser at `power` and the
+    others at `others`."""
     out = []
     for k in range(groups):
         rng = np.random.default_rng([7, k])
         view = 0.0514 * (k % 2)
-        on = renderer.render(view, 0.0, {n: power for n in renderer.rig.laser_names}, 0.0, rng)
+        lasers = {n: power if n == renderer.rig.reference.name else others for n in renderer.rig.laser_names}
+        on = renderer.render(view, 0.0, lasers, 0.0, rng)
         off = renderer.render(view, 0.0, {}, 0.0, rng)
         out.append(FrameGroup([on], [off], renderer.rig.laser_names, (view, 0.0)))
     return out
 
 
 def test_spots_too_faint_for_any_one_view_are_found_in_the_views_pooled() -> None:
-    """Spots at about 4 × the noise show in one frame group of four, or none: group by group
-    the zone has no spot. Pooled, the four groups' differences hold them at twice that."""
+    """A reference spot at about 4 × the noise shows in one frame group of four, or none: group by
+    group the zone has no spot. Pooled, the four groups' differences hold it at twice that."""
     renderer = _wall(2.0)
     ranger = Ranger(renderer.rig)
     groups = _faint(renderer, 0.02)
@@ -411,6 +413,9 @@ def test_spots_too_faint_for_any_one_view_are_found_in_the_views_pooled() -> Non
     assert result.lasers["center"].views == 2  # one sighting of all groups, in both views
     dark = ranger.range_zone(0, 0.0, 0.0, _faint(renderer, 0.0))
     assert dark.status == NO_SPOT  # pooled noise is no spot
+    # The others too faint to find: the reference's pooled spot is alone, and as weak as blobs are.
+    alone = ranger.range_zone(0, 0.0, 0.0, _faint(renderer, 0.02, others=0.02))
+    assert alone.status == AMBIGUOUS and "no other laser's spot was found" in alone.detail
 
 
 @pytest.mark.slow  # one condition of the accuracy bench's tuning family, 24 zones
