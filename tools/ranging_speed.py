@@ -7,10 +7,13 @@ its figures and these agree:
     .venv/bin/python tools/ranging_speed.py stages            # fastest time of each stage, alone
 
 A machine shared with other work makes wall times noisy; an instruction count is not. Count K
-calls and none, and take the difference (callgrind's total includes start-up and set-up):
+calls and none, and take the difference (callgrind's total includes start-up and set-up; the
+garbage collector is off while counting). One BLAS thread, as ./dev sets: idle BLAS threads spin,
+and callgrind counts their spinning too.
 
     .venv/bin/python -m compileall -q edge    # else the first run also counts compiling
-    for k in 0 30; do PYTHONHASHSEED=0 valgrind --tool=callgrind --callgrind-out-file=/dev/null \\
+    export OPENBLAS_NUM_THREADS=1 PYTHONHASHSEED=0
+    for k in 0 30; do valgrind --tool=callgrind --callgrind-out-file=/dev/null \\
         .venv/bin/python tools/ranging_speed.py count --calls $k 2>&1 | grep Collected; done
 
 Every stage's time is the fastest of many runs of that stage alone, on the pair's own inputs: the
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import gc
 import statistics
 import time
 from collections.abc import Callable
@@ -74,6 +78,9 @@ def main() -> None:
         ours()
 
     if args.what == "count":
+        # A cyclic collection costs millions of instructions and comes whenever the count of
+        # allocations says, in one run's K calls and not in another's: off, the counts repeat.
+        gc.disable()
         for _ in range(args.calls):
             ours()
         return
