@@ -518,7 +518,8 @@ class SpotFinder:
         dim = matched * np.float32(1.0 / MATCHED_SNR)
         score = np.maximum(bright, dim)
         mid = score[1:-1]
-        peaks = 1 + np.flatnonzero((mid > 1.0) & (mid >= score[:-2]) & (mid > score[2:]))
+        # (ndarray.nonzero: np.flatnonzero's indices without its two Python-level wrappers)
+        peaks = ((mid > 1.0) & (mid >= score[:-2]) & (mid > score[2:])).nonzero()[0] + 1
         listed = peaks.tolist()
         seeds = {}
         for name in names:
