@@ -92,7 +92,9 @@ def scan_cloud(rig: Rig, results: Sequence[ZoneResult]) -> Cloud:
             laser = rig.laser(name)
             if abs(laser.d[2]) < 1e-6:
                 continue
-            spots[i].append((name, poses[i].apply(laser.point_at_depth(m.depth_m)), float(m.sigma_m or 0.0)))
+            # A spot whose σ a file did not give is taken to be as uncertain as the zone's range (a
+            # σ of nothing would fail every plane through it).
+            spots[i].append((name, poses[i].apply(laser.point_at_depth(m.depth_m)), float(m.sigma_m or sigma[i])))
     supports = []
     for i in range(len(ok)):
         own = [Support(q, s, 0, name, True) for name, q, s in spots[i]
