@@ -14,6 +14,10 @@ on the wall above the crease, are two parallel lines, and a plane passes through
 its slope; a third row off that plane is what shows the bend. Where the point's layer is at the
 window's end, the others must reach far enough to pin the slope without it (see `_pinned`).
 
+The zone's own lasers' spots are in every window: the ranging fused them onto the point's surface
+(``edge.ranging.fuse``), so a window on the far side of a crease, which a row right at the crease
+fits as well as its own side does, fails on them.
+
 A candidate's plane is fitted weighted by 1/σ² and kept when its residuals are what the points' σ
 makes likely (χ² within its 99.9th percentile and no point beyond _MAX_Z σ) and its points pin its
 tilt well enough for that test to mean something (_TILT_SIGMA): at a crease or a depth edge the
@@ -108,11 +112,13 @@ def normal_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.nd
     side_h = np.where(np.abs(across) < 0.5 * gap, 0, np.sign(across))
     side_v = np.where(np.abs(offset) < 0.5 * gap, 0, np.sign(offset))
     ring = np.array([0] + [s.ring for s in own])
+    # The zone's own lasers' spots: on the point's surface, by the ranging's fusion.
+    mine = np.array([False] + [s.level == 0 and s.laser is not None and s.column for s in own])
     kept: list[tuple[int, float, np.ndarray]] = []
     # Windows: up to `reach` lattice steps; across the row both sides (0) or one (∓1); up the
     # column both or one. A neighbour level with the point in one direction is on both sides.
     for reach, h, v in itertools.product(sorted(set(ring[1:])), (0, -1, 1), (0, -1, 1)):
-        mask = (ring <= reach) & (side_h * h >= 0) & (side_v * v >= 0)
+        mask = ((ring <= reach) & (side_h * h >= 0) & (side_v * v >= 0)) | mine
         if not (_pinned(across[mask & in_row], gap) and _pinned(offset[mask & upright], gap)):
             continue  # cannot show a bend one way or the other
         fit = _fit(rel[mask], sig[mask])

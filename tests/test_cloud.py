@@ -278,3 +278,19 @@ def scan_box(pans: range, tilts: list[int], box: Box, noise: float, seed: int) -
         return scan(pans, tilts, box=True, noise=noise, seed=seed, lasers=True)  # type: ignore[arg-type]
     finally:
         BOX = saved
+
+
+def test_no_point_by_a_walls_foot_takes_the_other_surfaces_normal() -> None:
+    """Tilt levels 10° apart and the wall at every distance from 1.15 to 2.5 m: rows land on the
+    floor a few centimetres before the wall's foot and on the wall just above it. Such a row lies
+    on both planes; the windows on the far side of the crease hold it with their own surface, and
+    only the zone's own spots (its sloped laser's, on the floor before the wall) tell which it is
+    on. None takes the other surface's normal, with noise too."""
+    pans = range(-30, 31, 6)
+    tilts = range(-40, 31, 10)
+    for k, wall_x in enumerate(np.arange(1.15, 2.51, 0.05)):
+        for seed, noise in ((k, 0.0), (100 + k, 0.003)):
+            results, truth = scan(pans, tilts, noise=noise, seed=seed, lasers=True, wall_x=float(wall_x))
+            angles = angles_deg(scan_cloud(RIG, results), results, truth)
+            given = ~np.isnan(angles)
+            assert np.all(angles[given] < 10.0), (wall_x, seed, np.nanmax(angles))
