@@ -18,9 +18,9 @@ The zone's own lasers' spots are in every window: the ranging fused them onto th
 (``edge.ranging.fuse``), so a window on the far side of a crease, which a row right at the crease
 fits as well as its own side does, fails on them. Up the column two layers do where the zone's
 own spots make the second one (the bottom row's floor: its row and its sloped laser's spots):
-they join the two rows at the zone, and the plane is kept only at the slope at which the fusion
-tests a zone's lasers against a known surface — level (a floor) or upright (a wall) within 3σ of
-its tilt (`_level_or_upright`). A crease between the two rows would tilt it off both.
+they join the two rows at the zone, and the plane is kept only at a slope at which the fusion
+tests a zone's lasers against a known surface — level (a floor) or upright (a wall) within 3σ
+(`_joined_at_a_known_slope`). A crease between the two rows would tilt it off both.
 
 A candidate's plane is fitted weighted by 1/σ² and kept when its residuals are what the points' σ
 makes likely (χ² within its 99.9th percentile and no point beyond _MAX_Z σ) and its points pin its
@@ -60,9 +60,9 @@ _TILT_SIGMA = math.radians(1.75)
 # above it, about a tenth.
 _REST = 0.5
 # A window whose column is two layers joined by the zone's own spots is kept when its plane lies
-# within this many σ of its tilt of level or upright, and when that tilt is pinned to this (1σ): its
-# normal is then within 4σ, 10°, of a floor's or a wall's. A bend hidden within χ² does not matter
-# here as it does for _TILT_SIGMA: a plane through a crease's two sides is tilted off both. (The
+# within this many σ of level or upright, and its slope up the column is pinned to this (1σ): its
+# normal is then within 4σ, 10°, of a floor's or a wall's. A bend hidden within χ² matters less
+# there than _TILT_SIGMA says: a plane through a crease's two sides is tilted off both. (The
 # floor at −40° below a wall 2.5 m away, its row and its sloped spots 23 cm apart: about 1.9°.)
 _SQUARE_SIGMAS = 3.0
 _OWN_TILT_SIGMA = math.radians(2.5)
@@ -135,15 +135,15 @@ def normal_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.nd
         layered = _pinned(offset[mask & upright], gap)
         if not layered and not _joined_by_own(offset[mask & upright], offset[mine], gap):
             continue  # cannot show a bend up the column
-        fit = _fit(rel[mask], sig[mask], _TILT_SIGMA if layered else _OWN_TILT_SIGMA)
-        if fit is None:
+        plane = _fit(rel[mask], sig[mask])
+        if plane is None:
             continue  # two surfaces (or a bend) in the window
-        normal, chi2, tilt_sigma = fit
+        if not (_well_pinned(plane) if layered else _joined_at_a_known_slope(plane, np.cross(up, beam), up)):
+            continue  # its tilt too loosely pinned for its χ² to show a bend, or a crease's
+        normal = plane.normal
         if abs(normal @ beam) < _COS_GRAZING:
             continue  # a plane seen edge-on: points at many depths, not a surface
-        if not layered and not _level_or_upright(normal, tilt_sigma):
-            continue  # two rows joined at a slope no floor or wall has: a crease between them
-        kept.append((int(mask.sum()), chi2, normal if normal @ beam <= 0 else -normal))
+        kept.append((int(mask.sum()), plane.chi2, normal if normal @ beam <= 0 else -normal))
     if not kept:
         return None
     normals = np.array([n for _, _, n in kept])
@@ -189,25 +189,55 @@ def _layers(position: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
     return x[first], np.append(x[np.array(first[1:], dtype=int) - 1], x[-1])
 
 
-def _level_or_upright(normal: np.ndarray, tilt_sigma: float) -> bool:
-    """Whether a plane is level (a floor, a table top) or upright (a wall, a furniture front)
-    within _SQUARE_SIGMAS of its tilt's σ (radians): the surfaces whose slopes the ranging's fusion
-    tests a zone's lasers against (``edge.ranging.level_slopes``)."""
-    off_level = math.acos(min(1.0, abs(float(normal[2]))))
-    return min(off_level, math.pi / 2 - off_level) <= _SQUARE_SIGMAS * tilt_sigma
+def _well_pinned(plane: _Plane) -> bool:
+    """Whether the points pin the plane's tilt about its weaker axis to _TILT_SIGMA."""
+    return plane.tilt_sigma() <= _TILT_SIGMA
 
 
-def _fit(rel: np.ndarray, sig: np.ndarray, max_tilt: float) -> tuple[np.ndarray, float, float] | None:
-    """The plane through the points `rel` weighted by 1/σ², as (unit normal, χ² per degree of
-    freedom, σ of its tilt about its weaker axis in radians), or None where the residuals are more
-    than σ makes likely, or where the points pin that tilt to worse than `max_tilt` (radians)."""
+def _joined_at_a_known_slope(plane: _Plane, across: np.ndarray, up: np.ndarray) -> bool:
+    """For a window of two layers up the column joined by the zone's own spots: whether its plane
+    has a slope the ranging's fusion tests a zone's lasers against (``edge.ranging.level_slopes``),
+    within _SQUARE_SIGMAS of its σ, its slope up the column pinned to _OWN_TILT_SIGMA. Level (a
+    floor, a table top): the known slope then pins the normal both ways, and across the row too
+    _OWN_TILT_SIGMA will do. Upright (a wall, a furniture front): it pins the plane's tilt only;
+    the wall's bearing comes from the row, pinned as any window's (_TILT_SIGMA), for fronts stepped
+    a few centimetres apart fit one plane turned 11° within a looser σ."""
+    column, row = plane.tilt_sigma(up), plane.tilt_sigma(across)
+    if column > _OWN_TILT_SIGMA:
+        return False
+    off_level = math.acos(min(1.0, abs(float(plane.normal[2]))))
+    if off_level <= _SQUARE_SIGMAS * max(column, row):
+        return row <= _OWN_TILT_SIGMA
+    return math.pi / 2 - off_level <= _SQUARE_SIGMAS * column and row <= _TILT_SIGMA
+
+
+@dataclass(frozen=True)
+class _Plane:
+    """A plane fitted to points: its unit `normal`, `chi2` per degree of freedom, and `scatter`
+    (3, 3), the points' weighted (1/σ²) scatter about their mean, which says how well they pin
+    its tilt."""
+
+    normal: np.ndarray
+    chi2: float
+    scatter: np.ndarray
+
+    def tilt_sigma(self, along: np.ndarray | None = None) -> float:
+        """σ (radians) of the plane's slope along `along`, or about its weaker axis."""
+        if along is None:
+            return 1.0 / math.sqrt(max(float(np.linalg.eigvalsh(self.scatter)[1]), 1e-300))
+        b = along - (along @ self.normal) * self.normal
+        b = b / max(float(np.linalg.norm(b)), 1e-12)
+        return 1.0 / math.sqrt(max(float(b @ self.scatter @ b), 1e-300))
+
+
+def _fit(rel: np.ndarray, sig: np.ndarray) -> _Plane | None:
+    """The plane through the points `rel` weighted by 1/σ², or None where the residuals are more
+    than σ makes likely."""
     w = 1.0 / sig**2
     mean = (w[:, None] * rel).sum(axis=0) / w.sum()
     d = rel - mean
-    vals, vecs = np.linalg.eigh((w[:, None] * d).T @ d)
-    normal = vecs[:, 0]
-    if vals[1] <= 0.0 or 1.0 / math.sqrt(vals[1]) > max_tilt:
-        return None  # the plane's tilt is too loosely pinned for its χ² to show a bend
+    scatter = (w[:, None] * d).T @ d
+    normal = np.linalg.eigh(scatter)[1][:, 0]
     z = (d @ normal) / sig
     dof = len(rel) - 3
     if dof < 1 or np.max(np.abs(z)) > _MAX_Z:
@@ -217,4 +247,4 @@ def _fit(rel: np.ndarray, sig: np.ndarray, max_tilt: float) -> tuple[np.ndarray,
     limit = dof * (1.0 - 2.0 / (9.0 * dof) + _CHI2_Z * math.sqrt(2.0 / (9.0 * dof))) ** 3
     if chi2 > limit:
         return None
-    return normal, chi2 / dof, 1.0 / math.sqrt(vals[1])
+    return _Plane(normal, chi2 / dof, scatter)
