@@ -18,10 +18,12 @@ would make it differ is across a depth edge and left out. Of the rest, windows o
 point that can show a bend (three layers across the row and up the column) are fitted, weighted by
 1/σ², and a normal is given where those whose residuals σ accounts for agree: at a crease or a depth
 edge the window across it fails and the one on the point's side holds, so the scan's top and bottom
-rows and points by a crease get one from one side. Where none holds — a side of two layers only
-(the bottom row's floor under a wall: its row and its sloped laser's spots), corners, thin things,
-surfaces seen edge-on — the normal is (0, 0, 0), which PLY readers take as "no normal". Denser tilt
-levels leave fewer such points.
+rows and points by a crease get one from one side. The zone's own spots, which the ranging fused
+onto its surface, are in every window; where they make a side's second layer (the bottom row's
+floor under a wall: its row and its sloped laser's spots) two layers do, at a floor's or a wall's
+slope. Where none holds — a side of two layers otherwise, a neighbour on one side only, corners,
+thin things, surfaces seen edge-on — the normal is (0, 0, 0), which PLY readers take as "no
+normal". Denser tilt levels leave fewer such points.
 """
 
 from __future__ import annotations
@@ -92,7 +94,9 @@ def scan_cloud(rig: Rig, results: Sequence[ZoneResult]) -> Cloud:
             laser = rig.laser(name)
             if abs(laser.d[2]) < 1e-6:
                 continue
-            spots[i].append((name, poses[i].apply(laser.point_at_depth(m.depth_m)), float(m.sigma_m or 0.0)))
+            # A spot whose σ a file did not give is taken to be as uncertain as the zone's range (a
+            # σ of nothing would fail every plane through it).
+            spots[i].append((name, poses[i].apply(laser.point_at_depth(m.depth_m)), float(m.sigma_m or sigma[i])))
     supports = []
     for i in range(len(ok)):
         own = [Support(q, s, 0, name, True) for name, q, s in spots[i]

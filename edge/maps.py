@@ -51,6 +51,7 @@ SAVE_MARGIN_BYTES = 4 << 20
 @dataclass(frozen=True)
 class LaserDepth:
     depth_m: float | None = None
+    sigma_m: float | None = None  # the spot's depth σ: the cloud's normals weigh the spot by it
 
 
 @dataclass(frozen=True)
@@ -79,7 +80,7 @@ class ZoneKeys:
         def arr(v: tuple[float, ...] | None) -> np.ndarray | None:
             return None if v is None else np.array(v, np.float64)
 
-        lasers = {name: LaserMeasurement(name, np.zeros(2), 0.0, np.zeros(3), m.depth_m, 0.0, 0.0, 0)
+        lasers = {name: LaserMeasurement(name, np.zeros(2), 0.0, np.zeros(3), m.depth_m, m.sigma_m or 0.0, 0.0, 0)
                   for name, m in (self.lasers or {}).items() if m.depth_m is not None}
         return ZoneResult(self.index, self.pan_deg, self.tilt_deg, self.status, self.range_m, self.sigma_m,
                           arr(self.point_m), arr(self.point_base_m), arr(self.normal), lasers)

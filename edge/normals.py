@@ -14,10 +14,18 @@ on the wall above the crease, are two parallel lines, and a plane passes through
 its slope; a third row off that plane is what shows the bend. Where the point's layer is at the
 window's end, the others must reach far enough to pin the slope without it (see `_pinned`).
 
+The zone's own lasers' spots are in every window: the ranging fused them onto the point's surface
+(``edge.ranging.fuse``), so a window on the far side of a crease, which a row right at the crease
+fits as well as its own side does, fails on them. Up the column two layers do where the zone's
+own spots make the second one (the bottom row's floor: its row and its sloped laser's spots):
+they join the two rows at the zone, and the plane is kept only at a slope at which the fusion
+tests a zone's lasers against a known surface — level (a floor) or upright (a wall) within 3σ
+(`_joined_at_a_known_slope`). A crease between the two rows would tilt it off both.
+
 A candidate's plane is fitted weighted by 1/σ² and kept when its residuals are what the points' σ
 makes likely (χ² within its 99.9th percentile and no point beyond _MAX_Z σ) and its points pin its
-tilt well enough for that test to mean something (_TILT_SIGMA): at a crease or a depth edge the
-windows that span both surfaces fail and the ones on the point's own side fit. A
+tilt well enough for that test to mean something (_TILT_SIGMA, _OWN_TILT_SIGMA): at a crease or a
+depth edge the windows that span both surfaces fail and the ones on the point's own side fit. A
 normal is given when the kept planes agree (within _AGREE_DEG of each other): that of the kept
 window with most points. Where none is kept, or the kept ones disagree, the normal is (0, 0, 0).
 """
@@ -51,6 +59,13 @@ _TILT_SIGMA = math.radians(1.75)
 # much as the step (1); a box's front below its top row, the front's parallel laser spots 4 cm
 # above it, about a tenth.
 _REST = 0.5
+# A window whose column is two layers joined by the zone's own spots is kept when its plane lies
+# within this many σ of level or upright, and its slope up the column is pinned to this (1σ): its
+# normal is then within 4σ, 10°, of a floor's or a wall's. A bend hidden within χ² matters less
+# there than _TILT_SIGMA says: a plane through a crease's two sides is tilted off both. (The
+# floor at −40° below a wall 2.5 m away, its row and its sloped spots 23 cm apart: about 1.9°.)
+_SQUARE_SIGMAS = 3.0
+_OWN_TILT_SIGMA = math.radians(2.5)
 # σ below a millimetre is not believed: keeps weights finite.
 _SIGMA_FLOOR = 1e-3
 # Kept planes further apart than this: the point's neighbourhood is not one surface.
@@ -105,6 +120,8 @@ def normal_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.nd
     in_row = np.array([True] + [s.level == 0 and s.laser is None for s in own])
     # Straight above or below (a rolled camera's lasers may lie beside the point: not a layer).
     upright = np.array([True] + [s.column for s in own]) & (np.abs(offset) >= 0.5 * np.abs(across))
+    # The zone's own lasers' spots: on the point's surface, by the ranging's fusion.
+    mine = np.array([False] + [s.level == 0 and s.laser is not None and s.column for s in own])
     side_h = np.where(np.abs(across) < 0.5 * gap, 0, np.sign(across))
     side_v = np.where(np.abs(offset) < 0.5 * gap, 0, np.sign(offset))
     ring = np.array([0] + [s.ring for s in own])
@@ -112,16 +129,21 @@ def normal_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.nd
     # Windows: up to `reach` lattice steps; across the row both sides (0) or one (∓1); up the
     # column both or one. A neighbour level with the point in one direction is on both sides.
     for reach, h, v in itertools.product(sorted(set(ring[1:])), (0, -1, 1), (0, -1, 1)):
-        mask = (ring <= reach) & (side_h * h >= 0) & (side_v * v >= 0)
-        if not (_pinned(across[mask & in_row], gap) and _pinned(offset[mask & upright], gap)):
-            continue  # cannot show a bend one way or the other
-        fit = _fit(rel[mask], sig[mask])
-        if fit is None:
+        mask = ((ring <= reach) & (side_h * h >= 0) & (side_v * v >= 0)) | mine
+        if not _pinned(across[mask & in_row], gap):
+            continue  # cannot show a bend across the row
+        layered = _pinned(offset[mask & upright], gap)
+        if not layered and not _joined_by_own(offset[mask & upright], offset[mine], gap):
+            continue  # cannot show a bend up the column
+        plane = _fit(rel[mask], sig[mask])
+        if plane is None:
             continue  # two surfaces (or a bend) in the window
-        normal, chi2 = fit
+        if not (_well_pinned(plane) if layered else _joined_at_a_known_slope(plane, np.cross(up, beam), up)):
+            continue  # its tilt too loosely pinned for its χ² to show a bend, or a crease's
+        normal = plane.normal
         if abs(normal @ beam) < _COS_GRAZING:
             continue  # a plane seen edge-on: points at many depths, not a surface
-        kept.append((int(mask.sum()), chi2, normal if normal @ beam <= 0 else -normal))
+        kept.append((int(mask.sum()), plane.chi2, normal if normal @ beam <= 0 else -normal))
     if not kept:
         return None
     normals = np.array([n for _, _, n in kept])
@@ -132,20 +154,13 @@ def normal_of(centre: np.ndarray, sigma: float, viewpoint: np.ndarray, up: np.nd
 
 def _pinned(position: np.ndarray, gap: float) -> bool:
     """Whether points at `position` (m along one axis; the point itself at 0) lie in three layers
-    or more, each starting at least `gap` past the previous one's first point, that can show a bend
-    next to the point: where the point's layer is at one end, the other layers must span at least
-    half the step from it to them. (Else a row at a crease — a box's top, its front below — is a
-    line that one plane holds together with the front's rows whatever the bend, the plane pinned
-    by the front alone.)"""
-    x = np.sort(position)
-    first = [0]
-    for k in range(1, len(x)):
-        if x[k] - x[first[-1]] >= gap:
-            first.append(k)
-    if len(first) < 3:
+    or more (see `_layers`) that can show a bend next to the point: where the point's layer is at
+    one end, the other layers must span at least half the step from it to them. (Else a row at a
+    crease — a box's top, its front below — is a line that one plane holds together with the
+    front's rows whatever the bend, the plane pinned by the front alone.)"""
+    starts, ends = _layers(position, gap)
+    if len(starts) < 3:
         return False
-    starts = x[first]
-    ends = np.append(x[np.array(first[1:]) - 1], x[-1])  # each layer's last point
     own = int(np.searchsorted(starts, 0.0, side="right")) - 1  # the layer holding the point
     if own == 0:
         return ends[-1] - starts[1] >= _REST * (starts[1] - ends[0])
@@ -154,17 +169,75 @@ def _pinned(position: np.ndarray, gap: float) -> bool:
     return True
 
 
-def _fit(rel: np.ndarray, sig: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """The plane through the points `rel` weighted by 1/σ², as (unit normal, χ² per degree of
-    freedom), or None where the residuals are more than σ makes likely, or where the points pin
-    the plane's tilt about its weaker axis to worse than _TILT_SIGMA."""
+def _joined_by_own(position: np.ndarray, own: np.ndarray, gap: float) -> bool:
+    """Whether points at `position` (as for `_pinned`) lie in just two layers, one of them
+    without the point but with one of its own lasers' spots (at `own`): the zone's own spots then
+    join the two at the zone. (A spot `gap` or more from the point is not in the point's layer.)"""
+    return len(_layers(position, gap)[0]) == 2 and bool(np.any(np.abs(own) >= gap))
+
+
+def _layers(position: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """The first and last position of each layer of points at `position`, in order: a layer
+    starts at the first point at least `gap` past the previous layer's first point."""
+    x = np.sort(position)
+    if len(x) == 0:
+        return x, x
+    first = [0]
+    for k in range(1, len(x)):
+        if x[k] - x[first[-1]] >= gap:
+            first.append(k)
+    return x[first], np.append(x[np.array(first[1:], dtype=int) - 1], x[-1])
+
+
+def _well_pinned(plane: _Plane) -> bool:
+    """Whether the points pin the plane's tilt about its weaker axis to _TILT_SIGMA."""
+    return plane.tilt_sigma() <= _TILT_SIGMA
+
+
+def _joined_at_a_known_slope(plane: _Plane, across: np.ndarray, up: np.ndarray) -> bool:
+    """For a window of two layers up the column joined by the zone's own spots: whether its plane
+    has a slope the ranging's fusion tests a zone's lasers against (``edge.ranging.level_slopes``),
+    within _SQUARE_SIGMAS of its σ, its slope up the column pinned to _OWN_TILT_SIGMA. Level (a
+    floor, a table top): the known slope then pins the normal both ways, and across the row too
+    _OWN_TILT_SIGMA will do. Upright (a wall, a furniture front): it pins the plane's tilt only;
+    the wall's bearing comes from the row, pinned as any window's (_TILT_SIGMA), for fronts stepped
+    a few centimetres apart fit one plane turned 11° within a looser σ."""
+    column, row = plane.tilt_sigma(up), plane.tilt_sigma(across)
+    if column > _OWN_TILT_SIGMA:
+        return False
+    off_level = math.acos(min(1.0, abs(float(plane.normal[2]))))
+    if off_level <= _SQUARE_SIGMAS * max(column, row):
+        return row <= _OWN_TILT_SIGMA
+    return math.pi / 2 - off_level <= _SQUARE_SIGMAS * column and row <= _TILT_SIGMA
+
+
+@dataclass(frozen=True)
+class _Plane:
+    """A plane fitted to points: its unit `normal`, `chi2` per degree of freedom, and `scatter`
+    (3, 3), the points' weighted (1/σ²) scatter about their mean, which says how well they pin
+    its tilt."""
+
+    normal: np.ndarray
+    chi2: float
+    scatter: np.ndarray
+
+    def tilt_sigma(self, along: np.ndarray | None = None) -> float:
+        """σ (radians) of the plane's slope along `along`, or about its weaker axis."""
+        if along is None:
+            return 1.0 / math.sqrt(max(float(np.linalg.eigvalsh(self.scatter)[1]), 1e-300))
+        b = along - (along @ self.normal) * self.normal
+        b = b / max(float(np.linalg.norm(b)), 1e-12)
+        return 1.0 / math.sqrt(max(float(b @ self.scatter @ b), 1e-300))
+
+
+def _fit(rel: np.ndarray, sig: np.ndarray) -> _Plane | None:
+    """The plane through the points `rel` weighted by 1/σ², or None where the residuals are more
+    than σ makes likely."""
     w = 1.0 / sig**2
     mean = (w[:, None] * rel).sum(axis=0) / w.sum()
     d = rel - mean
-    vals, vecs = np.linalg.eigh((w[:, None] * d).T @ d)
-    normal = vecs[:, 0]
-    if vals[1] <= 0.0 or 1.0 / math.sqrt(vals[1]) > _TILT_SIGMA:
-        return None  # the plane's tilt is too loosely pinned for its χ² to show a bend
+    scatter = (w[:, None] * d).T @ d
+    normal = np.linalg.eigh(scatter)[1][:, 0]
     z = (d @ normal) / sig
     dof = len(rel) - 3
     if dof < 1 or np.max(np.abs(z)) > _MAX_Z:
@@ -174,4 +247,4 @@ def _fit(rel: np.ndarray, sig: np.ndarray) -> tuple[np.ndarray, float] | None:
     limit = dof * (1.0 - 2.0 / (9.0 * dof) + _CHI2_Z * math.sqrt(2.0 / (9.0 * dof))) ** 3
     if chi2 > limit:
         return None
-    return normal, chi2 / dof
+    return _Plane(normal, chi2 / dof, scatter)

@@ -237,7 +237,8 @@ def test_a_row_by_a_crease_takes_its_normal_from_its_own_side() -> None:
     normal, with noise too, and none gets a slope between the two. Levels 10° apart: the floor's
     row below the crease (the sloped laser's spots of the wall's row fall on their own row's
     level: two layers on that side). The issue's levels: the wall's row above it (the floor's
-    row, the scan's bottom one, has two layers of floor: its own and its sloped spots)."""
+    row, the scan's bottom one, has two layers of floor, its own and its sloped spots: see
+    test_the_bottom_rows_floor_under_a_wall_takes_its_normal_from_its_own_lasers)."""
     pans = range(-30, 31, 6)
     for tilts, own_side in ((range(-45, 16, 10), -35), (SCAN_TILTS, -20)):
         for seed, noise in ((0, 0.0), (1, 0.003), (2, 0.003)):
@@ -278,3 +279,98 @@ def scan_box(pans: range, tilts: list[int], box: Box, noise: float, seed: int) -
         return scan(pans, tilts, box=True, noise=noise, seed=seed, lasers=True)  # type: ignore[arg-type]
     finally:
         BOX = saved
+
+
+def test_the_bottom_rows_floor_under_a_wall_takes_its_normal_from_its_own_lasers() -> None:
+    """The issue's levels with the wall 2 m away: the bottom row (−40°) is floor, the row above
+    it wall. On the floor's side the row has two layers only, its points and its sloped laser's
+    spots 10° nearer — two parallel lines that a plane of any slope holds. Each zone's own spots
+    join them (the ranging fused them onto the point's surface) and the plane through both is
+    level, as a floor is: that is the known slope the fusion tests its lasers against, and the
+    normal is given. Without the zones' own spots the row has none."""
+    pans = range(-30, 31, 6)
+    for seed, noise in ((0, 0.0), (1, 0.003), (2, 0.003), (3, 0.005)):
+        results, truth = scan(pans, SCAN_TILTS, noise=noise, seed=seed, lasers=True)  # type: ignore[arg-type]
+        bottom = [k for k, r in enumerate(results)
+                  if r.tilt_deg == SCAN_TILTS[0] and r.pan_deg not in (pans[0], pans[-1])]
+        assert {truth[(results[k].pan_deg, results[k].tilt_deg)][0] for k in bottom} == {1}  # the floor
+        assert truth[(0, SCAN_TILTS[1])][0] == 0  # the wall above it
+        angles = angles_deg(scan_cloud(RIG, results), results, truth)
+        assert not np.isnan(angles[bottom]).any(), (seed, angles[bottom])
+        given = ~np.isnan(angles)
+        assert np.all(angles[given] < (1.0 if noise == 0 else 6.0)), (seed, np.nanmax(angles))
+    plain = [ZoneResult(r.index, r.pan_deg, r.tilt_deg, r.status, r.range_m, r.sigma_m, r.point_m,
+                        r.point_base_m) for r in results]
+    assert np.isnan(angles_deg(scan_cloud(RIG, plain), results, truth)[bottom]).all()
+
+
+def test_no_point_by_a_walls_foot_takes_the_other_surfaces_normal() -> None:
+    """Tilt levels 10° apart and the wall at every distance from 1.15 to 2.5 m: rows land on the
+    floor a few centimetres before the wall's foot and on the wall just above it. Such a row lies
+    on both planes; the windows on the far side of the crease hold it with their own surface, and
+    only the zone's own spots (its sloped laser's, on the floor before the wall) tell which it is
+    on. None takes the other surface's normal, with noise too."""
+    pans = range(-30, 31, 6)
+    tilts = range(-40, 31, 10)
+    for k, wall_x in enumerate(np.arange(1.15, 2.51, 0.05)):
+        for seed, noise in ((k, 0.0), (100 + k, 0.003)):
+            results, truth = scan(pans, tilts, noise=noise, seed=seed, lasers=True, wall_x=float(wall_x))
+            angles = angles_deg(scan_cloud(RIG, results), results, truth)
+            given = ~np.isnan(angles)
+            assert np.all(angles[given] < 10.0), (wall_x, seed, np.nanmax(angles))
+
+
+def test_two_rows_joined_by_the_zones_own_spots_give_a_normal_only_at_a_floors_slope() -> None:
+    """A row seen 40° down and its sloped laser's spots 10° further down, nothing else: two layers
+    joined by each zone's own spots. On a floor the plane through them is level and the normal
+    given; sloped 15° towards the unit (a crease between the rows, or a ramp) it is neither a
+    floor's nor a wall's slope, the slopes the ranging's fusion vouches for its lasers at, and
+    none is given."""
+    from edge.normals import Support, normal_of
+
+    def at(tilt_deg: float, pan_deg: float, slope_deg: float) -> np.ndarray:
+        """Where the ray at (pan, tilt) from 1 m above the floor meets it, the floor turned by
+        slope_deg about the point's own row (1.19 m away; negative: lower nearer the unit)."""
+        d = math.tan(math.radians(-tilt_deg))
+        reach = 1.0 / d
+        rise = math.tan(math.radians(slope_deg))
+        reach = (1.0 + rise * 1.19) / (d + rise) if slope_deg else reach
+        p = math.radians(pan_deg)
+        return np.array([reach * math.cos(p), reach * math.sin(p), -1.0 + rise * (1.19 - reach)])
+
+    up = np.array([math.sin(math.radians(40.0)), 0.0, math.cos(math.radians(40.0))])
+    for slope, given in ((0.0, True), (-15.0, False)):
+        own = [Support(at(-50.0, 0.0, slope), 0.003, 0, "sloped", True)]
+        for pan in (-5.625, 5.625):
+            own += [Support(at(-40.0, pan, slope), 0.003, 0, None, False),
+                    Support(at(-50.0, pan, slope), 0.003, 0, "sloped", False)]
+        normal = normal_of(at(-40.0, 0.0, slope), 0.003, np.zeros(3), up, own)
+        assert (normal is not None) == given, (slope, normal)
+        if normal is not None:
+            assert float(normal @ np.array([0.0, 0.0, 1.0])) > math.cos(math.radians(1.0))
+
+
+def test_a_wall_joined_by_its_own_spots_takes_its_bearing_from_a_row_pinned_as_any_windows() -> None:
+    """Two layers joined by the zones' own spots, at 2 m: the row's three zones and their sloped
+    laser's spots. The known slope pins a floor's normal both ways, so a row that pins the plane's
+    slope across it to 2.3° will do there; a wall's only up and down, and its bearing comes from the
+    row as in any window: pinned to 2.0° (σ 1.4 cm), none is given (stepped fronts fit a plane
+    turned 11° at that); to 0.4° (σ 3 mm), it is."""
+    from edge.normals import Support, normal_of
+
+    def floor(tilt_deg: float, pan_deg: float) -> np.ndarray:
+        reach, p = 1.0 / math.tan(math.radians(-tilt_deg)), math.radians(pan_deg)
+        return np.array([reach * math.cos(p), reach * math.sin(p), -1.0])
+
+    def wall(tilt_deg: float, pan_deg: float) -> np.ndarray:
+        p, t = math.radians(pan_deg), math.radians(tilt_deg)
+        return np.array([2.0, 2.0 * math.tan(p), 2.0 * math.tan(t) / math.cos(p)])
+
+    for at, tilt, sigma, given in ((floor, -40.0, 0.008, True), (wall, 0.0, 0.014, False), (wall, 0.0, 0.003, True)):
+        up = np.array([math.sin(math.radians(-tilt)), 0.0, math.cos(math.radians(tilt))])
+        own = [Support(at(tilt - 10.0, 0.0), sigma, 0, "sloped", True)]
+        for pan in (-5.625, 5.625):
+            own += [Support(at(tilt, pan), sigma, 0, None, False),
+                    Support(at(tilt - 10.0, pan), sigma, 0, "sloped", False)]
+        normal = normal_of(at(tilt, 0.0), sigma, np.zeros(3), up, own)
+        assert (normal is not None) == given, (at.__name__, sigma, normal)

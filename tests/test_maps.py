@@ -5,14 +5,17 @@ a small map scored against the simulator's truth (tools/map_targets.py measures 
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from plyfile import PlyData
+from test_cloud import scan
 from test_grid import hit_zone, read_map_server
 
 from edge.cli import main
+from edge.cloud import scan_cloud
 from edge.config import load_config
 from edge.grid import GridConfig
 from edge.mapping import results_document
@@ -51,6 +54,24 @@ def test_edge_map_of_sweep_results_writes_files_tools_read(tmp_path: Path, capsy
     assert len(ply["vertex"].data) == 13
     assert (tmp_path / "map" / "map.png").read_bytes()[:4] == b"\x89PNG"
     assert "13 points" in capsys.readouterr().out
+
+
+def test_sweep_results_read_back_give_the_same_cloud_normals_and_all(tmp_path: Path) -> None:
+    """The other lasers' spots of edge sweep's results keep their σ through the file: the normals
+    estimated from them are those of the results themselves (with every spot at σ 0 they were
+    refused nearly everywhere)."""
+    results, _ = scan(range(-30, 31, 6), [-40, -20, 0, 15, 30], noise=0.003, seed=1, lasers=True, wall_x=1.0)
+    path = tmp_path / "sweep.json"
+    path.write_text(json.dumps(results_document(results, rig=rig_to_json(RIG))))
+    read = read_scan(path, RIG).results
+    assert [{n: m.sigma_m for n, m in r.lasers.items()} for r in read] == [
+        {n: pytest.approx(m.sigma_m, abs=1e-5) for n, m in r.lasers.items()} for r in results]
+    direct, back = scan_cloud(RIG, results), scan_cloud(RIG, read)
+    given = np.linalg.norm(direct.normals, axis=1) > 0.5
+    assert given.sum() >= 20 and np.allclose(back.normals, direct.normals, atol=1e-4)
+    # A file that gives no σ for them: each is taken as uncertain as its zone's range.
+    bare = [replace(r, lasers={n: replace(m, sigma_m=0.0) for n, m in r.lasers.items()}) for r in results]
+    assert (np.linalg.norm(scan_cloud(RIG, bare).normals, axis=1) > 0.5).sum() >= 0.5 * given.sum()
 
 
 def test_edge_map_fuses_recordings_and_results(office: Path, tmp_path: Path) -> None:

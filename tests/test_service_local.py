@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import threading
@@ -115,3 +116,58 @@ def test_working_lasers_raise_no_laser_fault(restore_signals):
     threading.Thread(target=stop_after_a_sweep, daemon=True).start()
     assert service.run() == 0 and service.sweeps >= 1
     assert service.health.parts["lasers"] == "ok" and service.health.lasers.verdicts() == {}
+
+
+CORRIDOR = """
+name = "office-corridor"
+description = "the office; someone stops in the dark corridor beyond the east doorway at t = 9 s"
+extends = "office"
+
+[[movers]]
+name = "passer-by"
+size_m = [0.45, 0.30, 1.75]
+material = "person"
+speed_mps = 0.8
+start_s = 9.0
+path_m = [[5.6, 2.95], [5.6, 3.0]]
+pause_s = [120.0, 0.0]
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("ignore", [None, True])
+def test_the_guard_ignores_someone_beyond_a_doorway_only_when_told_to(restore_signals, caplog, tmp_path, repo, ignore):
+    """The office's east doorway opens onto a dark corridor; after the guard has learnt the room,
+    someone stops in the corridor 1.6 m past the door, in the view of the zone at pan 22.5°. By
+    default (``guard.ignore_beyond_doorways`` unset) that is an intrusion, as it always was; with
+    it, the map says the room ends about a metre past the door along that zone's ray, and the
+    reading beyond is ignored. A sector of 16 zones covers the door and the walls beside it."""
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    (scenes / "office.toml").write_text((repo / "config" / "scenes" / "office.toml").read_text())
+    (scenes / "corridor.toml").write_text(CORRIDOR)
+    sets = ['mode="guard"', f"sim.scene={json.dumps(str(scenes / 'corridor.toml'))}", "sweep.zones=16",
+            "sweep.pan_start_deg=-22.5", "guard.learn_sweeps=2"]
+    service = _service(*sets, *([] if ignore is None else [f"guard.ignore_beyond_doorways={str(ignore).lower()}"]))
+
+    def stop_after_sweeps() -> None:
+        deadline = time.monotonic() + 300
+        while service.sweeps < 6 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        service.stop_requested.set()
+
+    threading.Thread(target=stop_after_sweeps, daemon=True).start()
+    with caplog.at_level("INFO"):
+        assert service.run() == 0
+    assert service.sweeps >= 6  # two to learn, then the passer-by for three or more
+    door = next(r for r in service.steps.last_sweep if abs(r.pan_deg - 22.5) < 0.1)
+    assert door.status == "ok" and door.range_m is not None and 3.8 < door.range_m < 4.5  # seen
+    state = service.guard.state()
+    assert state is not None and door.index in state["open_zones"]  # no range while learning
+    intrusions = [r.getMessage() for r in caplog.records if "guard: intrusion" in r.getMessage()]
+    if ignore:
+        assert door.index in state["doorway_zones"]
+        assert intrusions == [] and not service.guard.tracks
+    else:
+        assert "doorway_zones" not in state  # the state as before
+        assert len(intrusions) == 1 and f"in zones [{door.index}]" in intrusions[0], intrusions

@@ -129,6 +129,45 @@ def test_the_guard_watch_learns_watches_and_relearns():
     assert alerts == []
 
 
+@pytest.mark.parametrize("ignore", [False, True])
+def test_the_guard_watch_takes_the_doorways_when_it_has_learnt_the_room_and_keeps_them(ignore):
+    """With ``ignore_beyond_doorways`` the map's doorways are asked for once the background is
+    learnt (the map then holds the room's walls) and kept: the map goes on learning, and someone
+    standing in the corridor would soon close the doorway in it. Relearning asks again; without
+    the key the map is never asked, and someone in the corridor is an intrusion as before."""
+    def room(corridor_m: float | None = None) -> list[ZoneResult]:
+        out = [ZoneResult(i, 45.0 * i, 0.0, OK, range_m=2.0, sigma_m=0.005) for i in range(8)]
+        out[2] = (ZoneResult(2, 90.0, 0.0, "no_spot") if corridor_m is None else
+                  ZoneResult(2, 90.0, 0.0, OK, range_m=corridor_m, sigma_m=0.02))
+        return out
+
+    asked: list[int] = []
+
+    def doorways(results) -> dict[int, float]:
+        asked.append(len(results))
+        return {2: 3.0} if len(asked) == 1 else {}  # later, the map has closed the doorway
+
+    alerts: list[dict] = []
+    watch = GuardWatch(GuardConfig(learn_sweeps=2, ignore_beyond_doorways=ignore), alerts.append,
+                       doorways=doorways)
+    for sweep in (1, 2):
+        watch.sweep(room(), sweep, sweep)
+    for sweep in range(3, 7):  # someone 4 m away through the doorway of zone 2
+        watch.sweep(room(corridor_m=4.0), sweep, sweep)
+    state = watch.state()
+    assert state is not None
+    if not ignore:
+        assert asked == [] and "doorway_zones" not in state
+        assert [a["event"] for a in alerts] == ["intrusion"] and alerts[0]["zones"] == [2]
+        return
+    assert asked == [8] and alerts == [] and state["doorway_zones"] == [2]
+    watch.relearn("on request")
+    for sweep in (7, 8):
+        watch.sweep(room(), sweep, sweep)
+    again = watch.state()
+    assert asked == [8, 8] and again is not None and again["doorway_zones"] == []
+
+
 def test_the_service_answers_commands_through_its_link(tmp_path):
     config = load_config(None, ["mqtt.enabled=false", f"service.state_dir={json.dumps(str(tmp_path))}"])
     link = Recorder()

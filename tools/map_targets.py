@@ -5,15 +5,18 @@
     ./dev edge sim record --scene kitchen --out rec/k1 --frames 2 --seed 1    # and seeds 2, 3
     ./dev edge sim record --scene office --out rec/o3d --frames 4 --set 'sweep.tilts_deg=[-40.0,-20.0,0.0,15.0,30.0]'
     ./dev edge sim record --scene kitchen --out rec/k3d --frames 4 --set 'sweep.tilts_deg=[-40.0,-20.0,0.0,15.0,30.0]'
+    ./dev edge sim record --scene office --out rec/o8 --frames 4 \
+        --set 'sweep.tilts_deg=[-40.0,-30.0,-20.0,-10.0,0.0,10.0,20.0,30.0]'    # 8 levels 10° apart
     .venv/bin/python tools/map_targets.py --grid office rec/o1 rec/o2 rec/o3 --grid kitchen rec/k1 rec/k2 rec/k3
-    .venv/bin/python tools/map_targets.py --cloud office rec/o3d --cloud kitchen rec/k3d --worst 10
+    .venv/bin/python tools/map_targets.py --cloud office rec/o3d --cloud kitchen rec/k3d --cloud office rec/o8
 
 --grid SCENE DIR…: the sweeps fused into one 5 cm grid, scored (occupied near a surface, surface
 cells occupied, cells along rays free). --cloud SCENE DIR: one scan's cloud, scored (points'
 error against the truth relative to range, normals on walls and floor, and the given normals'
 median and worst angle there and on the other surfaces); `--frames 4` is the
 configured two frame pairs a zone, what `edge sweep` takes (`--frames 2`, one pair, is noisier).
---worst N lists the cloud's N points farthest from the truth, for whoever looks into ranging.
+The normals depend on the noise: record each scan with two seeds or more (`--seed 2`) and measure
+each. --worst N lists the cloud's N points farthest from the truth, for whoever looks into ranging.
 --out DIR writes each map's files there as `edge map` does.
 """
 

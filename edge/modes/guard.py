@@ -41,7 +41,9 @@ sweep, an unusual ``no_spot``/``out_of_range`` (a dark coat hides the spot), a z
 ``OccupancyGrid.doorway_m``), a zone whose ray leaves the room through a doorway onto a dark or
 long corridor ignores readings beyond the room's end along it (about a metre past the door):
 someone walking in the corridor is not in the guarded room. Someone in the doorway or in the room
-is, as before.
+is, as before. The map cannot tell a corridor from a dark part of the room seen through an opening
+(the far arm of an L-shaped room): someone there more than about a metre past the opening is
+ignored too. So the service passes the map only with ``ignore_beyond_doorways`` (off by default).
 
 **Blobs.** Foreground zones that are neighbours (index ±1 modulo ``zone_count``: zones 63 and 0 of a
 full turn are neighbours) and whose ranges differ by at most ``blob_range_tol_m`` form one blob; the
@@ -116,6 +118,9 @@ class GuardConfig:
     gate_m: float = 0.5  # association gate: this …
     max_speed_mps: float = 2.5  # … plus this speed times the time since the track was last seen
     merge_m: float = 0.6  # blobs this close together are one object
+    # The service passes the map's doorways to `update` (outside_m): off by default, for a dark part
+    # of the room itself seen through an opening (an L-shaped room's far arm) looks like a corridor.
+    ignore_beyond_doorways: bool = False
 
     def __post_init__(self) -> None:
         require(1 <= self.learn_sweeps <= 1000, "learn_sweeps", f"must be 1-1000, got {self.learn_sweeps}")

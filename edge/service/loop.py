@@ -90,11 +90,12 @@ class Service:
                                 camera=lambda: self._parts.camera if self._parts else None,
                                 changed=self._publish_state)
         boot = BootId(config.service.resolved_state_dir())  # in every sweep and alert
-        self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert), boot)
         from edge.maps import GridKeeper
 
         # The occupancy grid of every sweep, kept in state_dir (its picture: self.map.png()).
         self.map = GridKeeper(config.map, believed.rig, config.service.resolved_state_dir())
+        self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert), boot,
+                                doorways=lambda results: self.map.outside_m(self.ranger.rig, results))
         self.ha = HomeAssistantFeed(lambda kind, p, interval: self.link.publish_snapshot(kind, p, interval),
                                     device_id=self.device_id, range_limit_m=config.rig.range_limits_m[1])
         self.steps = ModeSteps(self.health, self.guard, boot,
