@@ -13,7 +13,8 @@ normalise(ax, ay, 1).
 
 Spots are found without the nominal rig's narrow epipolar bands (a laser a degree off puts its spot
 10 px from where the rig says): a whole-frame laser-on minus laser-off difference, thresholded,
-split into connected blobs, each localised by an iterated Gaussian-windowed centroid; spots a few
+split into connected blobs, each localised by an iterated Gaussian-windowed centroid, corrected for
+the pixel locking that clipping gives a bright spot (:mod:`edge.calibration.locate`); spots a few
 pixels apart (which pull each other's centroids, or merge into one) are fitted together as a sum of
 Gaussians. Each spot's σ from the sensor's noise is measured around it from the frames' scatter.
 
@@ -56,6 +57,14 @@ import numpy as np
 
 from edge.calibration.file import Calibration
 from edge.calibration.limits import MIN_POINTS, MIN_SPAN
+from edge.calibration.locate import (
+    CLIPPED_FRACTION,
+    WINDOW_SIGMA_PX,
+    background_free,
+    clipping_correction,
+    pixel_gaussian,
+    windowed_centroid,
+)
 from edge.errors import CalibrationError
 from edge.recording import Recording, timestamp
 from edge.replay import zone_groups
@@ -65,7 +74,6 @@ from edge.vision import SpotFinder
 log = logging.getLogger(__name__)
 
 THRESHOLD_SIGMAS = 8.0  # blob threshold over the difference image's robust noise
-WINDOW_SIGMA_PX = 1.5  # the Gaussian centroid (mean-shift) window
 MAX_SPOT_PX = 6.0  # RMS radius (per axis) above which a blob is a lamp or a screen, not a spot
 FIRST_GATE_PX = 25.0  # how far from the nominal prediction a spot may be (about 2.5° of error)
 OFFSET_GATE_PX = 10.0  # ... once its offset at one nearer distance is known
@@ -138,64 +146,78 @@ def _variance(on: Sequence[np.ndarray], off: Sequence[np.ndarray], noise: float)
     return var
 
 
-def _difference(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
-    """Laser-on minus gain·laser-off, the gain absorbing room-light flicker; and its noise."""
+def _difference(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> tuple[np.ndarray, float, np.ndarray]:
+    """Laser-on minus gain·laser-off, the gain absorbing room-light flicker; its noise; and the
+    headroom (H, W): the difference a pixel shows where every on frame clipped."""
     a, b = _mean(on), _mean(off)
     keep = a < np.percentile(a, 99.0)  # the brightest 1 % holds the spots (and lamps)
     gain = float((a[keep] * b[keep]).sum() / max(float((b[keep] ** 2).sum()), 1e-12))
     diff = a - np.float32(gain) * b
-    diff -= np.float32(np.median(diff))
+    level = np.float32(np.median(diff))
+    diff -= level
     noise = 1.4826 * float(np.median(np.abs(diff)))
     floor = 0.5 / (SpotFinder.full_scale(on[0]) * math.sqrt(len(on)))  # quantisation
-    return diff, max(noise, floor)
+    return diff, max(noise, floor), np.float32(1.0) - np.float32(gain) * b - level
 
 
-def _refine(diff: np.ndarray, seed: tuple[int, int], var: np.ndarray | float = 0.0
-            ) -> tuple[np.ndarray, np.ndarray] | None:
+def _clipped(on: Sequence[np.ndarray]) -> np.ndarray:
+    """(H, W) bool: where any on frame's laser channel is at full scale."""
+    top = np.max(np.stack([SpotFinder.laser_channel(f) for f in on]), axis=0)
+    return np.asarray(top >= CLIPPED_FRACTION * SpotFinder.full_scale(on[0]))
+
+
+def _refine(diff: np.ndarray, seed: tuple[int, int], var: np.ndarray | float = 0.0,
+            clip: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """Iterated Gaussian-windowed centroid (mean shift) around `seed`: the mode of the spot
     smoothed by the window, unbiased for a symmetric spot, barely pulled by a neighbour. And its
     1-σ per axis from the pixels' noise variance `var` (an image, or one value for all): the
     centroid c = Σ gᵢ sᵢ xᵢ / Σ gᵢ sᵢ moves by gᵢ (xᵢ − c) / Σ gᵢ sᵢ per unit of pixel i's signal.
     (A Gaussian least-squares fit of the spot was tried instead: on spots at rest, whose error is
-    the speckle's, it located them worse, 0.073/0.093 px rms against 0.061/0.081 px.)"""
+    the speckle's, it located them worse, 0.073/0.093 px rms against 0.061/0.081 px.) With `clip`
+    (where the on frames clipped, and the headroom: see :func:`_difference`), a spot with clipped
+    pixels has its centroid's pixel locking corrected (:func:`edge.calibration.locate.clipping_correction`)."""
     h = int(math.ceil(3 * WINDOW_SIGMA_PX)) + 3
     u0, v0 = seed
     if u0 < h or v0 < h or u0 + h >= diff.shape[1] or v0 + h >= diff.shape[0]:
         return None  # too near the border to localise honestly
-    win = diff[v0 - h: v0 + h + 1, u0 - h: u0 + h + 1].astype(np.float64)
-    border = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
-    signal = np.clip(win - np.median(border), 0.0, None)
+    box = (slice(v0 - h, v0 + h + 1), slice(u0 - h, u0 + h + 1))
+    win = diff[box].astype(np.float64)
+    signal = background_free(win)
     gv, gu = np.mgrid[v0 - h: v0 + h + 1, u0 - h: u0 + h + 1]
-    cu, cv, s2 = float(u0), float(v0), 2.0 * WINDOW_SIGMA_PX**2
-    for _ in range(40):
-        w = np.exp(-((gu - cu) ** 2 + (gv - cv) ** 2) / s2) * signal
-        total = float(w.sum())
-        if total <= 0:
-            return None
-        nu, nv = float((w * gu).sum() / total), float((w * gv).sum() / total)
-        done = abs(nu - cu) < 1e-4 and abs(nv - cv) < 1e-4
-        cu, cv = nu, nv
-        if done:
-            break
+    found = windowed_centroid(signal, gu, gv, (float(u0), float(v0)))
+    if found is None:
+        return None
+    cu, cv = found
     if abs(cu - u0) > h - 3 or abs(cv - v0) > h - 3:
         return None  # wandered off: not a compact spot
-    g = np.exp(-((gu - cu) ** 2 + (gv - cv) ** 2) / s2)
+    g = np.exp(-((gu - cu) ** 2 + (gv - cv) ** 2) / (2.0 * WINDOW_SIGMA_PX**2))
     total = float((g * signal).sum())
-    v = (np.asarray(var, dtype=np.float64)[v0 - h: v0 + h + 1, u0 - h: u0 + h + 1]
-         if np.ndim(var) else float(var))
+    v = (np.asarray(var, dtype=np.float64)[box] if np.ndim(var) else float(var))
     sigma = np.sqrt([float((g * g * (gu - cu) ** 2 * v).sum()), float((g * g * (gv - cv) ** 2 * v).sum())]) / total
+    if clip is not None and clip[0][box].any():
+        correction = clipping_correction(win, clip[0][box], clip[1][box].astype(np.float64), gu, gv, (cu, cv))
+        if correction is None:
+            log.debug("clipped spot at (%.1f, %.1f): its model does not fit, centroid left as it is", cu, cv)
+        else:
+            cu, cv = cu + float(correction[0]), cv + float(correction[1])
     return np.array([cu, cv]), sigma
 
 
 def find_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """Spot pixels anywhere in the frame, from laser-on and laser-off frames of one pose."""
-    return [pixel for pixel, _ in located_spots(on, off)]
+    """Spot pixels anywhere in the frame, from laser-on and laser-off frames of one pose; a clipped
+    spot's centroid uncorrected (to a tenth of a pixel: what watching for rest needs, at the frame
+    rate)."""
+    return [pixel for pixel, _ in located_spots(on, off, corrected=False)]
 
 
-def located_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """:func:`find_spots` with each spot's 1-σ per axis (2,) from the frames' noise."""
-    diff, noise = _difference(on, off)
+def located_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray], corrected: bool = True
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Spot pixels anywhere in the frame with each one's 1-σ per axis (2,) from the frames' noise;
+    with `corrected`, a clipped spot's centroid corrected for its pixel locking (see :func:`_refine`)."""
+    diff, noise, headroom = _difference(on, off)
     var = _variance(on, off, noise)
+    clipped = _clipped(on)
+    clip = (clipped, headroom) if corrected and clipped.any() else None
     mask = (diff > THRESHOLD_SIGMAS * noise).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     smooth = cv2.GaussianBlur(diff, (0, 0), WINDOW_SIGMA_PX)
@@ -223,7 +245,7 @@ def located_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> list[t
         vs, us = np.nonzero(peaks[box] & inside)
         order = np.argsort(-smooth[box][vs, us])[:4]
         for v, u in zip(vs[order] + y, us[order] + x):
-            spot = _refine(diff, (int(u), int(v)), var)
+            spot = _refine(diff, (int(u), int(v)), var, clip)
             if spot is not None and all(np.linalg.norm(spot[0] - p) > 1.0 for p, _ in found):
                 found.append(spot)
         vs, us = np.nonzero(sharp_peaks[box] & inside)
@@ -232,7 +254,6 @@ def located_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> list[t
             if values[j] >= SPLIT_FRACTION * values.max():
                 seeds.append(np.array([float(us[j] + x), float(vs[j] + y)]))
     return _deblended(diff, _split_merged(diff, found, seeds, var), var)
-    return _deblended(diff, found, var)
 
 
 # Spots nearer than this pull each other's windowed centroids (0.4 px at 3.5 px apart: the `center`
@@ -242,16 +263,6 @@ DEBLEND_PX = 7.0
 SHARP_SIGMA_PX = 0.6  # the smoothing that still shows two spots 2.5 px apart as two maxima
 SPLIT_PX = 2.0  # a sharper maximum this far from every located spot may be a second spot...
 SPLIT_FRACTION = 0.3  # ... if it is at least this bright relative to the blob's brightest
-
-
-def _profile(x: np.ndarray, mu: float, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A unit Gaussian integrated over the pixels centred at `x`, and its derivatives by mu and by
-    sigma."""
-    edges = np.append(x - 0.5, x[-1] + 0.5)
-    t = (edges - mu) / sigma
-    cdf = 0.5 * np.array([1.0 + math.erf(float(c) / math.sqrt(2.0)) for c in t])
-    pdf = np.exp(-0.5 * t * t) / math.sqrt(2.0 * math.pi)
-    return np.diff(cdf), -np.diff(pdf) / sigma, -np.diff(pdf * t) / sigma
 
 
 def _fit_group(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray | float
@@ -279,8 +290,8 @@ def _fit_group(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray | floa
         J = np.zeros((win.size, 3 * k + 2))
         for j in range(k):
             a, mu, mv = theta[j], theta[k + 2 * j], theta[k + 2 * j + 1]
-            pu, du, su = _profile(us, mu, sigma)
-            pv, dv, sv = _profile(vs, mv, sigma)
+            pu, du, su = pixel_gaussian(us, mu, sigma)
+            pv, dv, sv = pixel_gaussian(vs, mv, sigma)
             model += a * np.outer(pv, pu)
             J[:, j] = np.outer(pv, pu).ravel()
             J[:, k + 2 * j] = a * np.outer(pv, du).ravel()
