@@ -16,7 +16,8 @@ Spots are found without the nominal rig's narrow epipolar bands (a laser a degre
 split into connected blobs, each localised by an iterated Gaussian-windowed centroid, corrected for
 the pixel locking that clipping gives a bright spot (:mod:`edge.calibration.locate`); spots a few
 pixels apart (which pull each other's centroids, or merge into one) are fitted together as a sum of
-Gaussians. Each spot's σ from the sensor's noise is measured around it from the frames' scatter.
+Gaussians, and each is then located by its centroid once the others' fitted spots are taken away.
+Each spot's σ from the sensor's noise is measured around it from the frames' scatter.
 
 Weights and covariance (:func:`fit_weighted`). Each spot weighs 1/(σᵢ² + s²), s the scatter common
 to all spots that frames cannot show (at rest: one speckle pattern per distance), measured from the
@@ -253,7 +254,7 @@ def located_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray], corrected
         for j in np.argsort(-values)[:4]:
             if values[j] >= SPLIT_FRACTION * values.max():
                 seeds.append(np.array([float(us[j] + x), float(vs[j] + y)]))
-    return _deblended(diff, _split_merged(diff, found, seeds, var), var)
+    return _deblended(diff, _split_merged(diff, found, seeds, var, clip), var, clip)
 
 
 # Spots nearer than this pull each other's windowed centroids (0.4 px at 3.5 px apart: the `center`
@@ -265,22 +266,43 @@ SPLIT_PX = 2.0  # a sharper maximum this far from every located spot may be a se
 SPLIT_FRACTION = 0.3  # ... if it is at least this bright relative to the blob's brightest
 
 
-def _fit_group(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray | float
-               ) -> list[tuple[np.ndarray, np.ndarray]] | None:
+@dataclass(frozen=True)
+class _Group:
+    """Spots fitted together: a sum of pixel-integrated Gaussians of one width on a flat
+    background, on the window of the difference image from (u0, v0)."""
+
+    amplitudes: np.ndarray  # (k,)
+    centres: np.ndarray  # (k, 2) px
+    width: float  # σ px
+    sigma_px: np.ndarray  # (k, 2) each centre's 1-σ from the pixels' noise
+    box: tuple[slice, slice]  # the window (rows, columns)
+
+    def model(self, j: int) -> np.ndarray:
+        """Member j's spot on the window (h, w)."""
+        us = np.arange(self.box[1].start, self.box[1].stop, dtype=float)
+        vs = np.arange(self.box[0].start, self.box[0].stop, dtype=float)
+        pu = pixel_gaussian(us, float(self.centres[j, 0]), self.width)[0]
+        pv = pixel_gaussian(vs, float(self.centres[j, 1]), self.width)[0]
+        return float(self.amplitudes[j]) * np.outer(pv, pu)
+
+
+def _fit_group(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray | float,
+               clip: tuple[np.ndarray, np.ndarray] | None = None) -> _Group | None:
     """Spots close together as one picture: a sum of pixel-integrated Gaussians of one shared
     width on a flat background, by Gauss-Newton from `seeds` (windowed centroids, or maxima of the
-    sharper picture). Each spot's position and its 1-σ per axis (from the pixels' noise `var`), or
-    None if it does not settle."""
+    sharper picture); a clipped pixel (`clip`: see :func:`_refine`) counts only where the model
+    falls below it. None if it does not settle."""
     pts = np.array(seeds)
     h = 4
     u0, v0 = (np.floor(pts.min(axis=0)).astype(int) - h).tolist()
     u1, v1 = (np.ceil(pts.max(axis=0)).astype(int) + h).tolist()
     if u0 < 0 or v0 < 0 or u1 >= diff.shape[1] or v1 >= diff.shape[0]:
         return None
-    win = diff[v0: v1 + 1, u0: u1 + 1].astype(np.float64)
+    box = (slice(v0, v1 + 1), slice(u0, u1 + 1))
+    win = diff[box].astype(np.float64)
+    clipped = np.zeros(win.shape, bool) if clip is None else clip[0][box]
     us, vs = np.arange(u0, u1 + 1, dtype=float), np.arange(v0, v1 + 1, dtype=float)
-    v_pix = (np.asarray(var, dtype=np.float64)[v0: v1 + 1, u0: u1 + 1] if np.ndim(var)
-             else np.full(win.shape, float(var)))
+    v_pix = (np.asarray(var, dtype=np.float64)[box] if np.ndim(var) else np.full(win.shape, float(var)))
     k = len(seeds)
     amp = [max(float(win[int(round(p[1])) - v0, int(round(p[0])) - u0]), 1e-6) * 2.0 * math.pi * 0.36 for p in pts]
     theta = np.array([*amp, *pts.ravel(), 0.6, 0.0])  # A_1..A_k, (u, v)_1..k, σ, background
@@ -298,23 +320,49 @@ def _fit_group(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray | floa
             J[:, k + 2 * j + 1] = a * np.outer(dv, pu).ravel()
             J[:, 3 * k] += a * (np.outer(pv, su) + np.outer(sv, pu)).ravel()
         J[:, 3 * k + 1] = 1.0
-        step = np.linalg.lstsq(J, (win - model).ravel(), rcond=None)[0]
+        r = (win - model).ravel()
+        count = ~clipped.ravel() | (r > 0)  # a clipped pixel is a lower bound
+        step = np.linalg.lstsq(J[count], r[count], rcond=None)[0]
         theta += step
         theta[3 * k] = min(max(theta[3 * k], 0.3), 4.0)
         if np.abs(step[k: 3 * k]).max() < 1e-5:
             break
     else:
         return None
-    moved = np.linalg.norm(theta[k: 3 * k].reshape(k, 2) - pts, axis=1)
-    if moved.max() > 2.0 or min(theta[:k]) <= 0:
+    centres = theta[k: 3 * k].reshape(k, 2)
+    if np.linalg.norm(centres - pts, axis=1).max() > 2.0 or min(theta[:k]) <= 0:
         return None
     # Gauss-Newton's covariance with each pixel's noise: (JᵀJ)⁻¹ Jᵀ V J (JᵀJ)⁻¹.
+    J = J[count]
     inv = np.linalg.pinv(J.T @ J)
-    cov = inv @ (J.T * v_pix.ravel()) @ J @ inv
+    cov = inv @ (J.T * v_pix.ravel()[count]) @ J @ inv
+    sig = np.sqrt(np.maximum(np.diag(cov)[k: 3 * k], 0.0)).reshape(k, 2)
+    return _Group(theta[:k].copy(), centres.copy(), float(theta[3 * k]), sig, box)
+
+
+def _located_together(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray | float,
+                      clip: tuple[np.ndarray, np.ndarray] | None) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """Spots close together: fitted together (:func:`_fit_group`), then each located as a spot on
+    its own is (:func:`_refine`) once the others' fitted spots are taken from the picture. The
+    windowed centroid is what speckle moves least: on spots 4-9 px apart at rest it located them
+    to 0.08 px rms, the sum of Gaussians to 0.095 px. Where a centroid fails or strays from the
+    fit by more than a pixel, the fit's position stays. None if the fit does not settle."""
+    group = _fit_group(diff, seeds, var, clip)
+    if group is None:
+        return None
     out = []
-    for j in range(k):
-        c = np.diag(cov)[k + 2 * j: k + 2 * j + 2]
-        out.append((theta[k + 2 * j: k + 2 * j + 2].copy(), np.sqrt(np.maximum(c, 0.0))))
+    for j in range(len(seeds)):
+        rest = diff.copy()
+        for other in range(len(seeds)):
+            if other != j:
+                rest[group.box] -= group.model(other).astype(rest.dtype)
+        head = None if clip is None else (clip[0], clip[1] - (diff - rest))
+        fit = group.centres[j]
+        spot = _refine(rest, (int(round(fit[0])), int(round(fit[1]))), var, head)
+        if spot is None or float(np.linalg.norm(spot[0] - fit)) > 1.0:
+            out.append((fit.copy(), group.sigma_px[j].copy()))
+        else:
+            out.append(spot)
     return out
 
 
@@ -336,10 +384,11 @@ def _clusters(points: list[np.ndarray], within: float) -> list[list[int]]:
 
 
 def _split_merged(diff: np.ndarray, found: list[tuple[np.ndarray, np.ndarray]], seeds: list[np.ndarray],
-                  var: np.ndarray | float) -> list[tuple[np.ndarray, np.ndarray]]:
+                  var: np.ndarray | float, clip: tuple[np.ndarray, np.ndarray] | None = None
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Where the sharper picture shows more maxima (at least SPLIT_PX apart) than spots were
-    located near them, spots so close that the windowed centroid merged them: fitted together
-    from those maxima (:func:`_fit_group`), if the fit keeps them apart."""
+    located near them, spots so close that the windowed centroid merged them: located together
+    from those maxima (:func:`_located_together`), if that keeps them apart."""
     out = list(found)
     for cluster in _clusters(seeds, DEBLEND_PX):
         distinct: list[np.ndarray] = []
@@ -352,7 +401,7 @@ def _split_merged(diff: np.ndarray, found: list[tuple[np.ndarray, np.ndarray]], 
                 if min(float(np.linalg.norm(p - q)) for q in distinct) < DEBLEND_PX]
         if not near or len(distinct) <= len(near):
             continue
-        apart = _fit_group(diff, distinct, var)
+        apart = _located_together(diff, distinct, var, clip)
         if apart is None or any(np.linalg.norm(a[0] - b[0]) < SPLIT_PX
                                 for i, a in enumerate(apart) for b in apart[i + 1:]):
             continue
@@ -360,15 +409,15 @@ def _split_merged(diff: np.ndarray, found: list[tuple[np.ndarray, np.ndarray]], 
     return out
 
 
-def _deblended(diff: np.ndarray, found: list[tuple[np.ndarray, np.ndarray]], var: np.ndarray | float
-               ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """`found` with spots nearer than DEBLEND_PX to another located together (:func:`_fit_group`);
-    where that fails they stay as they were."""
+def _deblended(diff: np.ndarray, found: list[tuple[np.ndarray, np.ndarray]], var: np.ndarray | float,
+               clip: tuple[np.ndarray, np.ndarray] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`found` with spots nearer than DEBLEND_PX to another located together
+    (:func:`_located_together`); where that fails they stay as they were."""
     out = list(found)
     for members in _clusters([p for p, _ in found], DEBLEND_PX):
         if len(members) < 2:
             continue
-        fitted = _fit_group(diff, [found[i][0] for i in members], var)
+        fitted = _located_together(diff, [found[i][0] for i in members], var, clip)
         if fitted is None:
             log.debug("spots at %s could not be told apart", [found[i][0].round(1).tolist() for i in members])
             continue
