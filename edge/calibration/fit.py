@@ -387,7 +387,7 @@ def _located_together(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray
     return out
 
 
-def _clusters(points: list[np.ndarray], within: float) -> list[list[int]]:
+def clusters(points: list[np.ndarray], within: float) -> list[list[int]]:
     """Indices of `points` grouped by chains of neighbours nearer than `within`."""
     n = len(points)
     group = list(range(n))
@@ -411,7 +411,7 @@ def _split_merged(diff: np.ndarray, found: list[tuple[np.ndarray, np.ndarray]], 
     located near them, spots so close that the windowed centroid merged them: located together
     from those maxima (:func:`_located_together`), if that keeps them apart."""
     out = list(found)
-    for cluster in _clusters(seeds, DEBLEND_PX):
+    for cluster in clusters(seeds, DEBLEND_PX):
         distinct: list[np.ndarray] = []
         for i in cluster:
             if all(np.linalg.norm(seeds[i] - q) >= SPLIT_PX for q in distinct):
@@ -435,7 +435,7 @@ def _deblended(diff: np.ndarray, found: list[tuple[np.ndarray, np.ndarray]], var
     """`found` with spots nearer than DEBLEND_PX to another located together
     (:func:`_located_together`); where that fails they stay as they were."""
     out = list(found)
-    for members in _clusters([p for p, _ in found], DEBLEND_PX):
+    for members in clusters([p for p, _ in found], DEBLEND_PX):
         if len(members) < 2:
             continue
         fitted = _located_together(diff, [found[i][0] for i in members], var, clip)
@@ -471,6 +471,27 @@ def zone_blobs(recording: Recording, zone_index: int) -> list[Blob]:
             sigma = np.sqrt(np.sum(np.square(t["sigma"]), axis=0)) / n  # of the mean of n
             blobs.append(Blob(np.mean(t["px"], axis=0), frozenset(t["lasers"]), sigma))
     return blobs
+
+
+def located_together(recording: Recording, zone_index: int, lasers: Sequence[str], seeds: Sequence[np.ndarray]
+                     ) -> list[np.ndarray] | None:
+    """The spots of `lasers` in the zone, so close that they may show as one blob, located
+    together from `seeds` (one pixel each: where a rig says they are) in every frame group that
+    has them all on (:func:`_located_together`), and averaged; None where no group tells them
+    apart (a pixel or more)."""
+    zone = recording.zones[zone_index]
+    got = []
+    for g in zone_groups(recording, zone)[0]:
+        if not set(lasers) <= set(g.lasers):
+            continue
+        diff, noise, headroom = _difference(g.on, g.off)
+        clipped = _clipped(g.on)
+        spots = _located_together(diff, [np.asarray(p, dtype=float) for p in seeds],
+                                  _variance(g.on, g.off, noise), (clipped, headroom) if clipped.any() else None)
+        if spots is not None and min(float(np.linalg.norm(a[0] - b[0]))
+                                     for i, a in enumerate(spots) for b in spots[i + 1:]) >= 1.0:
+            got.append(np.array([p for p, _ in spots]))
+    return None if not got else list(np.mean(got, axis=0))
 
 
 # --- assignment ---------------------------------------------------------------------------------
