@@ -291,3 +291,48 @@ def test_spots_a_few_pixels_apart_are_located_together(apart):
     assert len(found) == 2
     for got, true in zip(found, truth):
         assert np.linalg.norm(np.array(got) - np.array(true)) < 0.05, (got, true)
+
+
+# --- clipped and unclipped spots ------------------------------------------------------------------
+
+
+def test_clipped_and_unclipped_spots_each_have_their_scatter():
+    """Clipping hides speckle: spots that clip scatter less about their line. The fit measures
+    both; what it says of an unclipped spot (measured from the farthest distance's few) is the
+    Student-t's larger variance, and the rays' covariance covers their errors."""
+    rig = default_rig()
+    depths = np.array(CAL)
+    clipped = depths <= 2.0
+    rng = np.random.default_rng(7)
+    inner, outer, chi2 = [], [], []
+    for _ in range(300):
+        data = {}
+        for laser in rig.lasers:
+            scatter = np.where(clipped, 0.05, 0.10)[:, None]
+            px = rig.camera.project(laser.point_at_depth(depths)) + rng.normal(0.0, 1.0, (len(depths), 2)) * scatter
+            data[laser.name] = Spots(px, depths, np.full((len(depths), 2), 0.005), np.arange(len(depths)), clipped)
+        fit = fit_weighted(rig.camera, data)
+        assert fit.clipped_within_m == 2.0
+        inner.append(fit.clipped_spot_sigma_px[0])
+        outer.append(fit.spot_sigma_px[0])
+        for name, laser in fit.lasers.items():
+            delta = ray_parameters(laser) - ray_parameters(rig.laser(name))
+            chi2.append(float(delta @ np.linalg.solve(fit.covariance[name], delta)))
+    assert 0.045 < math.sqrt(np.mean(np.square(inner))) < 0.058
+    assert 0.10 < math.sqrt(np.mean(np.square(outer))) < 0.14
+    assert 3.0 < np.mean(chi2) < 5.0 and np.mean(np.array(chi2) > 9.49) < 0.09  # 4 and 5 % expected
+
+
+def test_a_range_beyond_the_clipped_distances_is_predicted_with_the_unclipped_scatter(cal, tmp_path):
+    assert 0 < cal.clipped_within_m < 3.0
+    assert cal.spot_sigma_px[0] >= cal.clipped_spot_sigma_px[0] > 0
+    assert cal.spot_sigma_at(1.0) == cal.clipped_spot_sigma_px
+    assert cal.spot_sigma_at(4.0) == cal.spot_sigma_px
+    one = replace(cal, clipped_spot_sigma_px=(), clipped_within_m=0.0)  # as an older file: one scatter
+    assert one.range_errors()["center"].one_range[0] > cal.range_errors()["center"].one_range[0]
+    path = tmp_path / "cal.json"
+    write_calibration(path, cal)
+    back = read_calibration(path)
+    assert back.clipped_spot_sigma_px == pytest.approx(cal.clipped_spot_sigma_px)
+    assert back.clipped_within_m == cal.clipped_within_m
+    assert any("clipped the sensor" in line for line in report(cal, default_rig()))

@@ -126,6 +126,7 @@ class Blob:
     pixel: np.ndarray  # (2,) sub-pixel (u, v)
     lasers: frozenset[str]  # lasers on in every group where it showed: the only candidates
     sigma_px: np.ndarray | None = None  # (2,) 1-σ of `pixel` per axis from the sensor's noise
+    clipped: bool = False  # clipped the sensor (CLIPPED_PIXELS or more) in most groups that showed it
 
 
 def _mean(frames: Sequence[np.ndarray]) -> np.ndarray:
@@ -261,6 +262,7 @@ def located_spots(on: Sequence[np.ndarray], off: Sequence[np.ndarray], corrected
 # and `parallel` spots of a rig built a few tenths of a degree off, at 3-4 m); they are located
 # together instead, as a sum of Gaussians.
 DEBLEND_PX = 7.0
+SPOT_RADIUS_PX = 2.5  # how far from a spot's centre its clipped pixels are counted
 SHARP_SIGMA_PX = 0.6  # the smoothing that still shows two spots 2.5 px apart as two maxima
 SPLIT_PX = 2.0  # a sharper maximum this far from every located spot may be a second spot...
 SPLIT_FRACTION = 0.3  # ... if it is at least this bright relative to the blob's brightest
@@ -447,6 +449,12 @@ def _deblended(diff: np.ndarray, found: list[tuple[np.ndarray, np.ndarray]], var
     return out
 
 
+# A spot with this many clipped pixels or more is a clipped one: its plateau hides the speckle that
+# moves an unclipped spot's centroid (at rest, simulator: 0.06 px rms against 0.09 px; a spot with
+# one clipped pixel scatters 0.08 px, nearly as an unclipped one).
+CLIPPED_PIXELS = 2
+
+
 def zone_blobs(recording: Recording, zone_index: int) -> list[Blob]:
     """The zone's spots, found per frame group (each pose, each set of lasers) and merged: a spot
     must show in at least half the groups that could show it (else flicker or noise)."""
@@ -454,22 +462,28 @@ def zone_blobs(recording: Recording, zone_index: int) -> list[Blob]:
     groups, _ = zone_groups(recording, zone)
     tracks: list[dict[str, Any]] = []
     for g in groups:
+        clipped = _clipped(g.on)
         for pixel, sigma in located_spots(g.on, g.off):
+            u, v = int(round(float(pixel[0]))), int(round(float(pixel[1])))
+            r = int(math.ceil(SPOT_RADIUS_PX))
+            hit = int(clipped[max(v - r, 0): v + r + 1, max(u - r, 0): u + r + 1].sum()) >= CLIPPED_PIXELS
             for t in tracks:
                 if np.linalg.norm(np.mean(t["px"], axis=0) - pixel) < 1.5:
                     t["px"].append(pixel)
                     t["sigma"].append(sigma)
+                    t["clipped"].append(hit)
                     t["lasers"] &= set(g.lasers)
                     break
             else:
-                tracks.append({"px": [pixel], "sigma": [sigma], "lasers": set(g.lasers)})
+                tracks.append({"px": [pixel], "sigma": [sigma], "clipped": [hit], "lasers": set(g.lasers)})
     blobs = []
     for t in tracks:
         could = sum(1 for g in groups if t["lasers"] & set(g.lasers))
         n = len(t["px"])
         if t["lasers"] and n >= max(1, math.ceil(could / 2)):
             sigma = np.sqrt(np.sum(np.square(t["sigma"]), axis=0)) / n  # of the mean of n
-            blobs.append(Blob(np.mean(t["px"], axis=0), frozenset(t["lasers"]), sigma))
+            blobs.append(Blob(np.mean(t["px"], axis=0), frozenset(t["lasers"]), sigma,
+                              2 * sum(t["clipped"]) > n))
     return blobs
 
 
@@ -646,9 +660,15 @@ class Spots:
     depths: np.ndarray  # (N,) metres
     sigma_px: np.ndarray  # (N, 2) 1-σ per axis from the sensor's noise
     zones: np.ndarray  # (N,) zone index of each
+    clipped: np.ndarray | None = None  # (N,) bool: the spot clipped the sensor (None: none did)
 
     def subset(self, keep: np.ndarray) -> Spots:
-        return Spots(self.pixels[keep], self.depths[keep], self.sigma_px[keep], self.zones[keep])
+        return Spots(self.pixels[keep], self.depths[keep], self.sigma_px[keep], self.zones[keep],
+                     None if self.clipped is None else self.clipped[keep])
+
+    @property
+    def clipped_mask(self) -> np.ndarray:
+        return np.zeros(len(self.depths), bool) if self.clipped is None else self.clipped
 
 
 def _laser_data(rig: Rig, chosen: dict[str, dict[int, Blob]], D: tuple[float, ...]) -> dict[str, Spots]:
@@ -665,51 +685,106 @@ def _laser_data(rig: Rig, chosen: dict[str, dict[int, Blob]], D: tuple[float, ..
         blobs = [chosen[laser.name][i] for i in got]
         sigma = np.array([np.zeros(2) if b.sigma_px is None else b.sigma_px for b in blobs])
         data[laser.name] = Spots(np.array([b.pixel for b in blobs]), np.array([D[i] for i in got]),
-                                 sigma, np.array(got))
+                                 sigma, np.array(got), np.array([b.clipped for b in blobs]))
     return data
 
 
 # --- the weighted fit and what it knows ---------------------------------------------------------
 #
 # Each spot's error is its sensor noise (σ per spot, measured around it) plus what the frames
-# cannot average away: with the target at rest, one speckle pattern per distance, about 0.07 px
-# whatever the distance. That second part, s per axis, is common to all spots and is measured
-# from the residuals of all lasers together (pooled, so that 3 lasers at 6 distances give 12
-# degrees of freedom an axis, not 4): s² is what makes χ² equal its degrees of freedom, or 0 when
-# the sensor noise already explains the residuals. Each spot then weighs 1/(σᵢ² + s²).
+# cannot average away: with the target at rest, one speckle pattern per distance. That second
+# part, s, is the same on both axes (speckle has no direction), and it is smaller for a spot that
+# clips the sensor, whose plateau hides the speckle over it (simulator, at rest: 0.06 px rms
+# against 0.09 px). So there are two: s_c for clipped spots and s_u for the others, both measured
+# from the residuals of all lasers and both axes together (pooled, so that 3 lasers at 6
+# distances give 24 degrees of freedom, not 4), each from its own spots' residuals: E[rᵢ²] =
+# (1 − hᵢ)(σᵢ² + s²), hᵢ the spot's leverage. A class with fewer than MIN_CLASS_DOF degrees of
+# freedom of its own takes the pooled value, and an unclipped scatter below the clipped one is
+# raised to it (clipping only ever hides speckle). Each spot then weighs 1/(σᵢ² + s²) with its
+# class's s. A few unclipped spots (often the farthest distance's three) measure s_u with a few
+# degrees of freedom ν; what is said of a spot not yet seen (``spot_sigma_px``, the range error
+# of one range) is then the Student-t's s²·ν/(ν − 2), not s².
 
+MIN_CLASS_DOF = 3.0
 OUTLIER_SIGMAS = 5.5  # a spot this far from the line through the others (robust σ, 2-D) is another blob
 
 
-def _wls(inv_depth: np.ndarray, y: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """y = a + b·(1/D) by weighted least squares: (a, b), their covariance (2, 2) and χ²."""
+def _wls(inv_depth: np.ndarray, y: np.ndarray, var: np.ndarray, spread: np.ndarray | None = None
+         ) -> tuple[np.ndarray, np.ndarray, float]:
+    """y = a + b·(1/D) by weighted least squares (weights 1/`var`): (a, b), their covariance
+    (2, 2) and χ². With `spread`, the points' variances are taken to be those and not `var`
+    (the covariance is then (AᵀWA)⁻¹ AᵀW·spread·WA (AᵀWA)⁻¹)."""
     A = np.stack([np.ones_like(inv_depth), inv_depth], axis=1)
     w = 1.0 / var
     cov = np.linalg.inv((A.T * w) @ A)
     theta = cov @ ((A.T * w) @ y)
     r = y - A @ theta
+    if spread is not None:
+        cov = cov @ ((A.T * (w * w * spread)) @ A) @ cov
     return theta, cov, float((w * r * r).sum())
 
 
-def _pooled_extra(rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> float:
-    """s² (normalised units²) such that the pooled χ² of the (1/D, y, σ²) rows, each fitted on its
-    own, equals its degrees of freedom; 0 if it does already without."""
-    dof = sum(len(y) - 2 for _, y, _ in rows)
-    if dof <= 0:
-        return 0.0
+def _leverage_moments(inv_depth: np.ndarray, y: np.ndarray, var: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Of the weighted line through (1/D, y) with variances `var`: each point's squared residual
+    less what its own noise explains, rᵢ² − (1 − hᵢ)σᵢ², and 1 − hᵢ (its share of the degrees of
+    freedom)."""
+    A = np.stack([np.ones_like(inv_depth), inv_depth], axis=1)
+    w = 1.0 / var
+    cov = np.linalg.inv((A.T * w) @ A)
+    r = y - A @ (cov @ ((A.T * w) @ y))
+    free = 1.0 - w * np.einsum("ij,jk,ik->i", A, cov, A)
+    return r * r, free
 
-    def chi2(extra: float) -> float:
-        return sum(_wls(x, y, var + extra)[2] for x, y, var in rows)
 
-    if chi2(0.0) <= dof:
-        return 0.0
-    lo, hi = 0.0, max(float(np.max(y - y.mean()) ** 2) for _, y, _ in rows) + 1e-18
-    while chi2(hi) > dof:
-        hi *= 4.0
-    for _ in range(60):  # χ² falls monotonically as s² grows
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if chi2(mid) > dof else (lo, mid)
-    return 0.5 * (lo + hi)
+@dataclass(frozen=True)
+class Scatter:
+    """One class of spots' scatter beyond the sensor's noise: s² (normalised units², per axis)
+    and the residual degrees of freedom ν it was measured with."""
+
+    s2: float
+    dof: float
+
+    @property
+    def predictive(self) -> float:
+        """s² for a spot not yet seen: a scale measured with ν degrees of freedom leaves a new
+        spot's error Student-t distributed, of variance s²·ν/(ν − 2) (ν ≥ MIN_CLASS_DOF)."""
+        nu = max(self.dof, MIN_CLASS_DOF)
+        return self.s2 * nu / (nu - 2.0)
+
+
+def _spot_scatter(camera: CameraModel, data: dict[str, Spots]) -> tuple[Scatter, Scatter]:
+    """The scatter of a clipped and of an unclipped spot (see the notes above)."""
+    rows = []
+    for spots in data.values():
+        xy, var = _normalised_data(camera, spots)
+        for axis in range(2):
+            rows.append((1.0 / spots.depths, xy[:, axis], var[:, axis], spots.clipped_mask))
+    s2 = {True: 0.0, False: 0.0}
+    dof = {True: 0.0, False: 0.0}
+    for _ in range(100):
+        num = {True: 0.0, False: 0.0}
+        dof = {True: 0.0, False: 0.0}
+        for x, y, var, clipped in rows:
+            extra = np.where(clipped, s2[True], s2[False])
+            r2, free = _leverage_moments(x, y, var + extra)
+            for c in (True, False):
+                num[c] += float((r2 - free * var)[clipped == c].sum())
+                dof[c] += float(free[clipped == c].sum())
+        total = dof[True] + dof[False]
+        if total <= 0:
+            return Scatter(0.0, 0.0), Scatter(0.0, 0.0)
+        pooled = max(0.0, (num[True] + num[False]) / total)
+        new = {c: max(0.0, num[c] / dof[c]) if dof[c] >= MIN_CLASS_DOF else pooled for c in (True, False)}
+        if dof[True] >= MIN_CLASS_DOF:
+            new[False] = max(new[False], new[True])  # clipping only ever hides speckle
+        done = all(abs(new[c] - s2[c]) <= 1e-4 * max(new[c], 1e-18) for c in (True, False))
+        s2 = new
+        if done:
+            break
+    total = dof[True] + dof[False]
+    nu = {c: dof[c] if dof[c] >= MIN_CLASS_DOF else total for c in (True, False)}
+    return Scatter(s2[True], nu[True]), Scatter(s2[False], nu[False])
 
 
 def _normalised_data(camera: CameraModel, spots: Spots) -> tuple[np.ndarray, np.ndarray]:
@@ -725,19 +800,10 @@ class WeightedFit:
 
     lasers: dict[str, Laser]
     covariance: dict[str, np.ndarray]  # (4, 4) per laser: ax, x0 (m), ay, y0 (m)
-    spot_sigma_px: tuple[float, float]  # one spot's scatter per axis (sensor noise and speckle)
+    spot_sigma_px: tuple[float, float]  # an unclipped spot's scatter per axis (sensor noise and speckle)
     data: dict[str, Spots]  # the spots kept (outliers left out)
-
-
-def _extra_per_axis(camera: CameraModel, data: dict[str, Spots]) -> np.ndarray:
-    out = np.zeros(2)
-    for axis in range(2):
-        rows = []
-        for spots in data.values():
-            xy, var = _normalised_data(camera, spots)
-            rows.append((1.0 / spots.depths, xy[:, axis], var[:, axis]))
-        out[axis] = _pooled_extra(rows)
-    return out
+    clipped_spot_sigma_px: tuple[float, float] = (0.0, 0.0)  # ... a clipped spot's
+    clipped_within_m: float = 0.0  # the farthest distance where most spots clipped (0: none)
 
 
 def _without_worst(inv_depth: np.ndarray, xy: np.ndarray) -> tuple[int, np.ndarray, float]:
@@ -793,17 +859,23 @@ def _outliers(camera: CameraModel, data: dict[str, Spots]) -> dict[str, Spots]:
 
 
 def fit_weighted(camera: CameraModel, data: dict[str, Spots]) -> WeightedFit:
-    """Every laser's line by weighted least squares (weights 1/(σᵢ² + s²)), stray spots left
-    out, with the covariance of each line's parameters (scaled by the laser's own χ² per degree
-    of freedom where that exceeds 1)."""
+    """Every laser's line by weighted least squares (weights 1/(σᵢ² + s²), s that of the spot's
+    class, clipped or not), stray spots left out, with the covariance of each line's parameters
+    (scaled by the laser's own χ² per degree of freedom where that exceeds 1)."""
     data = _outliers(camera, data)
-    extra = _extra_per_axis(camera, data)
+    scatter = dict(zip((True, False), _spot_scatter(camera, data)))
+    s2 = {c: scatter[c].s2 for c in (True, False)}
     lasers, covs, noise = {}, {}, []
     for name, spots in data.items():
         xy, var = _normalised_data(camera, spots)
         noise.append(var)
-        (ax, x0), cx, chi_x = _wls(1.0 / spots.depths, xy[:, 0], var[:, 0] + extra[0])
-        (ay, y0), cy, chi_y = _wls(1.0 / spots.depths, xy[:, 1], var[:, 1] + extra[1])
+        clipped = spots.clipped_mask
+        extra = np.where(clipped, s2[True], s2[False])
+        # Weighed by the scatter measured; the covariance with the scatter a spot not yet seen
+        # would have (Student-t: the scatter itself is only known to its degrees of freedom).
+        spread = np.where(clipped, scatter[True].predictive, scatter[False].predictive)
+        (ax, x0), cx, chi_x = _wls(1.0 / spots.depths, xy[:, 0], var[:, 0] + extra, var[:, 0] + spread)
+        (ay, y0), cy, chi_y = _wls(1.0 / spots.depths, xy[:, 1], var[:, 1] + extra, var[:, 1] + spread)
         lasers[name] = _line(np.array([x0, y0]), np.array([ax, ay]), name)
         cov = np.zeros((4, 4))
         cov[:2, :2], cov[2:, 2:] = cx, cy
@@ -812,8 +884,13 @@ def fit_weighted(camera: CameraModel, data: dict[str, Spots]) -> WeightedFit:
         dof = 2 * (len(spots.depths) - 2)
         covs[name] = cov * max(1.0, (chi_x + chi_y) / dof)
     typical = np.median(np.concatenate(noise), axis=0)  # one spot's sensor noise, normalised²
-    spot = np.sqrt(typical + extra) * np.array([camera.fx, camera.fy])
-    return WeightedFit(lasers, covs, (float(spot[0]), float(spot[1])), data)
+    scale = np.array([camera.fx, camera.fy])
+    spot = {c: np.sqrt(typical + scatter[c].predictive) * scale for c in (True, False)}
+    within = [float(d) for d in {float(x) for sp in data.values() for x in sp.depths}
+              if 2 * sum(int(sp.clipped_mask[sp.depths == d].sum()) for sp in data.values())
+              > sum(int((sp.depths == d).sum()) for sp in data.values())]
+    return WeightedFit(lasers, covs, (float(spot[False][0]), float(spot[False][1])), data,
+                       (float(spot[True][0]), float(spot[True][1])), max(within, default=0.0))
 
 
 def _fit_focal(camera: CameraModel, rig: Rig, spots: dict[str, Spots]
@@ -857,6 +934,8 @@ def fit_calibration(recording: Recording, distances_m: Sequence[float], fit_foca
     data = _laser_data(rig, assigned_blobs(rig, blobs, D), D)
     covariance: dict[str, tuple[tuple[float, ...], ...]] = {}
     spot_sigma: tuple[float, ...] = ()
+    clipped_sigma: tuple[float, ...] = ()
+    clipped_within = 0.0
     if fit_focal:
         camera, fitted = _fit_focal(rig.camera, rig, data)
     else:
@@ -865,8 +944,9 @@ def fit_calibration(recording: Recording, distances_m: Sequence[float], fit_foca
         fitted, data = weighted.lasers, weighted.data
         covariance = {n: tuple(tuple(float(c) for c in row) for row in m) for n, m in weighted.covariance.items()}
         spot_sigma = weighted.spot_sigma_px
+        clipped_sigma, clipped_within = weighted.clipped_spot_sigma_px, weighted.clipped_within_m
     res = _checked_residuals(camera, fitted, data)
     if not fit_focal:
         _check_origins(rig, fitted)
     lasers = tuple(replace(fitted[ln.name], reference=ln.reference) for ln in rig.lasers)
-    return Calibration(lasers, camera, D, res, timestamp(), covariance, spot_sigma)
+    return Calibration(lasers, camera, D, res, timestamp(), covariance, spot_sigma, clipped_sigma, clipped_within)
