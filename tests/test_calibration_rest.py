@@ -423,3 +423,32 @@ def test_a_range_beyond_the_clipped_distances_is_predicted_with_the_unclipped_sc
     assert back.clipped_spot_sigma_px == pytest.approx(cal.clipped_spot_sigma_px)
     assert back.clipped_within_m == cal.clipped_within_m
     assert any("clipped the sensor" in line for line in report(cal, default_rig()))
+
+
+def test_a_stray_spot_beside_a_lasers_spot_is_not_taken_for_it(at_rest, tmp_path):
+    """A recording whose laser-on frames at 1.5 m show a stray bright spot 4 px from the parallel
+    spot (a reflection, another pointer): the line through the nearer distances' spots tells
+    which is the laser's; every ray stays within the targets."""
+    import shutil
+
+    import cv2
+
+    truth = at_rest[0]
+    folder = tmp_path / "stray"
+    shutil.copytree(at_rest[1], folder)
+    rec = read_recording(folder)
+    zone = rec.zones[CAL.index(1.5)]
+    u, v = zone.truth["lasers"]["parallel"]["pixel"]
+    for frame in zone.frames:
+        if frame.lasers_on:
+            image = rec.load_image(zone, frame)
+            gv, gu = np.mgrid[0: image.shape[0], 0: image.shape[1]]
+            blob = 200.0 * np.exp(-((gu - u - 4.0) ** 2 + (gv - v - 1.0) ** 2) / (2 * 0.6**2))
+            image[..., 2] = np.clip(image[..., 2] + blob, 0, 255).astype(image.dtype)
+            cv2.imwrite(str(folder / frame.file), image)
+    cal = fit_calibration(read_recording(folder), CAL)
+    assert cal.residuals_px["parallel"]["max"] < 0.3  # not the stray one, 4 px off
+    for laser in cal.lasers:
+        true = truth.laser(laser.name)
+        assert math.degrees(math.acos(min(1.0, float(laser.d @ true.d)))) < 0.02, laser.name
+        assert float(np.linalg.norm(laser.point_at_depth(0.0) - true.point_at_depth(0.0))) < 0.0005, laser.name
