@@ -452,3 +452,20 @@ def test_a_stray_spot_beside_a_lasers_spot_is_not_taken_for_it(at_rest, tmp_path
         true = truth.laser(laser.name)
         assert math.degrees(math.acos(min(1.0, float(laser.d @ true.d)))) < 0.02, laser.name
         assert float(np.linalg.norm(laser.point_at_depth(0.0) - true.point_at_depth(0.0))) < 0.0005, laser.name
+
+
+
+def test_a_clipped_spot_is_one_spot(tmp_path):
+    """The sloped spot at 0.4 m of a rig built as issue 15's rig 106 clips the sensor over a
+    plateau 5 px across, flat but for the laser-off frames' noise; that noise's maxima are not
+    spots of their own (they once split it in two, 2.8 px apart, and the fit lost the distance)."""
+    from edge.calibration.fit import zone_blobs
+
+    config = load_config(None, ["sweep.nudge_deg=0", "sim.seed=106"])
+    truth = mis_built(config.rig.build(), 106)
+    rec = read_recording(record_targets(config, [0.4], tmp_path / "near", pairs=2, rig=truth))
+    spots = [np.array(t["pixel"]) for t in rec.zones[0].truth["lasers"].values()]
+    blobs = zone_blobs(rec, 0)
+    assert len(blobs) == len(spots) and all(b.clipped for b in blobs)
+    for spot in spots:
+        assert min(float(np.linalg.norm(b.pixel - spot)) for b in blobs) < 0.2
