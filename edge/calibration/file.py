@@ -8,8 +8,9 @@ fitted from (`distances_m`), the `camera` and the `lasers` as in ``sweep.json``
 (camera frame, metres), and `spot_sigma_px`, one spot's scatter per axis (u, v) that the fit
 measured; since the fit tells clipped spots from the others, `spot_sigma_px` is that of a spot that
 does not clip the sensor, `clipped_spot_sigma_px` that of one that does, and `clipped_within_m` the
-farthest distance where most spots clipped (absent: one scatter for all); and, for people, `range_error_m`, the 1-σ range errors they imply at 1, 2 and 4 m per laser
-and combined (recomputed from the covariance when read: see :mod:`edge.calibration.uncertainty`).
+farthest distance where most spots clipped (absent: one scatter for all); and, for people,
+`range_error_m`, the 1-σ range errors they imply at 1, 2 and 4 m per laser and combined
+(recomputed from the covariance when read: see :mod:`edge.calibration.uncertainty`).
 Older files without them still load; they just know nothing of their uncertainty. Reading is
 strict, by the loader of :mod:`edge.schema`: every problem is a :class:`CalibrationError` of one
 line naming the file and the key. Unknown keys are ignored, as in recordings, so that the format can
