@@ -2,7 +2,10 @@
 
 Zone i of the check recording shows a flat target squarely at distances_m[i], as a calibration
 recording does. Each laser's spot is found and assigned as the fit does it (:mod:`edge.calibration.fit`),
-but predicted by the calibrated rig; its depth is the calibrated beam's point nearest to the camera
+but predicted by the calibrated rig; spots the calibrated rig puts within DEBLEND_PX of each other
+are located together from where it puts them (as ranging, which knows the rig, does: two spots 2 px
+apart show as one blob, which the whole-frame search cannot split, and that blob's centre is half a
+pixel from either); its depth is the calibrated beam's point nearest to the camera
 ray through the spot (:func:`edge.ranging.triangulate`), and its error is that depth minus the
 tape-measured distance. Pure: a recording and a calibration in, numbers out.
 """
@@ -13,10 +16,21 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from edge.calibration.file import Calibration
-from edge.calibration.fit import assign_spots, one_per_zone, zone_blobs
+from edge.calibration.fit import (
+    DEBLEND_PX,
+    SPLIT_PX,
+    assign_spots,
+    clusters,
+    located_together,
+    one_per_zone,
+    zone_blobs,
+)
 from edge.ranging import triangulate
 from edge.recording import Recording
+from edge.rig import Rig
 
 
 @dataclass(frozen=True)
@@ -45,6 +59,8 @@ def check_calibration(recording: Recording, distances_m: Sequence[float], cal: C
     rig = cal.apply(recording.rig)
     blobs = [zone_blobs(recording, i) for i in range(zones)]
     points = assign_spots(rig, blobs, d)
+    for i, dist in enumerate(d):
+        _deblend_predicted(recording, i, rig, dist, points, [b.pixel for b in blobs[i]])
     out = []
     for i, dist in enumerate(d):
         depth: dict[str, float | None] = {}
@@ -63,6 +79,35 @@ def check_calibration(recording: Recording, distances_m: Sequence[float], cal: C
                     if total > 0 else None)
         out.append(CheckedZone(dist, depth, combined))
     return out
+
+
+def _deblend_predicted(recording: Recording, i: int, rig: Rig, dist: float,
+                       points: dict[str, dict[int, np.ndarray]], blobs: list[np.ndarray]) -> None:
+    """In zone i, the spots of lasers that `rig` puts within DEBLEND_PX of each other at `dist`
+    and that were not told apart, located together from where it puts them (moved together onto
+    the blob they make, when there is one) into `points`."""
+    predicted = [rig.camera.project(laser.point_at_depth(dist)) for laser in rig.lasers]
+    for members in clusters(predicted, DEBLEND_PX):
+        if len(members) < 2:
+            continue
+        names = [rig.lasers[k].name for k in members]
+        got = [p for n in names if (p := points[n].get(i)) is not None]
+        if len(got) == len(names) and min(_gaps(got)) >= SPLIT_PX:
+            continue  # found apart already
+        seeds = np.array([predicted[k] for k in members])
+        centre = seeds.mean(axis=0)
+        near = [b for b in blobs if float(np.linalg.norm(b - centre)) < DEBLEND_PX]
+        if near:
+            seeds += min(near, key=lambda b: float(np.linalg.norm(b - centre))) - centre
+        located = located_together(recording, i, names, list(seeds))
+        if located is None:
+            continue
+        for n, p in zip(names, located):
+            points[n][i] = p
+
+
+def _gaps(pixels: list[np.ndarray]) -> list[float]:
+    return [float(np.linalg.norm(a - b)) for j, a in enumerate(pixels) for b in pixels[j + 1:]]
 
 
 def check_lines(zones: Sequence[CheckedZone], cal: Calibration) -> list[str]:

@@ -6,8 +6,11 @@ fitted from (`distances_m`), the `camera` and the `lasers` as in ``sweep.json``
 `n`). Since issue 15 it also keeps how well the fit knows each ray: `ray_covariance`, per laser the
 4 × 4 covariance of its parameters (ax, x0, ay, y0) in the fit's line x = x0 + ax·z, y = y0 + ay·z
 (camera frame, metres), and `spot_sigma_px`, one spot's scatter per axis (u, v) that the fit
-measured; and, for people, `range_error_m`, the 1-σ range errors they imply at 1, 2 and 4 m per laser
-and combined (recomputed from the covariance when read: see :mod:`edge.calibration.uncertainty`).
+measured; since the fit tells clipped spots from the others, `spot_sigma_px` is that of a spot that
+does not clip the sensor, `clipped_spot_sigma_px` that of one that does, and `clipped_within_m` the
+farthest distance where most spots clipped (absent: one scatter for all); and, for people,
+`range_error_m`, the 1-σ range errors they imply at 1, 2 and 4 m per laser and combined
+(recomputed from the covariance when read: see :mod:`edge.calibration.uncertainty`).
 Older files without them still load; they just know nothing of their uncertainty. Reading is
 strict, by the loader of :mod:`edge.schema`: every problem is a :class:`CalibrationError` of one
 line naming the file and the key. Unknown keys are ignored, as in recordings, so that the format can
@@ -52,14 +55,23 @@ class Calibration:
     created: str = ""
     # Per laser the (4, 4) covariance of (ax, x0, ay, y0); empty: unknown (an older file, --fit-focal).
     ray_covariance: dict[str, tuple[tuple[float, ...], ...]] = field(default_factory=dict)
-    spot_sigma_px: tuple[float, ...] = ()  # (σu, σv) of one spot as the fit saw it; () unknown
+    spot_sigma_px: tuple[float, ...] = ()  # (σu, σv) of one unclipped spot as the fit saw it; () unknown
+    clipped_spot_sigma_px: tuple[float, ...] = ()  # ... of one clipped spot; () as an unclipped one
+    clipped_within_m: float = 0.0  # up to here the calibration's spots clipped (0: nowhere)
+
+    def spot_sigma_at(self, depth_m: float) -> tuple[float, ...]:
+        """(σu, σv) of one spot at `depth_m` taken as the calibration's were: a clipped one's
+        within the distance where its spots clipped, else an unclipped one's."""
+        if depth_m <= self.clipped_within_m and len(self.clipped_spot_sigma_px) == 2:
+            return self.clipped_spot_sigma_px
+        return self.spot_sigma_px
 
     def range_errors(self, depths_m: Sequence[float] = REPORT_DEPTHS_M) -> dict[str, RangeError]:
         """Per laser, and ``combined``, the 1-σ range errors this calibration implies at
         `depths_m`; empty when it does not know its covariance."""
         if not self.ray_covariance or len(self.spot_sigma_px) != 2:
             return {}
-        spot = np.array(self.spot_sigma_px) / np.array([self.camera.fx, self.camera.fy])
+        spot = np.array([self.spot_sigma_at(d) for d in depths_m]) / np.array([self.camera.fx, self.camera.fy])
         out: dict[str, RangeError] = {}
         bases: dict[str, float] = {}
         for laser in self.lasers:
@@ -105,6 +117,10 @@ def _positive(distance: float) -> str | None:
     return None if distance > 0 else f"must be positive metres, got {distance:g}"
 
 
+def _not_negative(distance: float) -> str | None:
+    return None if distance >= 0 else f"must be 0 or more metres, got {distance:g}"
+
+
 def _square4(m: tuple[tuple[float, ...], ...]) -> str | None:
     if len(m) != 4 or any(len(row) != 4 for row in m):
         return "must be a 4 x 4 matrix (ax, x0, ay, y0)"
@@ -140,6 +156,8 @@ class CalibrationFile:
     residuals_px: dict[str, Residuals]
     ray_covariance: dict[str, Annotated[tuple[tuple[float, ...], ...], _square4]] = field(default_factory=dict)
     spot_sigma_px: Annotated[tuple[float, ...], _pair] = ()
+    clipped_spot_sigma_px: Annotated[tuple[float, ...], _pair] = ()
+    clipped_within_m: Annotated[float, _not_negative] = 0.0
 
     def __post_init__(self) -> None:
         rig_of(self.camera, self.lasers)  # Rig checks the laser names and the reference flag
@@ -148,7 +166,8 @@ class CalibrationFile:
         rig = rig_of(self.camera, self.lasers)
         return Calibration(rig.lasers, rig.camera, self.distances_m,
                            {name: asdict(r) for name, r in self.residuals_px.items()}, self.created,
-                           dict(self.ray_covariance), self.spot_sigma_px)
+                           dict(self.ray_covariance), self.spot_sigma_px, self.clipped_spot_sigma_px,
+                           self.clipped_within_m)
 
 
 def read_calibration(path: str | Path) -> Calibration:
@@ -166,6 +185,9 @@ def write_calibration(path: str | Path, cal: Calibration) -> None:
     if cal.ray_covariance:
         doc["ray_covariance"] = {n: [list(row) for row in m] for n, m in cal.ray_covariance.items()}
         doc["spot_sigma_px"] = list(cal.spot_sigma_px)
+        if cal.clipped_spot_sigma_px:
+            doc["clipped_spot_sigma_px"] = list(cal.clipped_spot_sigma_px)
+            doc["clipped_within_m"] = cal.clipped_within_m
         doc["range_error_m"] = {n: e.to_json() for n, e in cal.range_errors().items()}
     try:
         atomic_write_bytes(path, (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())

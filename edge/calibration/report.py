@@ -52,10 +52,7 @@ def range_error_lines(cal: Calibration) -> list[str]:
              f"{'':<22}{head}   {head}"]
     for name, e in errors.items():
         lines.append(f"{name:<22}{mm(e.calibration)}   {mm(e.one_range)}")
-    if len(cal.spot_sigma_px) == 2:
-        lines.append(f"one spot scatters {cal.spot_sigma_px[0]:.3f} px (u), "
-                     f"{cal.spot_sigma_px[1]:.3f} px (v) about its line as recorded: speckle and noise that "
-                     "these frames do not average (a board at rest: one view per distance)")
+    lines += _scatter_lines(cal)
     combined = errors.get("combined")
     if combined is not None:
         worst = [(d, c * c / o / o) for d, c, o in zip(depths, combined.calibration, combined.one_range)
@@ -67,4 +64,26 @@ def range_error_lines(cal: Calibration) -> list[str]:
                          "record the board at more distances (farther ones above all) to lower it")
         else:
             lines.append("the calibration adds little to a range's error: more distances would not help much")
+    return lines
+
+
+def _scatter_lines(cal: Calibration) -> list[str]:
+    """One spot's scatter as the fit saw it: of a spot that clipped the sensor and of one that did
+    not; and whether the latter rests on one distance only."""
+    if len(cal.spot_sigma_px) != 2:
+        return []
+    u, v = cal.spot_sigma_px
+    why = "speckle and noise that these frames do not average (a board at rest: one view per distance)"
+    if len(cal.clipped_spot_sigma_px) != 2 or cal.clipped_within_m <= 0:
+        return [f"one spot scatters {u:.3f} px (u), {v:.3f} px (v) about its line as recorded: {why}"]
+    cu, cv = cal.clipped_spot_sigma_px
+    within = cal.clipped_within_m
+    lines = [f"one spot scatters {cu:.3f} px (u), {cv:.3f} px (v) about its line as recorded where the "
+             f"spots clipped the sensor (up to {within:g} m), {u:.3f} px, {v:.3f} px where they did not "
+             f"(clipping hides some speckle): {why}"]
+    beyond = sorted(d for d in set(cal.distances_m) if d > within)
+    if len(beyond) <= 1:
+        where = f"the spots at {beyond[0]:g} m" if beyond else "no spot"
+        lines.append(f"only {where} did not clip: the range error beyond {within:g} m rests on "
+                     "them; record the board at more distances beyond that (or nudged) to know it")
     return lines

@@ -8,9 +8,10 @@ error δp of where the calibration puts the spot (δp = J δθ, J = [[1, 1/D, 0,
 therefore reads as a range error D²/|b| · e·δp. So at depth D a laser's range error from its
 calibration has σ_cal² = (D²/|b|)² · eᵀ J C Jᵀ e, and one range measured as the calibration's frames
 were (a board at rest: one view, one speckle pattern) adds the spot's own σ_spot² = (D²/|b|)² · eᵀ S e
-with S = diag(σu/fx, σv/fy)², the spot scatter the fit measured (``spot_sigma_px``). A calibration
-recorded with nudges (several views a distance) measured a smaller scatter, which one view's range
-will exceed.
+with S = diag(σu/fx, σv/fy)², the spot scatter the fit measured (``spot_sigma_px``; within the
+distance where its spots clipped the sensor, ``clipped_spot_sigma_px``: clipping hides some speckle).
+A calibration recorded with nudges (several views a distance) measured a smaller scatter, which one
+view's range will exceed.
 
 The lasers of one range are combined as ranging combines them on a surface facing the camera: by
 weights 1/σ_spot², i.e. ∝ |b|² for spots located equally well. Calibration errors of different lasers
@@ -72,11 +73,13 @@ def _sensitivity(params: np.ndarray, depth: float) -> np.ndarray | None:
 def laser_range_error(params: np.ndarray, cov: np.ndarray, spot_sigma_n: np.ndarray,
                       depths: Sequence[float] = REPORT_DEPTHS_M) -> RangeError:
     """One laser's range errors at `depths`: `params` (ax, x0, ay, y0), `cov` their (4, 4)
-    covariance, `spot_sigma_n` (2,) one spot's scatter in normalised coordinates (σu/fx, σv/fy)."""
+    covariance, `spot_sigma_n` one spot's scatter in normalised coordinates (σu/fx, σv/fy): (2,)
+    for every depth, or (len(depths), 2) one a depth."""
     cal: list[float | None] = []
     one: list[float | None] = []
     b = baseline(params)
-    for depth in depths:
+    spots = np.broadcast_to(np.asarray(spot_sigma_n, dtype=np.float64), (len(depths), 2))
+    for depth, spot in zip(depths, spots):
         g = _sensitivity(params, depth)
         if g is None:
             cal.append(None)
@@ -84,7 +87,7 @@ def laser_range_error(params: np.ndarray, cov: np.ndarray, spot_sigma_n: np.ndar
             continue
         c2 = max(float(g @ cov @ g), 0.0)
         e = np.array([params[1], params[3]]) / b
-        s2 = (depth * depth / b) ** 2 * float((e**2) @ (np.asarray(spot_sigma_n) ** 2))
+        s2 = (depth * depth / b) ** 2 * float((e**2) @ (spot**2))
         cal.append(math.sqrt(c2))
         one.append(math.sqrt(c2 + s2))
     return RangeError(tuple(depths), tuple(cal), tuple(one))
