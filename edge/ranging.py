@@ -18,7 +18,7 @@ import functools
 import itertools
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -45,13 +45,6 @@ EDGE_LIGHT_RATIO = 0.3
 # (and at least 1.5 px, at most TRACK_JOIN_MAX_PX).
 TRACK_JOIN_SIGMAS = 2.5
 TRACK_JOIN_MAX_PX = 3.0
-# JPEG frames: steps across the 8 × 8 blocks' boundaries this many times those inside blocks (1.27-16
-# for qualities 51-89 on the tuning family, at most 1.02 for frames never compressed, and for 90).
-JPEG_BLOCKINESS = 1.15
-# A spot placed within this of a block's centre line (px) is taken as snapped there, and placed only
-# to the block's width: 8/√12 px. (Uncompressed, a spot lands there by chance once in 200.)
-SNAP_PX = 0.02
-BLOCK_SIGMA_PX = 8.0 / math.sqrt(12.0)
 # Two spots fitted together (edge.deblend) are fitted in a window of this half-size (px).
 DEBLEND_WINDOW_PX = 6
 # Their σ is the fit's, from its residual as if white, grown for the residual's correlation (JPEG's
@@ -451,19 +444,6 @@ def best_fusion(
     return fuse(rig, reference, ())
 
 
-def jpeg_blockiness(image: np.ndarray) -> float:
-    """How much larger a frame's steps across the 8 × 8 block boundaries are than inside blocks
-    (1 for a frame that never was JPEG)."""
-    g = image.astype(np.float32) if image.ndim == 2 else image[..., :3].astype(np.float32).mean(axis=2)
-    dx = np.abs(np.diff(g, axis=1))
-    dy = np.abs(np.diff(g, axis=0))
-    inner_x = (dx.sum() - dx[:, 7::8].sum()) / max(dx.size - dx[:, 7::8].size, 1)
-    inner_y = (dy.sum() - dy[7::8, :].sum()) / max(dy.size - dy[7::8, :].size, 1)
-    bx = float(dx[:, 7::8].mean()) / max(float(inner_x), 1e-9)
-    by = float(dy[7::8, :].mean()) / max(float(inner_y), 1e-9)
-    return 0.5 * (bx + by)
-
-
 def _one_answer(fusions: Sequence[Fusion]) -> bool:
     """Whether fusions of different reference blobs all give the same range (each pair within
     2σ of their difference)."""
@@ -508,7 +488,6 @@ class _Track:
     laser: str
     found: list[Candidate]
     views: set[tuple[float, float]]
-    pooled: int = 0  # frame groups pooled into its one sighting (0: found group by group)
 
     def pixel(self, speckle_px: float = 0.0) -> np.ndarray:
         """Weighted mean position; each sighting's weight counts its speckle too, which dominates
@@ -538,7 +517,6 @@ class Ranger:
         # a margin for rounding a spot's pixel), so that most spots need no search of the path.
         self._near_path = {name: self.finder.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
         self._inv_depths = self.finder.inv_depth_range()
-        self._jpeg: bool | None = None  # are the frames JPEG's? (from the first frame group)
 
     def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:
         """Range one zone from its frame groups; the result is for the zone's pose."""
@@ -549,15 +527,18 @@ class Ranger:
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         # How many of the frame groups each spot showed in, against how many it could have.
-        sightings = {id(m): (t.pooled or len(t.found), sum(name in g.lasers for g in groups))
+        sightings = {id(m): (len(t.found), sum(name in g.lasers for g in groups))
                      for name, ts in tracks.items() for t, m in zip(ts, cands[name])}
         refs = self._believable(cands.get(ref, []))
-        if not refs and tracks.get(ref) and not any(t.pooled for t in tracks[ref]):
-            # Faint blobs group by group, none a spot to believe: pooled, the views may hold the
-            # spot well above them.
+        if not refs:
+            # No spot group by group, or faint blobs none of which is one to believe: pooled, the
+            # views may hold the spot well above them. (The other lasers are not pooled: their
+            # faint pooled blobs, noise among them, confirmed a weak reference blob where nothing
+            # was: tuning-33, 0.38 m.)
             tracks[ref] = self._pooled(groups, ref)
             cands[ref] = [self._measure(t) for t in tracks[ref]]
-            sightings.update({id(m): (t.pooled, t.pooled) for t, m in zip(tracks[ref], cands[ref])})
+            shown = sum(ref in g.lasers for g in groups)
+            sightings.update({id(m): (shown, shown) for m in cands[ref]})  # one sighting of every view
             refs = self._believable(cands[ref])
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
@@ -654,22 +635,6 @@ class Ranger:
             fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),
         )
 
-    def _unsnapped(self, group: FrameGroup, found: dict[str, list[Candidate]]) -> dict[str, list[Candidate]]:
-        """JPEG frames: a spot placed on an 8 × 8 block's centre line is one whose light JPEG kept
-        only as the block's mean along that axis, and where in the block it was is lost: its σ
-        is the block's. (Tuning-12, quality 51: spots of a 352 px camera 0.6 px from the truth,
-        snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.)"""
-        if self._jpeg is None:
-            self._jpeg = jpeg_blockiness(group.off[0]) > JPEG_BLOCKINESS
-        if not self._jpeg:
-            return found
-        out = {}
-        for name, cands in found.items():
-            out[name] = [replace(c, sigma_px=max(c.sigma_px, BLOCK_SIGMA_PX))
-                         if any(abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in c.pixel.tolist()) else c
-                         for c in cands]
-        return out
-
     def _believable(self, refs: list[LaserMeasurement]) -> list[LaserMeasurement]:
         """The reference laser's spots that may be its spot."""
         if any(m.snr >= self.config.min_snr for m in refs):
@@ -707,11 +672,10 @@ class Ranger:
 
     def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[_Track]]:
         names = self.rig.laser_names  # (a property that builds the tuple)
-        reference = self.rig.reference.name
         tracks: dict[str, list[_Track]] = {name: [] for name in names}
         expected: dict[str, int] = {name: 0 for name in names}
         for group in groups:
-            found = self._deblend(group, self._unsnapped(group, self.finder.find(group.on, group.off, group.lasers)))
+            found = self._deblend(group, self.finder.find(group.on, group.off, group.lasers))
             for name, cands in found.items():
                 expected[name] += 1
                 for cand in cands:
@@ -736,13 +700,11 @@ class Ranger:
             kept = [t for t in ts if len(t.found) >= need]
             if len(kept) > 1:
                 kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
-            # Pooled for the reference alone: the other lasers' faint pooled blobs, noise among
-            # them, would confirm a weak reference blob (tuning-33: 0.38 m where nothing was).
-            out[name] = kept[:3] or (self._pooled(groups, name) if name == reference else [])
+            out[name] = kept[:3]
         return out
 
     def _pooled(self, groups: Sequence[FrameGroup], name: str) -> list[_Track]:
-        """`name`'s spots in the zone's frame groups pooled, where no group alone showed one.
+        """`name`'s spots in the zone's frame groups pooled, where no group alone showed one to believe.
 
         Camera and lasers turn together, so a spot stays at (nearly) the same pixel in every view
         of a zone while the room behind it shifts. The finder takes the mean of the laser-on
@@ -755,8 +717,8 @@ class Ranger:
         on = [f for g in mine for f in g.on]
         off = [f for g in mine for f in g.off]
         views = {g.view for g in mine}
-        found = self._unsnapped(mine[0], self.finder.find(on, off, [name])).get(name, [])
-        return [_Track(name, [c], set(views), len(mine)) for c in found][:3]
+        found = self.finder.find(on, off, [name]).get(name, [])
+        return [_Track(name, [c], set(views)) for c in found][:3]
 
     def _deblend(self, group: FrameGroup, found: dict[str, list[Candidate]]) -> dict[str, list[Candidate]]:
         """Where a laser's spot was not found but its path runs through another laser's blob, the

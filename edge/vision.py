@@ -19,7 +19,7 @@ import bisect
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -50,6 +50,13 @@ DEMOSAIC_SNAP_PX = 0.55
 DEMOSAIC_SNAP_SIZE_PX = 0.6
 # `auto` decides from this many frame groups (the median of their chroma correlations), then keeps it.
 AUTO_GROUPS = 8
+# JPEG frames: steps across the 8 × 8 blocks' boundaries this many times those inside blocks (1.27-16
+# for qualities 51-89 on the tuning family, at most 1.02 for frames never compressed, and for 90).
+JPEG_BLOCKINESS = 1.15
+# A spot placed within this of a block's centre line (px) is taken as snapped there, and placed only
+# to the block's width: 8/√12 px. (Uncompressed, a spot lands there by chance once in 200.)
+SNAP_PX = 0.02
+BLOCK_SIGMA_PX = 8.0 / math.sqrt(12.0)
 
 
 # Offsets (du, dv) of the neighbours of each background sample that are read too: the noise's
@@ -68,6 +75,19 @@ BAYER_CONTRAST = 1.25
 _STRETCH = 48
 # A pixel at this fraction of full scale in a laser-on frame is taken as clipped.
 _SATURATED = 0.985
+
+
+def jpeg_blockiness(image: np.ndarray) -> float:
+    """How much larger a frame's steps across the 8 × 8 block boundaries are than inside blocks
+    (1 for a frame that never was JPEG)."""
+    g = image.astype(np.float32) if image.ndim == 2 else image[..., :3].astype(np.float32).mean(axis=2)
+    dx = np.abs(np.diff(g, axis=1))
+    dy = np.abs(np.diff(g, axis=0))
+    inner_x = (dx.sum() - dx[:, 7::8].sum()) / max(dx.size - dx[:, 7::8].size, 1)
+    inner_y = (dy.sum() - dy[7::8, :].sum()) / max(dy.size - dy[7::8, :].size, 1)
+    bx = float(dx[:, 7::8].mean()) / max(float(inner_x), 1e-9)
+    by = float(dy[7::8, :].mean()) / max(float(inner_y), 1e-9)
+    return 0.5 * (bx + by)
 
 
 @functools.lru_cache(maxsize=16)
@@ -349,6 +369,7 @@ class SpotFinder:
         # Window half-size for localisation; it grows for big spots.
         self._radius = 4
         self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
+        self._jpeg: bool | None = None  # are the frames JPEG's? (from the first laser-off frame)
 
     def _band(self, laser: Laser) -> _Band:
         cam = self.rig.camera
@@ -543,9 +564,21 @@ class SpotFinder:
                 cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
                                     mf, texture, scales)
                 if cand is not None:
-                    out.append(cand)
+                    out.append(self._unsnapped(cand, off[0]))
             found[name] = out
         return found
+
+    def _unsnapped(self, cand: Candidate, off: np.ndarray) -> Candidate:
+        """JPEG frames: a spot placed on an 8 × 8 block's centre line is one whose light JPEG kept
+        only as the block's mean along that axis, and where in the block it was is lost: its σ
+        is the block's. (Tuning-12, quality 51: spots of a 352 px camera 0.6 px from the truth,
+        snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.) Whether the frames are
+        JPEG's is told once, by the first laser-off frame."""
+        if self._jpeg is None:
+            self._jpeg = jpeg_blockiness(off) > JPEG_BLOCKINESS
+        if self._jpeg and any(abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in cand.pixel.tolist()):
+            return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX))
+        return cand
 
     @property
     def spot_radius_px(self) -> float:

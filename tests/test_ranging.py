@@ -25,7 +25,6 @@ from edge.ranging import (
     RangingConfig,
     best_fusion,
     fuse,
-    jpeg_blockiness,
     level_slopes,
     measure,
     triangulate,
@@ -33,7 +32,7 @@ from edge.ranging import (
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Rig, default_rig
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
-from edge.vision import Candidate
+from edge.vision import Candidate, jpeg_blockiness
 
 
 def _laser(ox: float, oy: float, ax: float, ay: float, name: str = "l") -> Laser:
