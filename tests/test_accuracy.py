@@ -265,6 +265,42 @@ def test_a_spot_that_jpeg_rounds_away_is_not_observable_in_its_frames() -> None:
     assert OBSERVABLE_SNR <= frame_snr(mean_differences([jpeg[0]], [jpeg[1]]), (100.3, 80.6), []) < 30.0
 
 
+def test_a_spot_stands_against_the_noise_around_it() -> None:
+    """A dim spot on a patch of noisy texture (a bright window's shot noise, JPEG's rounding of a
+    textured wall) in an otherwise quiet, dark frame: against the frame's noise it would look
+    plain; against the noise where it is, it is not observable."""
+    from edge.accuracy.observe import frame_snr, mean_differences
+
+    rng = np.random.default_rng(5)
+    v, u = np.mgrid[0:240, 0:320]
+    spot = 8.0 * np.exp(-((u - 100.3) ** 2 + (v - 80.6) ** 2) / (2 * 1.6**2))
+    sd = np.where((abs(u - 100) < 60) & (abs(v - 80) < 60), 6.0, 0.5)[..., None]
+    frames = []
+    for lit in (spot, 0.0):
+        img = 60.0 + sd * rng.normal(0.0, 1.0, (240, 320, 3))
+        img[..., 2] += lit
+        frames.append(np.clip(np.rint(img), 0, 255).astype(np.uint8))
+    assert frame_snr(mean_differences([frames[0]], [frames[1]]), (100.3, 80.6), []) < OBSERVABLE_SNR
+
+
+def test_a_hidden_spot_beside_a_bright_one_is_not_observable_by_its_light() -> None:
+    """The reference's beam hidden, another laser's bright spot 8.5 px away: the filters wide
+    enough to reach that spot would read its light as the reference's (tuning-65 zone 16, SNR 100
+    where the renderer's was 0.2)."""
+    from edge.accuracy.observe import frame_snr, mean_differences
+
+    rng = np.random.default_rng(6)
+    v, u = np.mgrid[0:160, 0:200]
+    neighbour = 200.0 * np.exp(-((u - 108.8) ** 2 + (v - 80.6) ** 2) / (2 * 1.6**2))
+    frames = []
+    for lit in (neighbour, 0.0):
+        img = 40.0 + rng.normal(0.0, 2.0, (160, 200, 3))
+        img[..., 2] += lit
+        frames.append(np.clip(np.rint(img), 0, 255).astype(np.uint8))
+    snr = frame_snr(mean_differences([frames[0]], [frames[1]]), (100.3, 80.6), [(108.8, 80.6)])
+    assert snr < OBSERVABLE_SNR
+
+
 def test_coverage_counts_the_zones_observable_in_their_frames() -> None:
     seen = ZoneOutcome(0, "no_spot", None, None, 2.0, True, 0.01, 30.0, frame_snr=3.0)
     assert seen.observable_model and not seen.observable

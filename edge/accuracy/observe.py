@@ -20,9 +20,14 @@ import numpy as np
 
 # Matched filters: Gaussians of these σ (px), for focused to defocused spots; the best one counts.
 TEMPLATE_SIGMAS_PX = (0.8, 1.6, 3.2)
-# Background responses are sampled on a grid of this pitch (px), this far from any laser's spot.
+# Background responses are sampled on a grid of this pitch (px), this far from any laser's spot,
+# within _NEAR_PX of the spot where at least _MIN_SAMPLES points are (else the whole frame): noise is
+# not the same across a frame (a window's shot noise, JPEG's rounding of dark flat walls to exactly
+# nothing beside its rounding of textured ones), and a spot stands against the noise where it is.
 _PITCH = 12
 _CLEAR_PX = 14.0
+_NEAR_PX = 72.0
+_MIN_SAMPLES = 30
 
 
 # Where a red laser's spot is in a BGR frame: red, or luma (JPEG 4:2:0 keeps red at half
@@ -57,8 +62,9 @@ def mean_differences(on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> lis
 def frame_snr(diffs: Sequence[Difference], pixel: Sequence[float], avoid: Sequence[Sequence[float]]) -> float:
     """The best matched-filter SNR of a spot at `pixel` (u, v) in the difference images `diffs`
     (planes of one): the filter's response there over the robust spread of its responses on a
-    grid of background points (none within 14 px of `pixel` or of any point of `avoid`, the other
-    spots). 0 when the pixel is outside the image or the background shows no noise."""
+    grid of background points around it (none within 14 px of `pixel` or of any point of `avoid`,
+    the other spots); filters wide enough to reach another spot are not tried (the narrowest
+    always is). 0 when the pixel is outside the image or the background shows no noise."""
     return max((_snr(d, pixel, avoid) for d in diffs), default=0.0)
 
 
@@ -74,11 +80,20 @@ def _snr(d: Difference, pixel: Sequence[float], avoid: Sequence[Sequence[float]]
     for a in (pixel, *avoid):
         keep &= np.hypot(gu - float(a[0]), gv - float(a[1])) > _CLEAR_PX
     gu, gv = gu[keep], gv[keep]
-    if gu.size < 30:
+    if gu.size < _MIN_SAMPLES:
         return 0.0
+    near = np.hypot(gu - float(pixel[0]), gv - float(pixel[1])) <= _NEAR_PX
+    if np.count_nonzero(near) >= _MIN_SAMPLES:
+        gu, gv = gu[near], gv[near]
+    # The closest other spot: a filter that reaches it measures its light, not this spot's (a
+    # hidden reference beside a bright neighbour 8 px away read SNR 100).
+    gap = min((math.dist((float(a[0]), float(a[1])), (float(pixel[0]), float(pixel[1]))) for a in avoid),
+              default=math.inf)
     best = 0.0
     for sigma in TEMPLATE_SIGMAS_PX:
         r = int(np.ceil(3.0 * sigma))
+        if sigma > TEMPLATE_SIGMAS_PX[0] and r + 2.0 > gap:
+            continue
         g = cv2.getGaussianKernel(2 * r + 1, sigma).astype(np.float32)
         response = cv2.sepFilter2D(diff, cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT)
         background = response[gv, gu]
