@@ -334,8 +334,10 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
     g = slope_y
     weights, carried = [], []
     for m in ms:
-        dy = m.point_m.item(1) - ry
-        model = surface_sigma_per_m * math.hypot(m.point_m.item(0) - rx, dy)
+        dx, dy = m.point_m.item(0) - rx, m.point_m.item(1) - ry
+        # The known slope is across the lasers' column (dz/dy); a wall seen obliquely also slopes
+        # along x, where a rig's lasers, mounted a few tenths of a degree off, hit 1-2 cm apart.
+        model = math.hypot(surface_sigma_per_m * math.hypot(dx, dy), _ACROSS_SLOPE * dx)
         weights.append(1.0 / (max(m.sigma_m, 1e-9) ** 2 + model * model))
         carried.append((m.depth_m, g * dy))
     total = sum(weights)
@@ -378,6 +380,11 @@ def _point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
     t = z - m.depth_m
     (px, py, pz), (bx, by, bz) = m.point_m.tolist(), m.beam_dir.tolist()
     return np.array((px + t * bx / bz, py + t * by / bz, pz + t * bz / bz))
+
+
+# The slope dz/dx of a surface across the lasers' column, which no known slope gives (a wall seen
+# at any angle in pan), taken as this much (1 σ) in a fusion by a known slope.
+_ACROSS_SLOPE = 1.0
 
 
 # A known slope is used while the surface it stands for is seen at most this obliquely in the
@@ -609,6 +616,10 @@ class Ranger:
             else fuse(rig, chosen, ())
         )
         fusion = scatter_grown(fusion)
+        common = self.finder.common_px
+        if common and len(fusion.used) > 1 and chosen.sigma_px > 0:
+            # What the frames' pipeline moves every spot by alike, fusing them does not average.
+            fusion = replace(fusion, sigma_m=math.hypot(fusion.sigma_m, common * chosen.sigma_m / chosen.sigma_px))
         if len(fusion.used) == 1 and any(others.values()):
             # No other laser agrees with the reference spot. A strong spot may still be right (an
             # edge between the beams), but not if the others agree among themselves elsewhere,

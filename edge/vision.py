@@ -57,6 +57,10 @@ JPEG_BLOCKINESS = 1.15
 # to the block's width: 8/√12 px. (Uncompressed, a spot lands there by chance once in 200.)
 SNAP_PX = 0.02
 BLOCK_SIGMA_PX = 8.0 / math.sqrt(12.0)
+# What JPEG's blocks pull a spot by in common with the other lasers' spots (1 σ, px): the lasers sit
+# in one column of the image, so in one column of blocks, and their errors along the rows correlate
+# (0.2-0.36 on the tuning family, about 0.1-0.18 px in common); lossless frames' do not (below 0.02).
+JPEG_COMMON_PX = 0.15
 
 
 # Offsets (du, dv) of the neighbours of each background sample that are read too: the noise's
@@ -579,6 +583,12 @@ class SpotFinder:
         if self._jpeg and any(abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in cand.pixel.tolist()):
             return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX))
         return cand
+
+    @property
+    def common_px(self) -> float:
+        """The part of every spot's position error that the frames' pipeline shares among the
+        lasers' spots (px): JPEG_COMMON_PX in JPEG frames, 0 in others (or before any frame)."""
+        return JPEG_COMMON_PX if self._jpeg else 0.0
 
     @property
     def spot_radius_px(self) -> float:

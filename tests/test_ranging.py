@@ -133,6 +133,44 @@ def test_a_fusion_of_lasers_that_scatter_more_than_their_sigma_says_is_known_les
     assert abs(grown.range_m - 2.0) <= 2 * grown.sigma_m
 
 
+def test_a_wall_seen_obliquely_is_fused_within_sigma_when_a_laser_hits_aside() -> None:
+    """A wall at 56° in pan (dz/dx 1.5) and the parallel laser mounted 0.8° off in x, so that its
+    spot is 3 cm aside of the others': a known slope across the lasers' column says nothing of the
+    slope along x, and the fused σ must allow for it (without: 2.8σ off, as tuning-176's 3σ)."""
+    rig = default_rig()
+    tilt = math.tan(math.radians(-0.8))
+    lasers = tuple(laser if laser.name != "parallel" else _laser(laser.o[0], laser.o[1], tilt, 0.0, laser.name)
+                   for laser in rig.lasers)
+    rig = replace(rig, lasers=lasers)
+    ms = []
+    for laser in rig.lasers:
+        o, d = np.asarray(laser.o, float), np.asarray(laser.d, float)
+        s = (2.0 + 1.5 * o[0] - o[2]) / (d[2] - 1.5 * d[0])  # the plane z = 2 + 1.5 x
+        ms.append(measure(laser, rig.camera, np.array(rig.camera.project(o + s * d)), 0.08, 50.0, 2))
+    truth = ms[0].depth_m
+    fused = fuse(rig, ms[0], ms[1:], slopes=False)
+    assert abs(ms[1].point_m[0] - ms[0].point_m[0]) > 0.025
+    assert fused.consistent and abs(fused.range_m - truth) <= 2 * fused.sigma_m
+
+
+def test_jpeg_frames_keep_what_their_blocks_pull_in_common_out_of_the_fused_sigma() -> None:
+    """The lasers' spots lie in one column of JPEG's blocks, which pull them alike: fusing them
+    does not average that part. Lossless frames have none."""
+    from edge.vision import JPEG_COMMON_PX
+
+    config = load_config(None, ["sim.sensor.jpeg_quality=70"])
+    renderer = Renderer(flat_target_scene(2.0), config.rig.build(), config.sim)
+    ranger = Ranger(renderer.rig)
+    result = ranger.range_zone(0, 0.0, 0.0, _render_groups(renderer))
+    assert result.status == OK and len(result.lasers) == 3
+    ref = result.lasers["center"]
+    assert ranger.finder.common_px == JPEG_COMMON_PX
+    assert result.sigma_m >= JPEG_COMMON_PX * ref.sigma_m / ref.sigma_px
+    lossless = Ranger(_wall(2.0).rig)
+    lossless.range_zone(0, 0.0, 0.0, _render_groups(_wall(2.0)))
+    assert lossless.finder.common_px == 0.0
+
+
 def test_the_known_slopes_are_a_walls_and_a_floors_at_the_units_tilt() -> None:
     rig = default_rig()
     assert level_slopes(rig.camera_to_base(25.0, 0.0)) == (0.0,)  # level: z = a, as before; no floor across the lasers
