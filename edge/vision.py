@@ -745,7 +745,7 @@ class SpotFinder:
         `bright` and `dim` each peak's detection score as a bright pixel and by the matched filter
         (1: at the threshold), `score` the larger."""
         if peaks.size > 1:
-            peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
+            peaks = peaks[score[peaks].argsort()[::-1]][: 4 * max_candidates]  # (np.argsort, without its wrapper)
         seeds: list[tuple[int, int, float, int, float, float]] = []
         # (Values read with .item(): plain Python numbers, which compare and convert far faster than
         # numpy's scalars; float32 to float is exact, so every comparison is as before.)
