@@ -351,6 +351,7 @@ class SpotFinder:
             start += band.v.shape[0]
         # Each path sample's stretch of _STRETCH samples (the last stretch takes the rest), for `_local`.
         self._stretch = np.minimum(np.arange(start) // _STRETCH, max(1, start // _STRETCH) - 1)
+        self._stretch_counts = np.bincount(self._stretch)  # how many samples each stretch has
         start *= self._strip_width
         self._bg_slice = slice(start, start + self._bg_v.size)
         start += self._bg_v.size
@@ -441,7 +442,7 @@ class SpotFinder:
         for image in frames:
             if image.shape[0] != cam.height or image.shape[1] != cam.width:
                 raise ValueError(f"a {image.shape[1]}x{image.shape[0]} frame for a {cam.width}x{cam.height} camera")
-            flat = image.reshape(-1) if image.flags.c_contiguous else np.ascontiguousarray(image).reshape(-1)
+            flat = image.reshape(-1)  # (a view, or for a frame that is not contiguous a copy in C order)
             for index, weight in self._flat_index(image):
                 # Every index is inside a frame of the camera's size (checked above; `_band` clips
                 # the strips, the background grid keeps its neighbours inside): mode="wrap" reads
@@ -726,14 +727,16 @@ class SpotFinder:
         dev = flt - box_level[None, :, None]
         np.abs(dev, out=dev)
         box_noise = np.minimum(dev, 4.0 * box_floor, out=dev).sum(axis=(0, 2)) * (1.2533 / per)
-        which = self._stretch if self._stretch.size == n else np.minimum(np.arange(n) // block, nb - 1)
+        # Each stretch's value repeated over its samples: the same as .take() of each sample's
+        # stretch, for half the instructions (a run of copies, not an index read per sample).
+        count = (self._stretch_counts if self._stretch.size == n
+                 else np.bincount(np.minimum(np.arange(n) // block, nb - 1), minlength=nb))
         # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
         # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
         # own neighbourhood hides it.
-        # (take: fancy indexing's result, with less overhead)
-        local_pix = np.sqrt(np.maximum(pix_noise, noise) * noise).take(which)
-        local_box = np.maximum(box_noise, box_floor).take(which)
-        score = (box.max(axis=0) - box_level.take(which)) / local_box
+        local_pix = np.sqrt(np.maximum(pix_noise, noise) * noise).repeat(count)
+        local_box = np.maximum(box_noise, box_floor).repeat(count)
+        score = (box.max(axis=0) - box_level.repeat(count)) / local_box
         return local_pix, score, box
 
     def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, local_noise, matched, on, off,
