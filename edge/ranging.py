@@ -241,7 +241,9 @@ def _beam_dir(direction: tuple[float, float, float]) -> np.ndarray:
 # --- fusion -----------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+# Not frozen (never changed once made; `replace` makes a new one): a frozen dataclass costs 4 × as
+# much to build (vision.Candidate), and every zone makes one or more.
+@dataclass
 class Fusion:
     range_m: float
     sigma_m: float

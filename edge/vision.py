@@ -252,7 +252,10 @@ def _border_index(size: int) -> np.ndarray:
     return np.flatnonzero(ring)
 
 
-@dataclass(frozen=True)
+# Not frozen, though never changed once made (`replace` makes a new one): a frozen dataclass's
+# __init__ sets each field through object.__setattr__, which made building one cost 4 × as much
+# (issue 15: one is made for every spot of every frame group).
+@dataclass
 class Candidate:
     """A spot found on one laser's path in one frame group."""
 
@@ -267,7 +270,8 @@ class Candidate:
     misfit: float = 1.0  # χ² per degree of freedom of a Gaussian fitted to the spot (1: it fits)
 
 
-@dataclass(frozen=True)
+# Not frozen (never changed once made): a frozen dataclass costs 4 × as much to build; see Candidate.
+@dataclass
 class _Texture:
     """How the difference image's noise is structured (:meth:`SpotFinder._texture`)."""
 
