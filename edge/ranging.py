@@ -676,7 +676,7 @@ class Ranger:
         return ZoneResult(index, pan, tilt, status, lasers=lasers, detail=detail, spotted=_spotted(cands))
 
     def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[_Track]]:
-        names = self.rig.laser_names  # (a property that builds the tuple)
+        names = self._lasers  # the rig's laser names, in order (rig.laser_names builds a tuple each time)
         tracks: dict[str, list[_Track]] = {name: [] for name in names}
         expected: dict[str, int] = {name: 0 for name in names}
         for group in groups:

@@ -517,7 +517,8 @@ class SpotFinder:
         # (ndarray.dot: the same BLAS dot as @, with less overhead; so below)
         denom = float(boff.dot(boff))
         gain = float(bon.dot(boff)) / denom if denom > 0 else 1.0
-        off_level = float(boff.sum()) / boff.size if boff.size else 0.0  # (before boff is scaled below)
+        # (np.add.reduce: ndarray.sum's own reduction, without its Python wrapper)
+        off_level = float(np.add.reduce(boff)) / boff.size if boff.size else 0.0  # (before boff is scaled below)
         # on − gain·off, in place: two fewer arrays of every strip and background pixel
         off_vals *= gain
         diff = np.subtract(on_vals, off_vals, out=on_vals)
@@ -526,9 +527,12 @@ class SpotFinder:
         centre = 0.0
         if bg.size:
             mid = bg.size // 2
-            centre = _kth(bg.copy(), mid)
-            dev = np.abs(bg - centre)
-            noise = 1.4826 * _kth(dev, mid)
+            work = bg.copy()
+            centre = _kth(work, mid)
+            # The deviations in the same buffer: its order (reordered by the partition) changes no
+            # k-th smallest, and one array fewer is made.
+            np.abs(np.subtract(work, centre, out=work), out=work)
+            noise = 1.4826 * _kth(work, mid)
         else:
             noise = 0.0
         noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
