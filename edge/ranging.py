@@ -202,7 +202,7 @@ def measure(
     laser: Laser, camera: CameraModel, pixel: np.ndarray, sigma_px: float, snr: float, views: int
 ) -> LaserMeasurement:
     """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
-    u, v = float(pixel[0]), float(pixel[1])
+    u, v = pixel.tolist()  # (plain floats: cheaper than numpy's)
     o, d = laser.origin_m, laser.direction
     if any(camera.dist):  # camera.distorted (a float is true unless 0), without its generator
         h = 0.05  # central differences: depth is strongly convex in the pixel far away
@@ -243,7 +243,9 @@ def _beam_dir(direction: tuple[float, float, float]) -> np.ndarray:
 # --- fusion -----------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+# Not frozen (never changed once made; `replace` makes a new one): a frozen dataclass costs 4 × as
+# much to build (vision.Candidate), and every zone makes one or more.
+@dataclass
 class Fusion:
     range_m: float
     sigma_m: float
@@ -399,19 +401,21 @@ def level_slopes(to_base: Pose) -> tuple[float, ...]:
     wall's slope is 0 (z = a) and a floor's is not seen across the lasers' column; tilted by t, a
     wall's is ±tan t and a floor's ∓cot t. The lasers' column is vertical in the camera, so the
     slope across it (dz/dx) is not needed."""
-    up = to_base.R.T @ np.array([0.0, 0.0, 1.0])  # base's up, in the camera
+    # Base's up in the camera, R.T·(0, 0, 1): R's last row, as plain floats (cheaper than numpy's).
+    _, up_y, up_z = to_base.R[2].tolist()
     out = []
-    if abs(up[1]) > 1e-9 and abs(up[2] / up[1]) <= _MAX_KNOWN_SLOPE:
-        out.append(0.0 if abs(up[2]) < 1e-9 else float(up[2] / up[1]))  # contains up: z changes by up_z per up_y
-    if abs(up[2]) > 1e-9 and abs(up[1] / up[2]) <= _MAX_KNOWN_SLOPE:
-        out.append(float(-up[1] / up[2]))  # normal up: up·p constant
+    if abs(up_y) > 1e-9 and abs(up_z / up_y) <= _MAX_KNOWN_SLOPE:
+        out.append(0.0 if abs(up_z) < 1e-9 else up_z / up_y)  # contains up: z changes by up_z per up_y
+    if abs(up_z) > 1e-9 and abs(up_y / up_z) <= _MAX_KNOWN_SLOPE:
+        out.append(-up_y / up_z)  # normal up: up·p constant
     return tuple(out) or (0.0,)
 
 
 def _pair_plausible(a: LaserMeasurement, b: LaserMeasurement) -> bool:
     """Could two spots lie on one surface? Their depth change across their separation must be a
     slope a surface can have while both lasers still light it."""
-    sep = math.hypot(float(a.point_m[0] - b.point_m[0]), float(a.point_m[1] - b.point_m[1]))
+    (ax, ay, _), (bx, by, _) = a.point_m.tolist(), b.point_m.tolist()  # (plain floats: cheaper than numpy's)
+    sep = math.hypot(ax - bx, ay - by)
     dz = abs(a.depth_m - b.depth_m) - 3.0 * math.hypot(a.sigma_m, b.sigma_m)
     return dz <= _MAX_SLOPE * max(sep, 1e-3)
 
@@ -500,7 +504,8 @@ def _spotted(cands: Mapping[str, Sequence[LaserMeasurement]]) -> frozenset[str]:
 
 
 def _same_blob(a: LaserMeasurement, b: LaserMeasurement) -> bool:
-    return math.hypot(float(a.pixel[0] - b.pixel[0]), float(a.pixel[1] - b.pixel[1])) < 1.5
+    (au, av), (bu, bv) = a.pixel.tolist(), b.pixel.tolist()  # (plain floats: cheaper than numpy's)
+    return math.hypot(au - bu, av - bv) < 1.5
 
 
 # --- the estimator -----------------------------------------------------------------------------
@@ -713,7 +718,7 @@ class Ranger:
         return ZoneResult(index, pan, tilt, status, lasers=lasers, detail=detail, spotted=_spotted(cands))
 
     def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[_Track]]:
-        names = self.rig.laser_names  # (a property that builds the tuple)
+        names = self._lasers  # the rig's laser names, in order (rig.laser_names builds a tuple each time)
         tracks: dict[str, list[_Track]] = {name: [] for name in names}
         expected: dict[str, int] = {name: 0 for name in names}
         for group in groups:
@@ -786,12 +791,16 @@ class Ranger:
         """`name`'s blob `c` and `other`'s spot in it, fitted together; None where `other` has a
         spot of its own nearby, its path does not pass through the blob, or the fit finds no two
         spots."""
-        if other == name or any(math.dist(o.pixel.tolist(), c.pixel.tolist()) < 2 * DEBLEND_PX
-                                for o in found[other]):
+        if other == name:
             return None
-        u, v = int(round(float(c.pixel[0]))), int(round(float(c.pixel[1])))
+        # The path's mask before the distances to `other`'s spots: one lookup, and most blobs lie
+        # on no other laser's path. (Plain floats: cheaper than numpy's scalars.)
+        cu, cv = c.pixel.tolist()
+        u, v = int(round(cu)), int(round(cv))
         near = self._near_path[other]
-        if not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near[v, u]):
+        if not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
+            return None
+        if any(math.dist(o.pixel.tolist(), (cu, cv)) < 2 * DEBLEND_PX for o in found[other]):
             return None
         gap, w_other = self.finder.nearest_on_path(other, c.pixel)
         if gap > DEBLEND_PX:

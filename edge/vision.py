@@ -256,7 +256,10 @@ def _border_index(size: int) -> np.ndarray:
     return np.flatnonzero(ring)
 
 
-@dataclass(frozen=True)
+# Not frozen, though never changed once made (`replace` makes a new one): a frozen dataclass's
+# __init__ sets each field through object.__setattr__, which made building one cost 4 × as much
+# (issue 15: one is made for every spot of every frame group).
+@dataclass
 class Candidate:
     """A spot found on one laser's path in one frame group."""
 
@@ -271,7 +274,8 @@ class Candidate:
     misfit: float = 1.0  # χ² per degree of freedom of a Gaussian fitted to the spot (1: it fits)
 
 
-@dataclass(frozen=True)
+# Not frozen (never changed once made): a frozen dataclass costs 4 × as much to build; see Candidate.
+@dataclass
 class _Texture:
     """How the difference image's noise is structured (:meth:`SpotFinder._texture`)."""
 
@@ -355,6 +359,7 @@ class SpotFinder:
             start += band.v.shape[0]
         # Each path sample's stretch of _STRETCH samples (the last stretch takes the rest), for `_local`.
         self._stretch = np.minimum(np.arange(start) // _STRETCH, max(1, start // _STRETCH) - 1)
+        self._stretch_counts = np.bincount(self._stretch)  # how many samples each stretch has
         start *= self._strip_width
         self._bg_slice = slice(start, start + self._bg_v.size)
         start += self._bg_v.size
@@ -445,15 +450,17 @@ class SpotFinder:
         for image in frames:
             if image.shape[0] != cam.height or image.shape[1] != cam.width:
                 raise ValueError(f"a {image.shape[1]}x{image.shape[0]} frame for a {cam.width}x{cam.height} camera")
-            flat = image.reshape(-1) if image.flags.c_contiguous else np.ascontiguousarray(image).reshape(-1)
+            flat = image.reshape(-1)  # (a view, or for a frame that is not contiguous a copy in C order)
             for index, weight in self._flat_index(image):
                 # Every index is inside a frame of the camera's size (checked above; `_band` clips
                 # the strips, the background grid keeps its neighbours inside): mode="wrap" reads
                 # the same pixels as the default "raise", whose bounds check costs a fifth of this.
                 # (astype, then scaling in place: the float32 product np.multiply(…, dtype=float32)
-                # makes, without its buffered casting loop)
+                # makes, without its buffered casting loop. A Python float, not np.float32: numpy
+                # casts it to the array's float32 all the same, and a numpy scalar operand costs
+                # a ufunc more to resolve; so throughout this module.)
                 values = flat.take(index, mode="wrap").astype(np.float32)
-                values *= np.float32(weight * scale)
+                values *= weight * scale
                 acc = values if acc is None else np.add(acc, values, out=acc)
         assert acc is not None
         return acc
@@ -466,7 +473,7 @@ class SpotFinder:
             return image[rows, cols, 2].astype(np.float32)
         return image[rows, cols, :3].astype(np.float32) @ np.array(self._weights, np.float32)
 
-    def _scaled(self, frames: Sequence[np.ndarray], rows, cols, scale: np.float32) -> np.ndarray:
+    def _scaled(self, frames: Sequence[np.ndarray], rows, cols, scale: float) -> np.ndarray:
         """The read channel of a region, summed over `frames` and times `scale` (float32)."""
         if len(frames) == 1 and (frames[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
             plane = frames[0][rows, cols] if frames[0].ndim == 2 else frames[0][rows, cols, 2]
@@ -514,18 +521,22 @@ class SpotFinder:
         # (ndarray.dot: the same BLAS dot as @, with less overhead; so below)
         denom = float(boff.dot(boff))
         gain = float(bon.dot(boff)) / denom if denom > 0 else 1.0
-        off_level = float(boff.sum()) / boff.size if boff.size else 0.0  # (before boff is scaled below)
+        # (np.add.reduce: ndarray.sum's own reduction, without its Python wrapper)
+        off_level = float(np.add.reduce(boff)) / boff.size if boff.size else 0.0  # (before boff is scaled below)
         # on − gain·off, in place: two fewer arrays of every strip and background pixel
-        off_vals *= np.float32(gain)
+        off_vals *= gain
         diff = np.subtract(on_vals, off_vals, out=on_vals)
         # Pixel noise of the difference, robustly (MAD), from the background sample.
         bg = diff[self._bg_slice]
         centre = 0.0
         if bg.size:
             mid = bg.size // 2
-            centre = _kth(bg.copy(), mid)
-            dev = np.abs(bg - np.float32(centre))
-            noise = 1.4826 * _kth(dev, mid)
+            work = bg.copy()
+            centre = _kth(work, mid)
+            # The deviations in the same buffer: its order (reordered by the partition) changes no
+            # k-th smallest, and one array fewer is made.
+            np.abs(np.subtract(work, centre, out=work), out=work)
+            noise = 1.4826 * _kth(work, mid)
         else:
             noise = 0.0
         noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
@@ -540,7 +551,7 @@ class SpotFinder:
         # A seed is a bright pixel (`min_snr` over the noise along that stretch of the path), or a
         # dim spot that the matched filter finds (MATCHED_SNR): every path's at once.
         bright = profile / (np.float32(self.min_snr) * local_noise)
-        dim = matched * np.float32(1.0 / MATCHED_SNR)
+        dim = matched * (1.0 / MATCHED_SNR)
         score = np.maximum(bright, dim)
         mid = score[1:-1]
         # (ndarray.nonzero: np.flatnonzero's indices without its two Python-level wrappers)
@@ -679,8 +690,8 @@ class SpotFinder:
         averages the others')."""
         if not self._bg_v.size or noise <= 0.0:
             return _Texture(1.0, 1.0, None)
-        lim = np.float32(5.0 * noise)
-        block = diff[self._near_block].reshape(1 + len(NEIGHBOURS), -1) - np.float32(centre)
+        lim = 5.0 * noise
+        block = diff[self._near_block].reshape(1 + len(NEIGHBOURS), -1) - centre
         samples = np.minimum(np.maximum(block, -lim, out=block), lim, out=block)
         d0 = samples[0]
         dots = samples.dot(d0)  # (6,): the variance, then each neighbour's covariance
@@ -727,21 +738,23 @@ class SpotFinder:
         pix = np.abs(strips[:: width - 1, :cut]).reshape(2, nb, -1)
         flt = box[:, :cut].reshape(width - 2, nb, -1)
         per = 2 * pix.shape[2]
-        pix_noise = np.minimum(pix, np.float32(6.0 * noise), out=pix).sum(axis=(0, 2)) * np.float32(1.2533 / per)
+        pix_noise = np.minimum(pix, 6.0 * noise, out=pix).sum(axis=(0, 2)) * (1.2533 / per)
         box_floor = np.float32(noise * 15.0**0.5)
         per = flt.shape[0] * flt.shape[2]
-        box_level = flt.sum(axis=(0, 2)) * np.float32(1.0 / per)
+        box_level = flt.sum(axis=(0, 2)) * (1.0 / per)
         dev = flt - box_level[None, :, None]
         np.abs(dev, out=dev)
-        box_noise = np.minimum(dev, 4.0 * box_floor, out=dev).sum(axis=(0, 2)) * np.float32(1.2533 / per)
-        which = self._stretch if self._stretch.size == n else np.minimum(np.arange(n) // block, nb - 1)
+        box_noise = np.minimum(dev, 4.0 * box_floor, out=dev).sum(axis=(0, 2)) * (1.2533 / per)
+        # Each stretch's value repeated over its samples: the same as .take() of each sample's
+        # stretch, for half the instructions (a run of copies, not an index read per sample).
+        count = (self._stretch_counts if self._stretch.size == n
+                 else np.bincount(np.minimum(np.arange(n) // block, nb - 1), minlength=nb))
         # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
         # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
         # own neighbourhood hides it.
-        # (take: fancy indexing's result, with less overhead)
-        local_pix = np.sqrt(np.maximum(pix_noise, np.float32(noise)) * np.float32(noise)).take(which)
-        local_box = np.maximum(box_noise, box_floor).take(which)
-        score = (box.max(axis=0) - box_level.take(which)) / local_box
+        local_pix = np.sqrt(np.maximum(pix_noise, noise) * noise).repeat(count)
+        local_box = np.maximum(box_noise, box_floor).repeat(count)
+        score = (box.max(axis=0) - box_level.repeat(count)) / local_box
         return local_pix, score, box
 
     def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, local_noise, matched, on, off,
@@ -753,7 +766,7 @@ class SpotFinder:
         `bright` and `dim` each peak's detection score as a bright pixel and by the matched filter
         (1: at the threshold), `score` the larger."""
         if peaks.size > 1:
-            peaks = peaks[np.argsort(score[peaks])[::-1]][: 4 * max_candidates]
+            peaks = peaks[score[peaks].argsort()[::-1]][: 4 * max_candidates]  # (np.argsort, without its wrapper)
         seeds: list[tuple[int, int, float, int, float, float]] = []
         # (Values read with .item(): plain Python numbers, which compare and convert far faster than
         # numpy's scalars; float32 to float is exact, so every comparison is as before.)
@@ -787,13 +800,13 @@ class SpotFinder:
         line = self._window(on, v, u) - np.float32(gain) * self._window(off, v, u)
         return float(line.min()) < 0.5 * peak
 
-    def _scales(self, on, off, gain) -> tuple[np.float32, np.float32]:
-        """What the laser-on and laser-off frames' sums are multiplied by for `_refine`'s windows."""
-        return (np.float32(1.0 / (len(on) * self.full_scale(on[0]))),
-                np.float32(gain / (len(off) * self.full_scale(off[0]))))
+    def _scales(self, on, off, gain) -> tuple[float, float]:
+        """What the laser-on and laser-off frames' sums are multiplied by for `_refine`'s windows
+        (as float32: numpy casts these to the windows' type)."""
+        return 1.0 / (len(on) * self.full_scale(on[0])), gain / (len(off) * self.full_scale(off[0]))
 
     def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak, matched=0.0,
-                texture: _Texture | None = None, scales: tuple[np.float32, np.float32] | None = None
+                texture: _Texture | None = None, scales: tuple[float, float] | None = None
                 ) -> Candidate | None:
         """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
         thresholded difference in a window, which is unbiased for a symmetric spot; the window
@@ -822,7 +835,8 @@ class SpotFinder:
             level = sorted(border.tolist())[border.size // 2]  # the median (faster than np.partition here)
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
-            signal = np.maximum(win - np.float32(level + 2.0 * noise), np.float32(0.0))
+            signal = win - (level + 2.0 * noise)
+            np.maximum(signal, 0.0, out=signal)
             offs = _offsets(r)
             rw = r  # this window's half-size (r may grow below for the next one)
             if others:
@@ -850,7 +864,7 @@ class SpotFinder:
             return None  # a lamp or a screen, not a pointer's spot
         saturated = lit >= _SATURATED
         clipped = np.count_nonzero(saturated) > 0  # (cheaper than .any() on a few dozen pixels)
-        above = win - np.float32(level)  # background-subtracted, not thresholded
+        above = win - level  # background-subtracted, not thresholded
         unsaturated = ~saturated if clipped else None
         usable = None if unsaturated is None else unsaturated if mine is None else unsaturated & mine
         if usable is None and mine is not None:
