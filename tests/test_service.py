@@ -223,7 +223,7 @@ def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, s
         mark = subscriber.mark()
         subscriber.wait_count(f"{P}/sweep", 3, timeout=300, since=mark)
         proc.send_signal(signal.SIGTERM)
-        finish(proc)
+        err = finish(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -237,11 +237,15 @@ def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, s
     docs = [payload(m) for m in subscriber.messages(f"{P}/sweep")]
     assert all(len(doc["zones"]) == 3 and doc["duration_s"] > 0 for doc in docs)
     assert len(made_while_down(docs, outages)) >= 5  # swept (and queued) while the broker was away
-    # What the process knew it had delivered left the queue; nothing is stuck in it.
+    # What the process knew it had delivered left the queue; nothing is stuck in it. Stopping, it
+    # sends what it can for a few seconds and says how many it leaves for the next start: a loaded
+    # machine may still be sending the last outage's backlog (137 left once, under CI's load).
+    import re
     import sqlite3
 
+    said = re.search(r"MQTT: (\d+) queued message\(s\) stay in the outbox", err)
     rows = sqlite3.connect(tmp_path / "state" / "outbox.sqlite3").execute("select count(*) from outbox").fetchone()
-    assert rows[0] == 0
+    assert rows[0] <= (int(said.group(1)) if said else 0), err[-2000:]
 
 
 @pytest.mark.slow
