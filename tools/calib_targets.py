@@ -141,7 +141,8 @@ def per_rig(rows: list[dict], names: list[str], j: int) -> str:
         if c is not None and p:
             combined.append(abs(c) / p)
     zs = np.array(z)
-    return (f"per rig: z rms {math.sqrt(float(np.mean(zs**2))):.2f}, |z| > 2 {100 * float(np.mean(np.abs(zs) > 2)):.0f} % "
+    rms, beyond = math.sqrt(float(np.mean(zs**2))), 100 * float(np.mean(np.abs(zs) > 2))
+    return (f"per rig: z rms {rms:.2f}, |z| > 2 {beyond:.0f} % "
             f"(5 % expected); worst rig {worst[0]:.2f} (seed {worst[1]}); combined |z| max {max(combined):.2f}")
 
 
