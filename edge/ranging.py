@@ -483,6 +483,14 @@ def scatter_grown(fusion: Fusion) -> Fusion:
     return replace(fusion, sigma_m=fusion.sigma_m * math.sqrt(fusion.chi2 / fusion.dof))
 
 
+def _rests_on_a_far_one(fusion: Fusion) -> bool:
+    """Is the reference confirmed by one other laser alone, whose spot is far from it (10 cm)?"""
+    if len(fusion.used) != 2:
+        return len(fusion.used) < 2
+    a, b = fusion.used
+    return math.hypot(a.point_m.item(0) - b.point_m.item(0), a.point_m.item(1) - b.point_m.item(1)) > 0.1
+
+
 def _one_answer(fusions: Sequence[Fusion]) -> bool:
     """Whether fusions of different reference blobs all give the same range (each pair within
     2σ of their difference)."""
@@ -642,7 +650,7 @@ class Ranger:
                 detail=f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found",
             )
         seen, shown = sightings[id(chosen)]
-        if seen < shown and chosen.snr < EDGE_MIN_SNR and (len(fusion.used) < 3 or all(
+        if seen < shown and chosen.snr < EDGE_MIN_SNR and (_rests_on_a_far_one(fusion) or all(
                 sightings[id(m)][0] < sightings[id(m)][1] for m in fusion.used[1:])):
             # A faint blob in one view, "confirmed" by others that show in that view alone: JPEG
             # turns a textured block's small change into a blob on every path through it, in
