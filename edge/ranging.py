@@ -47,6 +47,10 @@ EDGE_LIGHT_RATIO = 0.3
 # (and at least 1.5 px, at most TRACK_JOIN_MAX_PX).
 TRACK_JOIN_SIGMAS = 2.5
 TRACK_JOIN_MAX_PX = 3.0
+# Another laser's spot this far from the reference's (m) may be on another surface: the sloped
+# laser's is 17 cm per metre of range away, the parallel's 4 cm. A faint reference seen in some
+# views is not confirmed by such a far one alone (tuning-75, tuning-111: 11 % and 17 % off).
+FAR_LASER_M = 0.1
 # Two spots fitted together (edge.deblend) are fitted in a window of this half-size (px).
 DEBLEND_WINDOW_PX = 6
 # Their σ is the fit's, from its residual as if white, grown for the residual's correlation (JPEG's
@@ -484,11 +488,12 @@ def scatter_grown(fusion: Fusion) -> Fusion:
 
 
 def _rests_on_a_far_one(fusion: Fusion) -> bool:
-    """Is the reference confirmed by one other laser alone, whose spot is far from it (10 cm)?"""
+    """Is the reference confirmed by one other laser alone, whose spot is FAR_LASER_M or more
+    from it (or by none)?"""
     if len(fusion.used) != 2:
         return len(fusion.used) < 2
     a, b = fusion.used
-    return math.hypot(a.point_m.item(0) - b.point_m.item(0), a.point_m.item(1) - b.point_m.item(1)) > 0.1
+    return math.hypot(a.point_m.item(0) - b.point_m.item(0), a.point_m.item(1) - b.point_m.item(1)) > FAR_LASER_M
 
 
 def _one_answer(fusions: Sequence[Fusion]) -> bool:
