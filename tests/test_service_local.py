@@ -42,6 +42,18 @@ def _run_and_stop(service: Service, stop) -> dict[int, list[bool]]:
     return thread
 
 
+def _stop_after(service: Service, sweeps: int, bound_s: float) -> None:
+    """Ask `service` to stop once it has made `sweeps` sweeps (from a thread, while it runs);
+    `bound_s` bounds a failure, not a speed."""
+    def watch() -> None:
+        deadline = time.monotonic() + bound_s
+        while service.sweeps < sweeps and time.monotonic() < deadline:
+            time.sleep(0.05)
+        service.stop_requested.set()
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 @pytest.fixture
 def restore_signals():
     saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
@@ -88,13 +100,7 @@ def test_a_broken_laser_is_reported_and_the_guard_does_not_alarm(restore_signals
     service = _service('mode="guard"', "sweep.zones=16", "sweep.pan_step_deg=22.5", "guard.learn_sweeps=2",
                        f'sim.laser_faults=[{{laser="center", kind="{kind}"}}]')
 
-    def stop_after_sweeps() -> None:
-        deadline = time.monotonic() + 90
-        while service.sweeps < 4 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        service.stop_requested.set()
-
-    threading.Thread(target=stop_after_sweeps, daemon=True).start()
+    _stop_after(service, 4, 90)
     with caplog.at_level("INFO"):
         assert service.run() == 0
     assert service.sweeps >= 4  # two to learn the background, two watching
@@ -107,13 +113,7 @@ def test_a_broken_laser_is_reported_and_the_guard_does_not_alarm(restore_signals
 def test_working_lasers_raise_no_laser_fault(restore_signals):
     service = _service("sweep.zones=16", "sweep.pan_step_deg=22.5", "service.sweep_interval_s=0.1")
 
-    def stop_after_a_sweep() -> None:
-        deadline = time.monotonic() + 60
-        while service.sweeps < 1 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        service.stop_requested.set()
-
-    threading.Thread(target=stop_after_a_sweep, daemon=True).start()
+    _stop_after(service, 1, 60)
     assert service.run() == 0 and service.sweeps >= 1
     assert service.health.parts["lasers"] == "ok" and service.health.lasers.verdicts() == {}
 
@@ -150,13 +150,7 @@ def test_the_guard_ignores_someone_beyond_a_doorway_only_when_told_to(restore_si
             "sweep.pan_start_deg=-22.5", "guard.learn_sweeps=2"]
     service = _service(*sets, *([] if ignore is None else [f"guard.ignore_beyond_doorways={str(ignore).lower()}"]))
 
-    def stop_after_sweeps() -> None:
-        deadline = time.monotonic() + 300
-        while service.sweeps < 6 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        service.stop_requested.set()
-
-    threading.Thread(target=stop_after_sweeps, daemon=True).start()
+    _stop_after(service, 6, 300)
     with caplog.at_level("INFO"):
         assert service.run() == 0
     assert service.sweeps >= 6  # two to learn, then the passer-by for three or more
