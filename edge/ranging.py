@@ -415,11 +415,16 @@ def level_slopes(to_base: Pose) -> tuple[float, ...]:
     return tuple(out) or (0.0,)
 
 
+def _apart(a: LaserMeasurement, b: LaserMeasurement) -> float:
+    """How far apart two spots' points are across the view (x, y; m)."""
+    (ax, ay, _), (bx, by, _) = a.point_m.tolist(), b.point_m.tolist()  # (plain floats: cheaper than numpy's)
+    return math.hypot(ax - bx, ay - by)
+
+
 def _pair_plausible(a: LaserMeasurement, b: LaserMeasurement) -> bool:
     """Could two spots lie on one surface? Their depth change across their separation must be a
     slope a surface can have while both lasers still light it."""
-    (ax, ay, _), (bx, by, _) = a.point_m.tolist(), b.point_m.tolist()  # (plain floats: cheaper than numpy's)
-    sep = math.hypot(ax - bx, ay - by)
+    sep = _apart(a, b)
     dz = abs(a.depth_m - b.depth_m) - 3.0 * math.hypot(a.sigma_m, b.sigma_m)
     return dz <= _MAX_SLOPE * max(sep, 1e-3)
 
@@ -487,13 +492,22 @@ def scatter_grown(fusion: Fusion) -> Fusion:
     return replace(fusion, sigma_m=fusion.sigma_m * math.sqrt(fusion.chi2 / fusion.dof))
 
 
+def common_grown(fusion: Fusion, reference: LaserMeasurement, common_px: float) -> Fusion:
+    """`fusion` with what the frames' pipeline moves every spot by alike (`common_px`, of the
+    reference's spot: vision.SpotFinder.common_px) added to its σ: fusing spots does not average
+    it. A reference alone keeps its own σ, which holds it already."""
+    if not common_px or len(fusion.used) < 2 or reference.sigma_px <= 0:
+        return fusion
+    shared = common_px * reference.sigma_m / reference.sigma_px
+    return replace(fusion, sigma_m=math.hypot(fusion.sigma_m, shared))
+
+
 def _rests_on_a_far_one(fusion: Fusion) -> bool:
     """Is the reference confirmed by one other laser alone, whose spot is FAR_LASER_M or more
     from it (or by none)?"""
     if len(fusion.used) != 2:
         return len(fusion.used) < 2
-    a, b = fusion.used
-    return math.hypot(a.point_m.item(0) - b.point_m.item(0), a.point_m.item(1) - b.point_m.item(1)) > FAR_LASER_M
+    return _apart(*fusion.used) > FAR_LASER_M
 
 
 def _one_answer(fusions: Sequence[Fusion]) -> bool:
@@ -633,11 +647,7 @@ class Ranger:
             if self.config.fuse and others
             else fuse(rig, chosen, ())
         )
-        fusion = scatter_grown(fusion)
-        common = self.finder.common_px
-        if common and len(fusion.used) > 1 and chosen.sigma_px > 0:
-            # What the frames' pipeline moves every spot by alike, fusing them does not average.
-            fusion = replace(fusion, sigma_m=math.hypot(fusion.sigma_m, common * chosen.sigma_m / chosen.sigma_px))
+        fusion = common_grown(scatter_grown(fusion), chosen, self.finder.common_px)
         if len(fusion.used) == 1 and any(others.values()):
             # No other laser agrees with the reference spot. A strong spot may still be right (an
             # edge between the beams), but not if the others agree among themselves elsewhere,

@@ -23,6 +23,7 @@ from edge.calibration.fit import (
     DEBLEND_PX,
     SPLIT_PX,
     assign_spots,
+    closest_gap,
     clusters,
     located_together,
     one_per_zone,
@@ -92,7 +93,7 @@ def _deblend_predicted(recording: Recording, i: int, rig: Rig, dist: float,
             continue
         names = [rig.lasers[k].name for k in members]
         got = [p for n in names if (p := points[n].get(i)) is not None]
-        if len(got) == len(names) and min(_gaps(got)) >= SPLIT_PX:
+        if len(got) == len(names) and closest_gap(got) >= SPLIT_PX:
             continue  # found apart already
         seeds = np.array([predicted[k] for k in members])
         centre = seeds.mean(axis=0)
@@ -104,10 +105,6 @@ def _deblend_predicted(recording: Recording, i: int, rig: Rig, dist: float,
             continue
         for n, p in zip(names, located):
             points[n][i] = p
-
-
-def _gaps(pixels: list[np.ndarray]) -> list[float]:
-    return [float(np.linalg.norm(a - b)) for j, a in enumerate(pixels) for b in pixels[j + 1:]]
 
 
 def check_lines(zones: Sequence[CheckedZone], cal: Calibration) -> list[str]:

@@ -392,6 +392,12 @@ def _located_together(diff: np.ndarray, seeds: list[np.ndarray], var: np.ndarray
     return out
 
 
+def closest_gap(pixels: Sequence[np.ndarray]) -> float:
+    """The smallest distance between any two of `pixels` (px; inf for fewer than two)."""
+    return min((float(np.linalg.norm(a - b)) for i, a in enumerate(pixels) for b in pixels[i + 1:]),
+               default=math.inf)
+
+
 def clusters(points: list[np.ndarray], within: float) -> list[list[int]]:
     """Indices of `points` grouped by chains of neighbours nearer than `within`."""
     n = len(points)
@@ -505,8 +511,7 @@ def located_together(recording: Recording, zone_index: int, lasers: Sequence[str
         clipped = _clipped(g.on)
         spots = _located_together(diff, [np.asarray(p, dtype=float) for p in seeds],
                                   _variance(g.on, g.off, noise), (clipped, headroom) if clipped.any() else None)
-        if spots is not None and min(float(np.linalg.norm(a[0] - b[0]))
-                                     for i, a in enumerate(spots) for b in spots[i + 1:]) >= 1.0:
+        if spots is not None and closest_gap([p for p, _ in spots]) >= 1.0:
             got.append(np.array([p for p, _ in spots]))
     return None if not got else list(np.mean(got, axis=0))
 
