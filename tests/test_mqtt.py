@@ -238,7 +238,10 @@ def test_a_snapshot_goes_out_at_most_twice_a_second_and_its_latest_value_always(
     times = sent[T.state]
     assert len(times) == len(seen) and len(times) <= (ended - began) / SNAPSHOT_INTERVAL_S + 2
     gaps = [b - a for a, b in zip(times, times[1:])]
-    assert min(gaps) >= SNAPSHOT_INTERVAL_S, gaps
+    # The link keeps SNAPSHOT_INTERVAL_S between the clock readings it decides by; `sends_of` reads
+    # the clock a moment later, when paho is called, and that moment varies with the thread's
+    # scheduling (a gap of 0.59998 s once, in CI). Values sent as fast as they come would be 0.025 s.
+    assert min(gaps) >= SNAPSHOT_INTERVAL_S - 0.05, gaps
     # A longer interval asked for holds a value back longer; a value that changed much, asked with a
     # shorter one, brings the time forward (never below the floor).
     link.publish_snapshot("distance", {"active": True, "range_m": 1.0}, min_interval_s=1.0)  # out at once
