@@ -338,12 +338,15 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
     # (.item: plain floats, which numpy's scalars cost several times more to make)
     rx, ry = reference.point_m.item(0), reference.point_m.item(1)
     g = slope_y
+    # A surface's slope g = dz/dy is cot of the angle it is seen at: a tilt of δθ moves it by
+    # (1 + g²)·δθ, so a floor seen at a grazing angle has a slope known only roughly.
+    per_m = surface_sigma_per_m * (1.0 + g * g)
     weights, carried = [], []
     for m in ms:
         dx, dy = m.point_m.item(0) - rx, m.point_m.item(1) - ry
         # The known slope is across the lasers' column (dz/dy); a wall seen obliquely also slopes
         # along x, where a rig's lasers, mounted a few tenths of a degree off, hit 1-2 cm apart.
-        model = math.hypot(surface_sigma_per_m * math.hypot(dx, dy), _ACROSS_SLOPE * dx)
+        model = math.hypot(per_m * math.hypot(dx, dy), _ACROSS_SLOPE * dx)
         weights.append(1.0 / (max(m.sigma_m, 1e-9) ** 2 + model * model))
         carried.append((m.depth_m, g * dy))
     total = sum(weights)
@@ -442,7 +445,11 @@ def best_fusion(
     from :func:`level_slopes`: at a level pose, z = a, a surface facing the camera across the
     lasers; tilted, a wall's or a floor's slope), the strongest model; failing that, all lasers on
     a sloped plane, which has fewer checks; failing both, the reference alone. A set counts only if
-    every pair is plausible on one surface and χ² accepts it.
+    every pair is plausible on one surface and χ² accepts it; of the sets of the most lasers that
+    count, the one that places the reference best (least σ). Not the least χ²: beside a loose
+    reference spot any one other laser fits, and the least χ² then chose by chance between the
+    parallel laser 5 cm away on a wall and the sloped laser 30 cm away carried through a floor's
+    slope (tuning-239, a wall's foot: 11 % off).
     """
     names = [n for n, ms in others.items() if ms]
     for slopes in (False, True):
@@ -457,7 +464,7 @@ def best_fusion(
                         continue
                     for g in ((0.0,) if slopes else slopes_y):
                         fusion = fuse(rig, reference, choice, slopes, surface_sigma_per_m, g)
-                        if fusion.dof > 0 and fusion.consistent and (best is None or fusion.chi2 < best.chi2):
+                        if fusion.dof > 0 and fusion.consistent and (best is None or fusion.sigma_m < best.sigma_m):
                             best = fusion
             if best is not None:
                 return best

@@ -206,6 +206,50 @@ def test_a_floor_or_a_wall_seen_tilted_is_fused_without_bias(surface: str) -> No
         assert abs(as_facing.range_m - 1.6) > 0.015  # what it was
 
 
+@pytest.mark.parametrize("off_level_deg", [-1.5, 1.5])
+def test_a_far_spot_carried_through_a_floor_seen_at_a_grazing_angle_keeps_an_honest_sigma(off_level_deg: float) -> None:
+    """Tilted 20° down, a floor's slope in the camera is cot 20° = 2.75, and a floor 1.5° off level
+    (a ramp, or the unit's tilt read 1.5° off) changes it by (1 + 2.75²)·1.5° = 0.22: the sloped
+    laser's spot, 24 cm from the reference's, is carried to it 5 cm wrong. With the surface's
+    uncertainty taken as the same for every slope, the fused range was 2.3-2.5 % off at 2.0-2.3σ."""
+    rig = default_rig()
+    pose = rig.camera_to_base(0.0, -20.0)
+    a = math.radians(off_level_deg)
+    up = pose.R.T @ np.array([math.sin(a), 0.0, math.cos(a)])
+    centre = rig.laser("center")
+    hit = centre.o + 2.0 / centre.d[2] * centre.d  # the reference spot 2.0 m deep
+    ms = {}
+    for name, sigma in (("center", 0.1), ("parallel", 0.1), ("sloped", 0.02)):
+        laser = rig.laser(name)
+        point = laser.o + float(up @ (hit - laser.o)) / float(up @ laser.d) * laser.d
+        ms[name] = replace(_meas(name, point, sigma, laser), pixel=rig.camera.project(point[None])[0])
+    f = best_fusion(rig, ms["center"], {"parallel": [ms["parallel"]], "sloped": [ms["sloped"]]}, 0.05,
+                    level_slopes(pose))
+    assert len(f.used) == 3
+    assert abs(f.range_m - 2.0) < 0.01 * 2.0
+    assert abs(f.range_m - 2.0) <= 2.0 * f.sigma_m
+
+
+def test_of_two_lasers_that_each_fit_a_loose_reference_the_one_that_places_it_best_is_used() -> None:
+    """Tuning-239, at a wall's foot with the unit tilted 29° down: the reference spot placed to ±0.21 m
+    (2.10 m; truth 1.895 m); the parallel laser's spot 6 cm away on the wall, ±0.03 m; the sloped
+    laser's 28 cm away on the floor. Each fits the reference alone (on a wall's and on a floor's
+    slope), not both together. The least χ² chose the floor's (2.10 m, 11 % off); the parallel spot
+    places the reference four times better, and right."""
+    rig = default_rig()
+    ref, par, slo = (
+        replace(m, pixel=rig.camera.project(m.point_m[None])[0]) for m in (
+            _meas("center", (0.036, 0.001, 2.096), 0.207, rig.laser("center")),
+            _meas("parallel", (0.028, -0.058, 1.853), 0.033, rig.laser("parallel")),
+            _meas("sloped", (0.041, 0.277, 1.593), 0.058, rig.laser("sloped")),
+        )
+    )
+    slopes = (0.5485, -1.8232)  # a wall's and a floor's, at that pose
+    f = best_fusion(rig, ref, {"parallel": [par], "sloped": [slo]}, 0.05, slopes)
+    assert [m.laser for m in f.used] == ["center", "parallel"]
+    assert f.range_m == pytest.approx(1.895, rel=0.01)
+
+
 def _render_groups(renderer: Renderer, pan: float = 0.0, pairs: int = 2, seed: int = 0, edit=None):
     groups = []
     for k in range(pairs):
