@@ -238,22 +238,28 @@ def _powers(r: int) -> np.ndarray:
     return np.stack([np.ones_like(u), u, u * u, v, v * v])
 
 
-def _moments(w: np.ndarray, powers: np.ndarray) -> tuple[list[float], list[float]]:
-    """Σ w, Σ w·x, Σ w·x² and Σ w, Σ w·y, Σ w·y² of a window's weights `w` (rows y, columns x),
-    `powers` being `_powers` of its half-size. (One product: each numpy call costs more than the
-    arithmetic on a window this small.)"""
-    # (np.dot: less overhead than @; given float64, which it would convert `w` to, it skips its
-    # own slower conversion)
-    m0, mx, mxx, my, myy = np.dot(powers, w.ravel().astype(np.float64)).tolist()
-    return [m0, mx, mxx], [m0, my, myy]
-
-
 @functools.lru_cache(maxsize=16)
 def _border_index(size: int) -> np.ndarray:
     """Flat indices of the outermost ring of a size × size window."""
     ring = np.ones((size, size), bool)
     ring[1:-1, 1:-1] = False
     return np.flatnonzero(ring)
+
+
+@dataclass(frozen=True)
+class _Kit:
+    """What `SpotFinder._refine` needs of a (2r + 1)² window, whatever its pixels: made once per
+    half-size r (`_kit`), one lookup instead of four per window."""
+
+    border: np.ndarray  # `_border_index`
+    offsets: np.ndarray  # `_offsets`
+    powers: np.ndarray  # `_powers`
+    monomials: np.ndarray  # `_monomials`
+
+
+@functools.lru_cache(maxsize=16)
+def _kit(r: int) -> _Kit:
+    return _Kit(_border_index(2 * r + 1), _offsets(r), _powers(r), _monomials(r))
 
 
 # Not frozen, though never changed once made (`replace` makes a new one): a frozen dataclass's
@@ -571,13 +577,14 @@ class SpotFinder:
         everywhere = [(u, v) for ss in seeds.values() for u, v, _, _, _, _ in ss]
         found: dict[str, list[Candidate]] = {}
         scales = self._scales(on, off, gain)
+        planes = self._planes(on, off)
         for name, ss in seeds.items():
             out = []
             for u, v, peak, row, mf, here in ss:
                 others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius
                           ] if len(everywhere) > 1 else []
                 cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
-                                    mf, texture, scales)
+                                    mf, texture, scales, planes)
                 if cand is not None:
                     out.append(self._unsnapped(cand, off[0]))
             found[name] = out
@@ -805,9 +812,17 @@ class SpotFinder:
         (as float32: numpy casts these to the windows' type)."""
         return 1.0 / (len(on) * self.full_scale(on[0])), gain / (len(off) * self.full_scale(off[0]))
 
+    def _planes(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
+        """The planes (on, off) `_refine` reads its windows from, when there is one frame of each
+        kind and its read channel is one of its planes (grey, or red): views, not copies. Empty
+        otherwise (`_scaled` then sums and weighs the frames)."""
+        if len(on) != 1 or len(off) != 1 or not (on[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
+            return ()
+        return self.laser_channel(on[0]), self.laser_channel(off[0])
+
     def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak, matched=0.0,
-                texture: _Texture | None = None, scales: tuple[float, float] | None = None
-                ) -> Candidate | None:
+                texture: _Texture | None = None, scales: tuple[float, float] | None = None,
+                planes: tuple[np.ndarray, ...] | None = None) -> Candidate | None:
         """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
         thresholded difference in a window, which is unbiased for a symmetric spot; the window
         grows for big (near, defocused, saturated) spots so that it never clips one, and pixels
@@ -817,27 +832,42 @@ class SpotFinder:
         Its σ comes from the noise measured around it: the pixel noise and the spot's own shot
         noise, grown by the noise's correlation (`texture`), and by the χ² of a Gaussian fitted to
         the spot when the spot is not the smooth blob that the noise alone would leave (speckle,
-        JPEG's blocks, demosaicing)."""
+        JPEG's blocks, demosaicing).
+
+        `scales` and `planes` are `_scales` and `_planes` of the frames, which `find` works out
+        once for all its windows (None: work them out here)."""
         texture = texture or _Texture(1.0, 1.0, None)
         cam = self.rig.camera
         r = self._radius
         cu, cv = float(seed[0]), float(seed[1])
         scale, off_scale = scales or self._scales(on, off, gain)
+        if planes is None:
+            planes = self._planes(on, off)
         mine: np.ndarray | None = None
         for _ in range(3):
             u0, v0 = int(round(cu)), int(round(cv))
             if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
                 return None  # too close to the image border to localise honestly
             rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
-            lit = self._scaled(on, rows, cols, scale)
-            win = lit - self._scaled(off, rows, cols, off_scale)
-            border = win.take(_border_index(2 * r + 1))
+            if planes:
+                # `_scaled`'s one-frame case, written out: the same values, for two calls less
+                # per window.
+                lit = planes[0][rows, cols].astype(np.float32)
+                lit *= scale
+                dark = planes[1][rows, cols].astype(np.float32)
+                dark *= off_scale
+                win = np.subtract(lit, dark, out=dark)
+            else:
+                lit = self._scaled(on, rows, cols, scale)
+                win = lit - self._scaled(off, rows, cols, off_scale)
+            kit = _kit(r)
+            border = win.take(kit.border)
             level = sorted(border.tolist())[border.size // 2]  # the median (faster than np.partition here)
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
             signal = win - (level + 2.0 * noise)
             np.maximum(signal, 0.0, out=signal)
-            offs = _offsets(r)
+            offs = kit.offsets
             rw = r  # this window's half-size (r may grow below for the next one)
             if others:
                 gu, gv = offs[None, :] + u0 - seed[0], offs[:, None] + v0 - seed[1]
@@ -846,15 +876,18 @@ class SpotFinder:
                 for ou, ov in others:
                     mine &= (gu + (seed[0] - ou)) ** 2 + (gv + (seed[1] - ov)) ** 2 >= dist
                 signal *= mine
-            powers = _powers(r)
-            mc, ml = _moments(signal, powers)
-            mass = mc[0]
+            # Σ w, Σ w·x, Σ w·x², Σ w·y, Σ w·y² of the weights by one product (each numpy call
+            # costs more than the arithmetic on a window this small; np.dot: less overhead than @,
+            # and given float64 it skips its own slower conversion). The float64 weights are kept
+            # for the count of the pixels used, below.
+            weights = signal.ravel().astype(np.float64)
+            mass, mx, mxx, my, myy = np.dot(kit.powers, weights).tolist()
             if mass <= 0.0:
                 return None
-            du, dv = mc[1] / mass, ml[1] / mass
+            du, dv = mx / mass, my / mass
             cu, cv = u0 + du, v0 + dv
-            var_x = max(mc[2] / mass - du * du, 0.0)
-            var_y = max(ml[2] / mass - dv * dv, 0.0)
+            var_x = max(mxx / mass - du * du, 0.0)
+            var_y = max(myy / mass - dv * dv, 0.0)
             size = math.sqrt((var_x + var_y) / 2)
             need = max(self._radius, int(math.ceil(3.5 * size)))
             if need <= r and abs(du) <= 1.0 and abs(dv) <= 1.0:
@@ -894,11 +927,12 @@ class SpotFinder:
             strong = above.ravel() > 3.0 * noise
             few = int(np.count_nonzero(strong)) < 10
             gauss = None
-            if not few:
-                ring = np.dot(_monomials(rw), np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
-                use = strong & (ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv)
-                if usable is not None:
-                    use &= usable.ravel()
+            use = strong if usable is None else strong & usable.ravel()
+            # (The core's ring only where it can leave the 10 pixels `_fit_gaussian` needs: a
+            # clipped spot's strong pixels are mostly clipped.)
+            if not few and (usable is None or np.count_nonzero(use) >= 10):
+                ring = np.dot(kit.monomials, np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
+                use &= ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv
                 gauss = _fit_gaussian(above, use, rw)
             if gauss is not None:
                 _, idx, model = gauss
@@ -920,14 +954,16 @@ class SpotFinder:
             # including the spot's own shot noise (`shot` is per unit of the averaged frames'
             # signal), grown by the noise's correlation and the fit's misfit. By moments: σ² is
             # noise² on each pixel used and shot × its signal, and Σ (x − x̄)² w = Σ x² w − 2 x̄ Σ x w + x̄² Σ w.
-            nc, nl = _moments(signal > 0.0, powers)  # signal ≥ 0: 1 where used
+            # The same sums over the pixels used (signal ≥ 0: its sign is 1 there, 0 elsewhere;
+            # sums of small integers, exact however they are added).
+            n0, nx, nxx, ny, nyy = np.dot(kit.powers, np.sign(weights)).tolist()
             grow = texture.area * misfit / mass**2
             # Σ (x − x̄)² w, ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
             noise2 = noise**2
-            var_u = grow * (noise2 * max(nc[2] - 2.0 * du * nc[1] + du * du * nc[0], 0.0)
-                            + shot * max(mc[2] - 2.0 * du * mc[1] + du * du * mc[0], 0.0))
-            var_v = grow * (noise2 * max(nl[2] - 2.0 * dv * nl[1] + dv * dv * nl[0], 0.0)
-                            + shot * max(ml[2] - 2.0 * dv * ml[1] + dv * dv * ml[0], 0.0))
+            var_u = grow * (noise2 * max(nxx - 2.0 * du * nx + du * du * n0, 0.0)
+                            + shot * max(mxx - 2.0 * du * mx + du * du * mass, 0.0))
+            var_v = grow * (noise2 * max(nyy - 2.0 * dv * ny + dv * dv * n0, 0.0)
+                            + shot * max(myy - 2.0 * dv * my + dv * dv * mass, 0.0))
         if texture.demosaiced:
             # Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation
             # shifts a small spot by up to a few tenths of a pixel, depending on the method and
