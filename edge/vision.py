@@ -922,15 +922,16 @@ class SpotFinder:
             # The spot's core only: a neighbouring spot's wing (the centre and parallel spots are
             # 4 px apart at 5 m) is not this spot's misfit. (u² + v² − 2·du·u − 2·dv·v, from the
             # window's monomials, against the core's radius² − du² − dv².)
-            # Both fits below take only pixels 3 σ above the background: with fewer than a fit
-            # needs (a small spot), neither is tried.
+            # Both fits below take only `usable` pixels 3 σ above the background, and need 10 of
+            # them: with fewer (a small spot, or a clipped one, whose strong pixels are mostly
+            # clipped), neither is tried. (The fit of a clipped spot's unclipped pixels takes those
+            # of `signal` over 3 σ: 5 σ above the background, all of them among these. For the
+            # float32 values to say otherwise, σ would have to be below their rounding.)
             strong = above.ravel() > 3.0 * noise
-            few = int(np.count_nonzero(strong)) < 10
-            gauss = None
             use = strong if usable is None else strong & usable.ravel()
-            # (The core's ring only where it can leave the 10 pixels `_fit_gaussian` needs: a
-            # clipped spot's strong pixels are mostly clipped.)
-            if not few and (usable is None or np.count_nonzero(use) >= 10):
+            fits = np.count_nonzero(use) >= 10
+            gauss = None
+            if fits:
                 ring = np.dot(kit.monomials, np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
                 use &= ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv
                 gauss = _fit_gaussian(above, use, rw)
@@ -941,7 +942,7 @@ class SpotFinder:
                 if dof >= 3:
                     chi2 = float((((val - model) ** 2) / (noise**2 + val * shot)).sum())
                     misfit = max(1.0, chi2 / dof)
-            if clipped and not few:
+            if clipped and fits:
                 assert unsaturated is not None  # (clipped)
                 fitted = _fit_unsaturated(signal, unsaturated, rw, 3.0 * noise)
                 if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
