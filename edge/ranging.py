@@ -102,7 +102,9 @@ class RangingConfig:
         require(0 < self.max_sigma_fraction <= 1, "max_sigma_fraction", "must be in (0, 1]")
 
 
-@dataclass(frozen=True)
+# Not frozen, though never changed once made: a frozen dataclass costs 3 × as much to build
+# (vision.Candidate), and every spot of every zone makes one.
+@dataclass
 class LaserMeasurement:
     """One laser's spot and what it says about depth."""
 
@@ -796,7 +798,12 @@ class Ranger:
         own path (:mod:`edge.deblend`), and keep both if both are spots."""
         for name in list(found):
             for c in list(found[name]):
+                # (Most blobs lie on no other laser's path: that, checked here, saves a call each.)
+                cu, cv = c.pixel.tolist()
+                u, v = int(round(cu)), int(round(cv))
                 for other in found:
+                    if other == name or not self._near(other, u, v):
+                        continue
                     pair = self._blob_pair(group, found, name, c, other)
                     if pair is None:
                         continue
@@ -814,14 +821,10 @@ class Ranger:
         """`name`'s blob `c` and `other`'s spot in it, fitted together; None where `other` has a
         spot of its own nearby, its path does not pass through the blob, or the fit finds no two
         spots."""
-        if other == name:
-            return None
         # The path's mask before the distances to `other`'s spots: one lookup, and most blobs lie
         # on no other laser's path. (Plain floats: cheaper than numpy's scalars.)
         cu, cv = c.pixel.tolist()
-        u, v = int(round(cu)), int(round(cv))
-        near = self._near_path[other]
-        if not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
+        if other == name or not self._near(other, int(round(cu)), int(round(cv))):
             return None
         if any(math.dist(o.pixel.tolist(), (cu, cv)) < 2 * DEBLEND_PX for o in found[other]):
             return None
@@ -838,6 +841,11 @@ class Ranger:
         if pair is None or min(p.snr for p in pair) < 0.5 * self.config.min_snr:
             return None
         return pair
+
+    def _near(self, laser: str, u: int, v: int) -> bool:
+        """Is pixel (u, v) near `laser`'s path (`_near_path`)?"""
+        near = self._near_path[laser]
+        return 0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)
 
     def _measure(self, track: _Track) -> LaserMeasurement:
         views = len(track.views)
