@@ -349,8 +349,9 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
         weights.append(1.0 / (max(m.sigma_m, 1e-9) ** 2 + model * model))
         carried.append((m.depth_m, g * dy))
     total = sum(weights)
-    a = sum(w * (z - lift) for w, (z, lift) in zip(weights, carried)) / total
-    chi2 = sum(w * (z - a - lift) ** 2 for w, (z, lift) in zip(weights, carried))
+    # (Lists, not generators: the same sums, with less overhead for a few lasers.)
+    a = sum([w * (z - lift) for w, (z, lift) in zip(weights, carried)]) / total
+    chi2 = sum([w * (z - a - lift) ** 2 for w, (z, lift) in zip(weights, carried)])
     if len(ms) > 1:
         # _chi2_inverse in plain floats
         inverse = 0.0
@@ -596,7 +597,8 @@ class Ranger:
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         # How many of the frame groups each spot showed in, against how many it could have.
-        sightings = {id(m): (len(t.found), sum(name in g.lasers for g in groups))
+        # (A list, not a generator, to sum: the same count, with less overhead for a group or two.)
+        sightings = {id(m): (len(t.found), sum([name in g.lasers for g in groups]))
                      for name, ts in tracks.items() for t, m in zip(ts, cands[name])}
         refs = self._believable(cands.get(ref, []))
         if not refs:
@@ -802,7 +804,8 @@ class Ranger:
                 cu, cv = c.pixel.tolist()
                 u, v = int(round(cu)), int(round(cv))
                 for other in found:
-                    if other == name or not self._near(other, u, v):
+                    near = self._near_path[other]
+                    if other == name or not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
                         continue
                     pair = self._blob_pair(group, found, name, c, other)
                     if pair is None:
@@ -824,7 +827,9 @@ class Ranger:
         # The path's mask before the distances to `other`'s spots: one lookup, and most blobs lie
         # on no other laser's path. (Plain floats: cheaper than numpy's scalars.)
         cu, cv = c.pixel.tolist()
-        if other == name or not self._near(other, int(round(cu)), int(round(cv))):
+        u, v = int(round(cu)), int(round(cv))
+        near = self._near_path[other]
+        if other == name or not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
             return None
         if any(math.dist(o.pixel.tolist(), (cu, cv)) < 2 * DEBLEND_PX for o in found[other]):
             return None
@@ -841,11 +846,6 @@ class Ranger:
         if pair is None or min(p.snr for p in pair) < 0.5 * self.config.min_snr:
             return None
         return pair
-
-    def _near(self, laser: str, u: int, v: int) -> bool:
-        """Is pixel (u, v) near `laser`'s path (`_near_path`)?"""
-        near = self._near_path[laser]
-        return 0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)
 
     def _measure(self, track: _Track) -> LaserMeasurement:
         views = len(track.views)

@@ -552,7 +552,7 @@ class SpotFinder:
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
         strips = diff[: self._bg_slice.start].reshape(self._strip_width, -1)  # (width, samples)
-        profile = strips.max(axis=0)
+        profile = np.maximum.reduce(strips, axis=0)  # (ndarray.max's reduction, without its Python wrapper)
         local_noise, matched, box = self._local(strips, noise)
         # A seed is a bright pixel (`min_snr` over the noise along that stretch of the path), or a
         # dim spot that the matched filter finds (MATCHED_SNR): every path's at once.
@@ -745,13 +745,15 @@ class SpotFinder:
         pix = np.abs(strips[:: width - 1, :cut]).reshape(2, nb, -1)
         flt = box[:, :cut].reshape(width - 2, nb, -1)
         per = 2 * pix.shape[2]
-        pix_noise = np.minimum(pix, 6.0 * noise, out=pix).sum(axis=(0, 2)) * (1.2533 / per)
+        # (np.add.reduce and np.maximum.reduce: ndarray.sum's and .max's own reductions, without
+        # their Python wrappers)
+        pix_noise = np.add.reduce(np.minimum(pix, 6.0 * noise, out=pix), axis=(0, 2)) * (1.2533 / per)
         box_floor = np.float32(noise * 15.0**0.5)
         per = flt.shape[0] * flt.shape[2]
-        box_level = flt.sum(axis=(0, 2)) * (1.0 / per)
+        box_level = np.add.reduce(flt, axis=(0, 2)) * (1.0 / per)
         dev = flt - box_level[None, :, None]
         np.abs(dev, out=dev)
-        box_noise = np.minimum(dev, 4.0 * box_floor, out=dev).sum(axis=(0, 2)) * (1.2533 / per)
+        box_noise = np.add.reduce(np.minimum(dev, 4.0 * box_floor, out=dev), axis=(0, 2)) * (1.2533 / per)
         # Each stretch's value repeated over its samples: the same as .take() of each sample's
         # stretch, for half the instructions (a run of copies, not an index read per sample).
         count = (self._stretch_counts if self._stretch.size == n
@@ -761,7 +763,7 @@ class SpotFinder:
         # own neighbourhood hides it.
         local_pix = np.sqrt(np.maximum(pix_noise, noise) * noise).repeat(count)
         local_box = np.maximum(box_noise, box_floor).repeat(count)
-        score = (box.max(axis=0) - box_level.repeat(count)) / local_box
+        score = (np.maximum.reduce(box, axis=0) - box_level.repeat(count)) / local_box
         return local_pix, score, box
 
     def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, local_noise, matched, on, off,
@@ -782,11 +784,12 @@ class SpotFinder:
             j = int(strips[:, i].argmax()) if by_pixel else 1 + int(box[:, i].argmax())
             u, v = band.u.item(i - start, j), band.v.item(i - start, j)
             peak = max(profile.item(i), strips.item(j, i))
-            if bright.item(i) < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius
-                                            for su, sv, _, _, _, _ in seeds):
+            # (`seeds and`: no generator for a path's first peak)
+            if seeds and bright.item(i) < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius
+                                                      for su, sv, _, _, _, _ in seeds):
                 continue  # a faint blob beside a spot: its shoulder or ghost, and no spot of its own
-            if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
-                   for su, sv, sp, _, _, _ in seeds):
+            if seeds and any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
+                             for su, sv, sp, _, _, _ in seeds):
                 continue  # the same blob seen from another path sample
             seeds.append((u, v, peak, i - start, matched.item(i), local_noise.item(i)))
             if len(seeds) >= max_candidates:
@@ -862,7 +865,10 @@ class SpotFinder:
                 win = lit - self._scaled(off, rows, cols, off_scale)
             kit = _kit(r)
             border = win.take(kit.border)
-            level = sorted(border.tolist())[border.size // 2]  # the median (faster than np.partition here)
+            # The median: the border (a copy) sorted in place, which costs half sorted() of its
+            # values as floats, and less than np.partition, on a few dozen values.
+            border.sort()
+            level = border.item(border.size // 2)
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
             signal = win - (level + 2.0 * noise)
@@ -877,11 +883,11 @@ class SpotFinder:
                     mine &= (gu + (seed[0] - ou)) ** 2 + (gv + (seed[1] - ov)) ** 2 >= dist
                 signal *= mine
             # Σ w, Σ w·x, Σ w·x², Σ w·y, Σ w·y² of the weights by one product (each numpy call
-            # costs more than the arithmetic on a window this small; np.dot: less overhead than @,
-            # and given float64 it skips its own slower conversion). The float64 weights are kept
-            # for the count of the pixels used, below.
+            # costs more than the arithmetic on a window this small; ndarray.dot: np.dot's product
+            # without its dispatcher, with less overhead than @; given float64 it skips its own
+            # slower conversion). The float64 weights are kept for the count of the pixels used.
             weights = signal.ravel().astype(np.float64)
-            mass, mx, mxx, my, myy = np.dot(kit.powers, weights).tolist()
+            mass, mx, mxx, my, myy = kit.powers.dot(weights).tolist()
             if mass <= 0.0:
                 return None
             du, dv = mx / mass, my / mass
@@ -932,7 +938,7 @@ class SpotFinder:
             fits = np.count_nonzero(use) >= 10
             gauss = None
             if fits:
-                ring = np.dot(kit.monomials, np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
+                ring = kit.monomials.dot(np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
                 use &= ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv
                 gauss = _fit_gaussian(above, use, rw)
             if gauss is not None:
@@ -957,7 +963,7 @@ class SpotFinder:
             # noise² on each pixel used and shot × its signal, and Σ (x − x̄)² w = Σ x² w − 2 x̄ Σ x w + x̄² Σ w.
             # The same sums over the pixels used (signal ≥ 0: its sign is 1 there, 0 elsewhere;
             # sums of small integers, exact however they are added).
-            n0, nx, nxx, ny, nyy = np.dot(kit.powers, np.sign(weights)).tolist()
+            n0, nx, nxx, ny, nyy = kit.powers.dot(np.sign(weights)).tolist()
             grow = texture.area * misfit / mass**2
             # Σ (x − x̄)² w, ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
             noise2 = noise**2
