@@ -853,8 +853,11 @@ class Ranger:
         # Pixel noise averages over every sighting, speckle only over distinct views.
         # (Lists, not generators: the same sums, with less overhead for a sighting or two.)
         n = len(track.found)
-        noise_var = sum([c.sigma_px**2 for c in track.found]) / n / n
+        if n == 1:  # (one sighting, as in a zone of one frame group: the sums below, of one value each)
+            noise_var, snr = track.found[0].sigma_px**2, track.found[0].snr
+        else:
+            noise_var = sum([c.sigma_px**2 for c in track.found]) / n / n
+            snr = sum([c.snr for c in track.found]) / n
         sigma_px = math.sqrt(noise_var + speckle**2 / views)
-        snr = sum([c.snr for c in track.found]) / n
         pixel = track.pixel(speckle if views > 1 else 0.0)
         return measure(self._lasers[track.laser], self.rig.camera, pixel, sigma_px, snr, views)
