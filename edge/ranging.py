@@ -102,7 +102,9 @@ class RangingConfig:
         require(0 < self.max_sigma_fraction <= 1, "max_sigma_fraction", "must be in (0, 1]")
 
 
-@dataclass(frozen=True)
+# Not frozen, though never changed once made: a frozen dataclass costs 3 × as much to build
+# (vision.Candidate), and every spot of every zone makes one.
+@dataclass
 class LaserMeasurement:
     """One laser's spot and what it says about depth."""
 
@@ -350,8 +352,9 @@ def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_
         weights.append(1.0 / (max(m.sigma_m, 1e-9) ** 2 + model * model))
         carried.append((m.depth_m, g * dy))
     total = sum(weights)
-    a = sum(w * (z - lift) for w, (z, lift) in zip(weights, carried)) / total
-    chi2 = sum(w * (z - a - lift) ** 2 for w, (z, lift) in zip(weights, carried))
+    # (Lists, not generators: the same sums, with less overhead for a few lasers.)
+    a = sum([w * (z - lift) for w, (z, lift) in zip(weights, carried)]) / total
+    chi2 = sum([w * (z - a - lift) ** 2 for w, (z, lift) in zip(weights, carried)])
     if len(ms) > 1:
         # _chi2_inverse in plain floats
         inverse = 0.0
@@ -601,7 +604,8 @@ class Ranger:
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         # How many of the frame groups each spot showed in, against how many it could have.
-        sightings = {id(m): (len(t.found), sum(name in g.lasers for g in groups))
+        # (A list, not a generator, to sum: the same count, with less overhead for a group or two.)
+        sightings = {id(m): (len(t.found), sum([name in g.lasers for g in groups]))
                      for name, ts in tracks.items() for t, m in zip(ts, cands[name])}
         refs = self._believable(cands.get(ref, []))
         if not refs:
@@ -803,7 +807,13 @@ class Ranger:
         own path (:mod:`edge.deblend`), and keep both if both are spots."""
         for name in list(found):
             for c in list(found[name]):
+                # (Most blobs lie on no other laser's path: that, checked here, saves a call each.)
+                cu, cv = c.pixel.tolist()
+                u, v = int(round(cu)), int(round(cv))
                 for other in found:
+                    near = self._near_path[other]
+                    if other == name or not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
+                        continue
                     pair = self._blob_pair(group, found, name, c, other)
                     if pair is None:
                         continue
@@ -821,14 +831,12 @@ class Ranger:
         """`name`'s blob `c` and `other`'s spot in it, fitted together; None where `other` has a
         spot of its own nearby, its path does not pass through the blob, or the fit finds no two
         spots."""
-        if other == name:
-            return None
         # The path's mask before the distances to `other`'s spots: one lookup, and most blobs lie
         # on no other laser's path. (Plain floats: cheaper than numpy's scalars.)
         cu, cv = c.pixel.tolist()
         u, v = int(round(cu)), int(round(cv))
         near = self._near_path[other]
-        if not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
+        if other == name or not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
             return None
         if any(math.dist(o.pixel.tolist(), (cu, cv)) < 2 * DEBLEND_PX for o in found[other]):
             return None
@@ -852,8 +860,11 @@ class Ranger:
         # Pixel noise averages over every sighting, speckle only over distinct views.
         # (Lists, not generators: the same sums, with less overhead for a sighting or two.)
         n = len(track.found)
-        noise_var = sum([c.sigma_px**2 for c in track.found]) / n / n
+        if n == 1:  # (one sighting, as in a zone of one frame group: the sums below, of one value each)
+            noise_var, snr = track.found[0].sigma_px**2, track.found[0].snr
+        else:
+            noise_var = sum([c.sigma_px**2 for c in track.found]) / n / n
+            snr = sum([c.snr for c in track.found]) / n
         sigma_px = math.sqrt(noise_var + speckle**2 / views)
-        snr = sum([c.snr for c in track.found]) / n
         pixel = track.pixel(speckle if views > 1 else 0.0)
         return measure(self._lasers[track.laser], self.rig.camera, pixel, sigma_px, snr, views)

@@ -238,22 +238,28 @@ def _powers(r: int) -> np.ndarray:
     return np.stack([np.ones_like(u), u, u * u, v, v * v])
 
 
-def _moments(w: np.ndarray, powers: np.ndarray) -> tuple[list[float], list[float]]:
-    """Σ w, Σ w·x, Σ w·x² and Σ w, Σ w·y, Σ w·y² of a window's weights `w` (rows y, columns x),
-    `powers` being `_powers` of its half-size. (One product: each numpy call costs more than the
-    arithmetic on a window this small.)"""
-    # (np.dot: less overhead than @; given float64, which it would convert `w` to, it skips its
-    # own slower conversion)
-    m0, mx, mxx, my, myy = np.dot(powers, w.ravel().astype(np.float64)).tolist()
-    return [m0, mx, mxx], [m0, my, myy]
-
-
 @functools.lru_cache(maxsize=16)
 def _border_index(size: int) -> np.ndarray:
     """Flat indices of the outermost ring of a size × size window."""
     ring = np.ones((size, size), bool)
     ring[1:-1, 1:-1] = False
     return np.flatnonzero(ring)
+
+
+@dataclass(frozen=True)
+class _Kit:
+    """What `SpotFinder._refine` needs of a (2r + 1)² window, whatever its pixels: made once per
+    half-size r (`_kit`), one lookup instead of four per window."""
+
+    border: np.ndarray  # `_border_index`
+    offsets: np.ndarray  # `_offsets`
+    powers: np.ndarray  # `_powers`
+    monomials: np.ndarray  # `_monomials`
+
+
+@functools.lru_cache(maxsize=16)
+def _kit(r: int) -> _Kit:
+    return _Kit(_border_index(2 * r + 1), _offsets(r), _powers(r), _monomials(r))
 
 
 # Not frozen, though never changed once made (`replace` makes a new one): a frozen dataclass's
@@ -546,7 +552,7 @@ class SpotFinder:
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
         strips = diff[: self._bg_slice.start].reshape(self._strip_width, -1)  # (width, samples)
-        profile = strips.max(axis=0)
+        profile = np.maximum.reduce(strips, axis=0)  # (ndarray.max's reduction, without its Python wrapper)
         local_noise, matched, box = self._local(strips, noise)
         # A seed is a bright pixel (`min_snr` over the noise along that stretch of the path), or a
         # dim spot that the matched filter finds (MATCHED_SNR): every path's at once.
@@ -571,13 +577,14 @@ class SpotFinder:
         everywhere = [(u, v) for ss in seeds.values() for u, v, _, _, _, _ in ss]
         found: dict[str, list[Candidate]] = {}
         scales = self._scales(on, off, gain)
+        planes = self._planes(on, off)
         for name, ss in seeds.items():
             out = []
             for u, v, peak, row, mf, here in ss:
                 others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius
                           ] if len(everywhere) > 1 else []
                 cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
-                                    mf, texture, scales)
+                                    mf, texture, scales, planes)
                 if cand is not None:
                     out.append(self._unsnapped(cand, off[0]))
             found[name] = out
@@ -738,13 +745,15 @@ class SpotFinder:
         pix = np.abs(strips[:: width - 1, :cut]).reshape(2, nb, -1)
         flt = box[:, :cut].reshape(width - 2, nb, -1)
         per = 2 * pix.shape[2]
-        pix_noise = np.minimum(pix, 6.0 * noise, out=pix).sum(axis=(0, 2)) * (1.2533 / per)
+        # (np.add.reduce and np.maximum.reduce: ndarray.sum's and .max's own reductions, without
+        # their Python wrappers)
+        pix_noise = np.add.reduce(np.minimum(pix, 6.0 * noise, out=pix), axis=(0, 2)) * (1.2533 / per)
         box_floor = np.float32(noise * 15.0**0.5)
         per = flt.shape[0] * flt.shape[2]
-        box_level = flt.sum(axis=(0, 2)) * (1.0 / per)
+        box_level = np.add.reduce(flt, axis=(0, 2)) * (1.0 / per)
         dev = flt - box_level[None, :, None]
         np.abs(dev, out=dev)
-        box_noise = np.minimum(dev, 4.0 * box_floor, out=dev).sum(axis=(0, 2)) * (1.2533 / per)
+        box_noise = np.add.reduce(np.minimum(dev, 4.0 * box_floor, out=dev), axis=(0, 2)) * (1.2533 / per)
         # Each stretch's value repeated over its samples: the same as .take() of each sample's
         # stretch, for half the instructions (a run of copies, not an index read per sample).
         count = (self._stretch_counts if self._stretch.size == n
@@ -754,7 +763,7 @@ class SpotFinder:
         # own neighbourhood hides it.
         local_pix = np.sqrt(np.maximum(pix_noise, noise) * noise).repeat(count)
         local_box = np.maximum(box_noise, box_floor).repeat(count)
-        score = (box.max(axis=0) - box_level.repeat(count)) / local_box
+        score = (np.maximum.reduce(box, axis=0) - box_level.repeat(count)) / local_box
         return local_pix, score, box
 
     def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, local_noise, matched, on, off,
@@ -775,11 +784,12 @@ class SpotFinder:
             j = int(strips[:, i].argmax()) if by_pixel else 1 + int(box[:, i].argmax())
             u, v = band.u.item(i - start, j), band.v.item(i - start, j)
             peak = max(profile.item(i), strips.item(j, i))
-            if bright.item(i) < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius
-                                            for su, sv, _, _, _, _ in seeds):
+            # (`seeds and`: no generator for a path's first peak)
+            if seeds and bright.item(i) < 1.0 and any(math.hypot(u - su, v - sv) < 3 * self._radius
+                                                      for su, sv, _, _, _, _ in seeds):
                 continue  # a faint blob beside a spot: its shoulder or ghost, and no spot of its own
-            if any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
-                   for su, sv, sp, _, _, _ in seeds):
+            if seeds and any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
+                             for su, sv, sp, _, _, _ in seeds):
                 continue  # the same blob seen from another path sample
             seeds.append((u, v, peak, i - start, matched.item(i), local_noise.item(i)))
             if len(seeds) >= max_candidates:
@@ -805,9 +815,17 @@ class SpotFinder:
         (as float32: numpy casts these to the windows' type)."""
         return 1.0 / (len(on) * self.full_scale(on[0])), gain / (len(off) * self.full_scale(off[0]))
 
+    def _planes(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
+        """The planes (on, off) `_refine` reads its windows from, when there is one frame of each
+        kind and its read channel is one of its planes (grey, or red): views, not copies. Empty
+        otherwise (`_scaled` then sums and weighs the frames)."""
+        if len(on) != 1 or len(off) != 1 or not (on[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
+            return ()
+        return self.laser_channel(on[0]), self.laser_channel(off[0])
+
     def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak, matched=0.0,
-                texture: _Texture | None = None, scales: tuple[float, float] | None = None
-                ) -> Candidate | None:
+                texture: _Texture | None = None, scales: tuple[float, float] | None = None,
+                planes: tuple[np.ndarray, ...] | None = None) -> Candidate | None:
         """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
         thresholded difference in a window, which is unbiased for a symmetric spot; the window
         grows for big (near, defocused, saturated) spots so that it never clips one, and pixels
@@ -817,27 +835,45 @@ class SpotFinder:
         Its σ comes from the noise measured around it: the pixel noise and the spot's own shot
         noise, grown by the noise's correlation (`texture`), and by the χ² of a Gaussian fitted to
         the spot when the spot is not the smooth blob that the noise alone would leave (speckle,
-        JPEG's blocks, demosaicing)."""
+        JPEG's blocks, demosaicing).
+
+        `scales` and `planes` are `_scales` and `_planes` of the frames, which `find` works out
+        once for all its windows (None: work them out here)."""
         texture = texture or _Texture(1.0, 1.0, None)
         cam = self.rig.camera
         r = self._radius
         cu, cv = float(seed[0]), float(seed[1])
         scale, off_scale = scales or self._scales(on, off, gain)
+        if planes is None:
+            planes = self._planes(on, off)
         mine: np.ndarray | None = None
         for _ in range(3):
             u0, v0 = int(round(cu)), int(round(cv))
             if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
                 return None  # too close to the image border to localise honestly
             rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
-            lit = self._scaled(on, rows, cols, scale)
-            win = lit - self._scaled(off, rows, cols, off_scale)
-            border = win.take(_border_index(2 * r + 1))
-            level = sorted(border.tolist())[border.size // 2]  # the median (faster than np.partition here)
+            if planes:
+                # `_scaled`'s one-frame case, written out: the same values, for two calls less
+                # per window.
+                lit = planes[0][rows, cols].astype(np.float32)
+                lit *= scale
+                dark = planes[1][rows, cols].astype(np.float32)
+                dark *= off_scale
+                win = np.subtract(lit, dark, out=dark)
+            else:
+                lit = self._scaled(on, rows, cols, scale)
+                win = lit - self._scaled(off, rows, cols, off_scale)
+            kit = _kit(r)
+            border = win.take(kit.border)
+            # The median: the border (a copy) sorted in place, which costs half sorted() of its
+            # values as floats, and less than np.partition, on a few dozen values.
+            border.sort()
+            level = border.item(border.size // 2)
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
             signal = win - (level + 2.0 * noise)
             np.maximum(signal, 0.0, out=signal)
-            offs = _offsets(r)
+            offs = kit.offsets
             rw = r  # this window's half-size (r may grow below for the next one)
             if others:
                 gu, gv = offs[None, :] + u0 - seed[0], offs[:, None] + v0 - seed[1]
@@ -846,15 +882,18 @@ class SpotFinder:
                 for ou, ov in others:
                     mine &= (gu + (seed[0] - ou)) ** 2 + (gv + (seed[1] - ov)) ** 2 >= dist
                 signal *= mine
-            powers = _powers(r)
-            mc, ml = _moments(signal, powers)
-            mass = mc[0]
+            # Σ w, Σ w·x, Σ w·x², Σ w·y, Σ w·y² of the weights by one product (each numpy call
+            # costs more than the arithmetic on a window this small; ndarray.dot: np.dot's product
+            # without its dispatcher, with less overhead than @; given float64 it skips its own
+            # slower conversion). The float64 weights are kept for the count of the pixels used.
+            weights = signal.ravel().astype(np.float64)
+            mass, mx, mxx, my, myy = kit.powers.dot(weights).tolist()
             if mass <= 0.0:
                 return None
-            du, dv = mc[1] / mass, ml[1] / mass
+            du, dv = mx / mass, my / mass
             cu, cv = u0 + du, v0 + dv
-            var_x = max(mc[2] / mass - du * du, 0.0)
-            var_y = max(ml[2] / mass - dv * dv, 0.0)
+            var_x = max(mxx / mass - du * du, 0.0)
+            var_y = max(myy / mass - dv * dv, 0.0)
             size = math.sqrt((var_x + var_y) / 2)
             need = max(self._radius, int(math.ceil(3.5 * size)))
             if need <= r and abs(du) <= 1.0 and abs(dv) <= 1.0:
@@ -889,16 +928,18 @@ class SpotFinder:
             # The spot's core only: a neighbouring spot's wing (the centre and parallel spots are
             # 4 px apart at 5 m) is not this spot's misfit. (u² + v² − 2·du·u − 2·dv·v, from the
             # window's monomials, against the core's radius² − du² − dv².)
-            # Both fits below take only pixels 3 σ above the background: with fewer than a fit
-            # needs (a small spot), neither is tried.
+            # Both fits below take only `usable` pixels 3 σ above the background, and need 10 of
+            # them: with fewer (a small spot, or a clipped one, whose strong pixels are mostly
+            # clipped), neither is tried. (The fit of a clipped spot's unclipped pixels takes those
+            # of `signal` over 3 σ: 5 σ above the background, all of them among these. For the
+            # float32 values to say otherwise, σ would have to be below their rounding.)
             strong = above.ravel() > 3.0 * noise
-            few = int(np.count_nonzero(strong)) < 10
+            use = strong if usable is None else strong & usable.ravel()
+            fits = np.count_nonzero(use) >= 10
             gauss = None
-            if not few:
-                ring = np.dot(_monomials(rw), np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
-                use = strong & (ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv)
-                if usable is not None:
-                    use &= usable.ravel()
+            if fits:
+                ring = kit.monomials.dot(np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
+                use &= ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv
                 gauss = _fit_gaussian(above, use, rw)
             if gauss is not None:
                 _, idx, model = gauss
@@ -907,7 +948,7 @@ class SpotFinder:
                 if dof >= 3:
                     chi2 = float((((val - model) ** 2) / (noise**2 + val * shot)).sum())
                     misfit = max(1.0, chi2 / dof)
-            if clipped and not few:
+            if clipped and fits:
                 assert unsaturated is not None  # (clipped)
                 fitted = _fit_unsaturated(signal, unsaturated, rw, 3.0 * noise)
                 if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
@@ -920,14 +961,16 @@ class SpotFinder:
             # including the spot's own shot noise (`shot` is per unit of the averaged frames'
             # signal), grown by the noise's correlation and the fit's misfit. By moments: σ² is
             # noise² on each pixel used and shot × its signal, and Σ (x − x̄)² w = Σ x² w − 2 x̄ Σ x w + x̄² Σ w.
-            nc, nl = _moments(signal > 0.0, powers)  # signal ≥ 0: 1 where used
+            # The same sums over the pixels used (signal ≥ 0: its sign is 1 there, 0 elsewhere;
+            # sums of small integers, exact however they are added).
+            n0, nx, nxx, ny, nyy = kit.powers.dot(np.sign(weights)).tolist()
             grow = texture.area * misfit / mass**2
             # Σ (x − x̄)² w, ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
             noise2 = noise**2
-            var_u = grow * (noise2 * max(nc[2] - 2.0 * du * nc[1] + du * du * nc[0], 0.0)
-                            + shot * max(mc[2] - 2.0 * du * mc[1] + du * du * mc[0], 0.0))
-            var_v = grow * (noise2 * max(nl[2] - 2.0 * dv * nl[1] + dv * dv * nl[0], 0.0)
-                            + shot * max(ml[2] - 2.0 * dv * ml[1] + dv * dv * ml[0], 0.0))
+            var_u = grow * (noise2 * max(nxx - 2.0 * du * nx + du * du * n0, 0.0)
+                            + shot * max(mxx - 2.0 * du * mx + du * du * mass, 0.0))
+            var_v = grow * (noise2 * max(nyy - 2.0 * dv * ny + dv * dv * n0, 0.0)
+                            + shot * max(myy - 2.0 * dv * my + dv * dv * mass, 0.0))
         if texture.demosaiced:
             # Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation
             # shifts a small spot by up to a few tenths of a pixel, depending on the method and
