@@ -61,6 +61,13 @@ BLOCK_SIGMA_PX = 8.0 / math.sqrt(12.0)
 # in one column of the image, so in one column of blocks, and their errors along the rows correlate
 # (0.2-0.36 on the tuning family, about 0.1-0.18 px in common); lossless frames' do not (below 0.02).
 JPEG_COMMON_PX = 0.15
+# A spot's misfit (χ² per degree of freedom of a Gaussian fitted to it) grows its variance as it is
+# up to this, and by its square root beyond, in JPEG frames: there the misfit is mostly the blocks'
+# rounding of the spot's shape, which moves its centre far less than it distorts it. Per spot on
+# tuning seeds 128-191, JPEG spots of misfit 1.5-4 and 4-10 were off by 0.88 and 0.79 of their σ
+# (RMS), of misfit 10-30 and over 30 by 0.59 and 0.36: σ 2-3 × too large, so that such a reference
+# came out `ambiguous` (placed too loosely) or let a far laser on another surface pass the χ² test.
+JPEG_MISFIT_KNEE = 4.0
 
 
 # Offsets (du, dv) of the neighbours of each background sample that are read too: the noise's
@@ -519,6 +526,8 @@ class SpotFinder:
                 self._chroma_lag2.append(rho)
                 luma = float(np.median(self._chroma_lag2)) > CHROMA_LAG2
                 self._weights = CHANNEL_WEIGHTS["luma" if luma else "red"]
+        if self._jpeg is None:  # told once, by the first laser-off frame
+            self._jpeg = jpeg_blockiness(off[0]) > JPEG_BLOCKINESS
         on_vals = self._gather(on)
         off_vals = self._gather(off)
         # Room light may differ between the frames (flicker): scale the off frame to the on frame
@@ -586,18 +595,21 @@ class SpotFinder:
                 cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
                                     mf, texture, scales, planes)
                 if cand is not None:
-                    out.append(self._unsnapped(cand, off[0]))
+                    out.append(self._unsnapped(cand))
             found[name] = out
         return found
 
-    def _unsnapped(self, cand: Candidate, off: np.ndarray) -> Candidate:
+    def _misfit_grow(self, misfit: float) -> float:
+        """What a spot's variance is multiplied by for its fit's `misfit` (see JPEG_MISFIT_KNEE)."""
+        if not self._jpeg or misfit <= JPEG_MISFIT_KNEE:
+            return misfit
+        return JPEG_MISFIT_KNEE * math.sqrt(misfit / JPEG_MISFIT_KNEE)
+
+    def _unsnapped(self, cand: Candidate) -> Candidate:
         """JPEG frames: a spot placed on an 8 × 8 block's centre line is one whose light JPEG kept
         only as the block's mean along that axis, and where in the block it was is lost: its σ
         is the block's. (Tuning-12, quality 51: spots of a 352 px camera 0.6 px from the truth,
-        snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.) Whether the frames are
-        JPEG's is told once, by the first laser-off frame."""
-        if self._jpeg is None:
-            self._jpeg = jpeg_blockiness(off) > JPEG_BLOCKINESS
+        snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.)"""
         if self._jpeg and any(abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in cand.pixel.tolist()):
             return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX))
         return cand
@@ -923,7 +935,7 @@ class SpotFinder:
                 du, dv, cov, misfit = fit
                 misfit = max(misfit, 1.0)
                 cu, cv = u0 + du, v0 + dv
-                cov = cov * texture.sites * misfit
+                cov = cov * texture.sites * self._misfit_grow(misfit)
         else:
             # The spot's core only: a neighbouring spot's wing (the centre and parallel spots are
             # 4 px apart at 5 m) is not this spot's misfit. (u² + v² − 2·du·u − 2·dv·v, from the
@@ -964,7 +976,7 @@ class SpotFinder:
             # The same sums over the pixels used (signal ≥ 0: its sign is 1 there, 0 elsewhere;
             # sums of small integers, exact however they are added).
             n0, nx, nxx, ny, nyy = kit.powers.dot(np.sign(weights)).tolist()
-            grow = texture.area * misfit / mass**2
+            grow = texture.area * self._misfit_grow(misfit) / mass**2
             # Σ (x − x̄)² w, ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
             noise2 = noise**2
             var_u = grow * (noise2 * max(nxx - 2.0 * du * nx + du * du * n0, 0.0)

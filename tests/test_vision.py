@@ -187,6 +187,28 @@ def test_auto_channel_without_chroma_noise_stays_red() -> None:
     assert finder.channel == "red"  # JPEG quantised the noise away: no evidence, no change
 
 
+def test_a_jpeg_spot_that_a_gaussian_fits_badly_is_not_placed_far_more_loosely_than_it_is() -> None:
+    """JPEG's blocks distort a spot's shape far more than they move its centre: a misfit (χ²/dof)
+    of 30 grew σ 5.5 ×, and such spots were off by a third of their σ (RMS) or less, which left a
+    reference `ambiguous` (too loose) or let a far laser on another surface pass the χ² test. Here
+    σ stays within 2.4 × the RMS error for misfits over 4, and still covers every spot at 2σ."""
+    spots = []
+    for quality in (55, 65):
+        renderer = _renderer(load_scene("office"), jpeg_quality=quality, jpeg_chroma="4:2:0")
+        finder = SpotFinder(renderer.rig, channel="auto")
+        for k, pan in enumerate(np.arange(-180.0, 180.0, 30.0)):
+            on, off = _pair(renderer, pan=float(pan), seed=k)
+            truth = renderer.spots(float(pan), 0.0)
+            for name, cands in finder.find([on], [off]).items():
+                if name in truth and cands and np.linalg.norm(cands[0].pixel - truth[name].pixel) < 3.0:
+                    error = float(np.linalg.norm(cands[0].pixel - truth[name].pixel)) / np.sqrt(2.0)  # per axis
+                    spots.append((cands[0].misfit, cands[0].sigma_px, error))
+    misfits = [(s, e) for m, s, e in spots if m > 4.0]
+    assert len(misfits) >= 10 and len(spots) >= 50
+    assert np.sqrt(np.mean([(e / s) ** 2 for s, e in misfits])) > 1 / 2.4
+    assert all(e <= 2.0 * s for _, s, e in spots)
+
+
 def test_sigma_covers_the_shift_of_an_edge_aware_demosaicing() -> None:
     # OpenCV's edge-aware demosaicing moves a small red spot by a few tenths of a pixel: red read
     # from such frames carries that in its σ (without it, 1 spot in 4 was within 2σ here).
