@@ -807,8 +807,9 @@ class Ranger:
         own path (:mod:`edge.deblend`), and keep both if both are spots."""
         for name in list(found):
             for c in list(found[name]):
-                # (Most blobs lie on no other laser's path: that, checked here, saves a call each.)
-                cu, cv = c.pixel.tolist()
+                # Only where `other`'s path passes the blob (`_near_path`: one lookup; most blobs
+                # lie on no other laser's path, and each saves a call).
+                cu, cv = c.pixel.tolist()  # (plain floats: cheaper than numpy's scalars)
                 u, v = int(round(cu)), int(round(cv))
                 for other in found:
                     near = self._near_path[other]
@@ -828,16 +829,10 @@ class Ranger:
 
     def _blob_pair(self, group: FrameGroup, found: Mapping[str, Sequence[Candidate]], name: str, c: Candidate,
                    other: str) -> tuple[Placed, Placed] | None:
-        """`name`'s blob `c` and `other`'s spot in it, fitted together; None where `other` has a
-        spot of its own nearby, its path does not pass through the blob, or the fit finds no two
-        spots."""
-        # The path's mask before the distances to `other`'s spots: one lookup, and most blobs lie
-        # on no other laser's path. (Plain floats: cheaper than numpy's scalars.)
-        cu, cv = c.pixel.tolist()
-        u, v = int(round(cu)), int(round(cv))
-        near = self._near_path[other]
-        if other == name or not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
-            return None
+        """`name`'s blob `c`, which `other`'s path passes near (`_deblend` has told so from
+        `_near_path`), and `other`'s spot in it, fitted together; None where `other` has a spot of
+        its own nearby, its path's nearest sample is too far, or the fit finds no two spots."""
+        cu, cv = c.pixel.tolist()  # (plain floats: cheaper than numpy's scalars)
         if any(math.dist(o.pixel.tolist(), (cu, cv)) < 2 * DEBLEND_PX for o in found[other]):
             return None
         gap, w_other = self.finder.nearest_on_path(other, c.pixel)
