@@ -223,6 +223,15 @@ def _box5(cols: np.ndarray) -> np.ndarray:
     return box
 
 
+def _scaled_plane(plane: np.ndarray, rows, cols, scale: float) -> np.ndarray:
+    """A region of one plane times `scale` (float32): the same float32 product as
+    np.multiply(…, dtype=np.float32), whose buffered casting loop costs more than the arithmetic
+    on a window this small."""
+    out = plane[rows, cols].astype(np.float32)
+    out *= scale
+    return out
+
+
 def _kth(values: np.ndarray, k: int) -> float:
     """The k-th smallest of `values` (reordered in place): np.partition's element, without the
     copy and dispatch that make the function cost twice the method on a thousand values."""
@@ -486,15 +495,14 @@ class SpotFinder:
             return image[rows, cols, 2].astype(np.float32)
         return image[rows, cols, :3].astype(np.float32) @ np.array(self._weights, np.float32)
 
+    def _one_plane(self, frames: Sequence[np.ndarray]) -> bool:
+        """Is the read channel of `frames` one plane of one frame (grey, or red read alone)?"""
+        return len(frames) == 1 and (frames[0].ndim == 2 or self._weights == CHANNEL_WEIGHTS["red"])
+
     def _scaled(self, frames: Sequence[np.ndarray], rows, cols, scale: float) -> np.ndarray:
         """The read channel of a region, summed over `frames` and times `scale` (float32)."""
-        if len(frames) == 1 and (frames[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
-            plane = frames[0][rows, cols] if frames[0].ndim == 2 else frames[0][rows, cols, 2]
-            # The same float32 product as np.multiply(plane, scale, dtype=np.float32), whose
-            # buffered casting loop costs more than the arithmetic on a window this small.
-            out = plane.astype(np.float32)
-            out *= scale
-            return out
+        if self._one_plane(frames):
+            return _scaled_plane(self.laser_channel(frames[0]), rows, cols, scale)
         acc = self._plane(frames[0], rows, cols)
         for image in frames[1:]:
             acc += self._plane(image, rows, cols)
@@ -831,7 +839,7 @@ class SpotFinder:
         """The planes (on, off) `_refine` reads its windows from, when there is one frame of each
         kind and its read channel is one of its planes (grey, or red): views, not copies. Empty
         otherwise (`_scaled` then sums and weighs the frames)."""
-        if len(on) != 1 or len(off) != 1 or not (on[0].ndim == 2 or self._weights == (0.0, 0.0, 1.0)):
+        if not (self._one_plane(on) and self._one_plane(off)):
             return ()
         return self.laser_channel(on[0]), self.laser_channel(off[0])
 
@@ -864,13 +872,9 @@ class SpotFinder:
             if u0 - r < 0 or v0 - r < 0 or u0 + r >= cam.width or v0 + r >= cam.height:
                 return None  # too close to the image border to localise honestly
             rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
-            if planes:
-                # `_scaled`'s one-frame case, written out: the same values, for two calls less
-                # per window.
-                lit = planes[0][rows, cols].astype(np.float32)
-                lit *= scale
-                dark = planes[1][rows, cols].astype(np.float32)
-                dark *= off_scale
+            if planes:  # (`_scaled`'s one-plane case, without telling it again per window)
+                lit = _scaled_plane(planes[0], rows, cols, scale)
+                dark = _scaled_plane(planes[1], rows, cols, off_scale)
                 win = np.subtract(lit, dark, out=dark)
             else:
                 lit = self._scaled(on, rows, cols, scale)
