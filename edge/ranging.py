@@ -205,9 +205,13 @@ def _on_beam(o: tuple, d: tuple, r: tuple) -> tuple[float, float, float]:
 
 
 def measure(
-    laser: Laser, camera: CameraModel, pixel: np.ndarray, sigma_px: float, snr: float, views: int
+    laser: Laser, camera: CameraModel, pixel: np.ndarray, sigma_px: float, snr: float, views: int,
+    cov_px: tuple[float, float, float] | None = None,
 ) -> LaserMeasurement:
-    """Depth of one spot and its 1-σ uncertainty (first-order propagation of `sigma_px`)."""
+    """Depth of one spot and its 1-σ uncertainty: first-order propagation of the position's
+    covariance `cov_px` (var u, var v, cov uv; px²), or of `sigma_px` on each axis. The depth moves
+    with the spot along the laser's path, hardly across it, so the measurement's `sigma_px` is
+    the position's σ along the depth's gradient: what `sigma_m` is made of."""
     u, v = pixel.tolist()  # (plain floats: cheaper than numpy's)
     o, d = laser.origin_m, laser.direction
     if any(camera.dist):  # camera.distorted (a float is true unless 0), without its generator
@@ -233,7 +237,13 @@ def measure(
         # z = oz + s·dz: its derivatives in closed form (d/du = d/dx / fx).
         dz_du = dz * ((dx * qo + qd * ox - 2.0 * do * x) - s0 * (2.0 * x - 2.0 * qd * dx)) / den / fx
         dz_dv = dz * ((dy * qo + qd * oy - 2.0 * do * y) - s0 * (2.0 * y - 2.0 * qd * dy)) / den / fy
-    sigma_m = math.hypot(dz_du, dz_dv) * sigma_px
+    slope = math.hypot(dz_du, dz_dv)
+    if cov_px is None or slope <= 0.0:
+        sigma_m = slope * sigma_px
+    else:
+        var_u, var_v, cov_uv = cov_px
+        sigma_m = math.sqrt(max(dz_du * dz_du * var_u + dz_dv * dz_dv * var_v + 2.0 * dz_du * dz_dv * cov_uv, 0.0))
+        sigma_px = sigma_m / slope
     return LaserMeasurement(laser.name, np.array((u, v)), sigma_px, np.array(p), p[2], sigma_m, snr, views,
                             _beam_dir(laser.direction))
 
@@ -862,4 +872,11 @@ class Ranger:
             snr = sum([c.snr for c in track.found]) / n
         sigma_px = math.sqrt(noise_var + speckle**2 / views)
         pixel = track.pixel(speckle if views > 1 else 0.0)
-        return measure(self._lasers[track.laser], self.rig.camera, pixel, sigma_px, snr, views)
+        cov = None
+        if any([c.cov_px is not None for c in track.found]):
+            # Each axis on its own: speckle moves a spot alike in every direction.
+            parts = [c.cov_px or (c.sigma_px**2, c.sigma_px**2, 0.0) for c in track.found]
+            spread = speckle**2 / views
+            cov = (sum([p[0] for p in parts]) / n / n + spread, sum([p[1] for p in parts]) / n / n + spread,
+                   sum([p[2] for p in parts]) / n / n)
+        return measure(self._lasers[track.laser], self.rig.camera, pixel, sigma_px, snr, views, cov)

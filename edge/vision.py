@@ -287,13 +287,16 @@ class Candidate:
 
     laser: str
     pixel: np.ndarray  # (2,) float64 sub-pixel (u, v)
-    sigma_px: float  # 1-σ position uncertainty from pixel noise (per axis)
+    sigma_px: float  # 1-σ position uncertainty (px): of the worse-placed axis
     snr: float  # peak of the difference over the noise
     size_px: float  # RMS radius of the spot
     along: float  # inverse depth at the nearest path sample (1/m)
     cross_px: float  # distance from the path, px
     matched_snr: float = 0.0  # the seed's matched-filter SNR against the noise along its path
     misfit: float = 1.0  # χ² per degree of freedom of a Gaussian fitted to the spot (1: it fits)
+    # The position's covariance (var u, var v, cov uv; px²), where its axes are placed unequally
+    # well: only the part along the laser's path moves the depth. None: sigma_px² on each axis.
+    cov_px: tuple[float, float, float] | None = None
 
 
 # Not frozen (never changed once made): a frozen dataclass costs 4 × as much to build; see Candidate.
@@ -618,9 +621,19 @@ class SpotFinder:
         only as the block's mean along that axis, and where in the block it was is lost: its σ
         is the block's. (Tuning-12, quality 51: spots of a 352 px camera 0.6 px from the truth,
         snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.)"""
-        if self._jpeg and any(abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in cand.pixel.tolist()):
-            return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX))
-        return cand
+        if not self._jpeg:
+            return cand
+        snapped = [abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in cand.pixel.tolist()]
+        if not any(snapped):
+            return cand
+        # Per axis: a spot snapped across the laser's path is placed as well as ever along it.
+        var_u, var_v, cov_uv = cand.cov_px or (cand.sigma_px**2, cand.sigma_px**2, 0.0)
+        block = BLOCK_SIGMA_PX**2
+        if snapped[0]:
+            var_u, cov_uv = max(var_u, block), 0.0
+        if snapped[1]:
+            var_v, cov_uv = max(var_v, block), 0.0
+        return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX), cov_px=(var_u, var_v, cov_uv))
 
     @property
     def common_px(self) -> float:

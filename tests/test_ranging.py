@@ -617,6 +617,33 @@ def test_a_spot_that_jpeg_snapped_to_a_block_centre_is_placed_only_to_the_block(
     assert sum(row["status"] == OK for row in run.rows) >= 5  # the others still ranged
 
 
+def test_a_jpeg_spot_snapped_across_its_laser_s_path_is_placed_as_well_as_ever_along_it() -> None:
+    """JPEG can keep a small spot's light only as its block's mean down the columns, which snaps
+    the spot to the block's centre row and loses where in the block it was, across. The centre
+    laser's path runs along a row: its depth is in u alone, which the snap does not touch. Such a
+    spot was placed only to the block's width (2.3 px) on both axes."""
+    from edge.vision import SNAP_PX, SpotFinder
+
+    config = load_config()
+    rig = config.rig.build()
+    rig = replace(rig, camera=replace(rig.camera, cy=243.5))  # the centre's path on a block's centre row
+    sim = replace(config.sim, sensor=replace(config.sim.sensor, jpeg_quality=60))
+    snapped = 0
+    for distance, seed in ((1.5, 1), (1.5, 2), (2.0, 1), (2.0, 2)):
+        renderer = Renderer(flat_target_scene(distance), rig, sim)
+        groups = _render_groups(renderer, seed=seed)
+        finder = SpotFinder(rig)
+        snapped += sum(abs(c.pixel[1] - 243.5) < SNAP_PX for g in groups
+                       for c in finder.find(g.on, g.off)["center"])
+        result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+        assert result.status == OK, result.detail
+        centre = result.lasers["center"]
+        assert centre.sigma_px < 0.5, (distance, seed, centre.sigma_px)
+        assert abs(centre.depth_m - distance) <= 2.0 * centre.sigma_m
+        assert abs(result.range_m - distance) <= 2.0 * result.sigma_m
+    assert snapped >= 4  # (the case this is about: a snapped sighting in each zone)
+
+
 def test_a_range_known_only_loosely_is_not_ok() -> None:
     """A range whose σ is more than `max_sigma_fraction` of it could be 10 % off at 2σ: the zone
     says it is in doubt."""
