@@ -619,21 +619,16 @@ class SpotFinder:
     def _unsnapped(self, cand: Candidate) -> Candidate:
         """JPEG frames: a spot placed on an 8 × 8 block's centre line is one whose light JPEG kept
         only as the block's mean along that axis, and where in the block it was is lost: its σ
-        is the block's. (Tuning-12, quality 51: spots of a 352 px camera 0.6 px from the truth,
+        along that axis is the block's. (Tuning-12, quality 51: spots of a 352 px camera 0.6 px from the truth,
         snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.)"""
         if not self._jpeg:
             return cand
         snapped = [abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in cand.pixel.tolist()]
         if not any(snapped):
             return cand
-        # Per axis: a spot snapped across the laser's path is placed as well as ever along it.
-        var_u, var_v, cov_uv = cand.cov_px or (cand.sigma_px**2, cand.sigma_px**2, 0.0)
-        block = BLOCK_SIGMA_PX**2
-        if snapped[0]:
-            var_u, cov_uv = max(var_u, block), 0.0
-        if snapped[1]:
-            var_v, cov_uv = max(var_v, block), 0.0
-        return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX), cov_px=(var_u, var_v, cov_uv))
+        # Per axis: a spot snapped across its laser's path is placed as well as ever along it.
+        var_u, var_v = (max(cand.sigma_px, BLOCK_SIGMA_PX) ** 2 if s else cand.sigma_px**2 for s in snapped)
+        return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX), cov_px=(var_u, var_v, 0.0))
 
     @property
     def common_px(self) -> float:
