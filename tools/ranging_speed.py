@@ -34,7 +34,7 @@ from dataclasses import replace
 import numpy as np
 
 from edge import thesis
-from edge.bench import _thesis_range
+from edge.bench import _interleaved_ms, _thesis_range
 from edge.config import CameraConfig, load_config
 from edge.ranging import FrameGroup, Ranger, best_fusion, level_slopes
 from edge.sim.record import scene_for, true_rig
@@ -86,10 +86,11 @@ def main() -> None:
         return
     if args.what == "time":
         theirs = functools.partial(_thesis_range, thesis.thesis_rig(rig), on, off, thesis.masks(rig))
-        a, b = fastest(ours, args.repeats), fastest(theirs, max(20, args.repeats // 10))
-        print(f"edge   fastest {a[0]:8.1f} µs, median {a[1]:8.1f} µs")
-        print(f"thesis fastest {b[0]:8.1f} µs, median {b[1]:8.1f} µs")
-        print(f"thesis / edge: {b[0] / a[0]:.1f} × (fastest), {b[1] / a[1]:.1f} × (median)")
+        # Both under the same load (as `edge bench ranging`): 10 rounds, a tenth as many of theirs.
+        a, b = _interleaved_ms([(ours, max(1, args.repeats // 10)), (theirs, max(2, args.repeats // 100))], 10)
+        print(f"edge   fastest {1e3 * a[2]:8.1f} µs, median {1e3 * a[0]:8.1f} µs")
+        print(f"thesis fastest {1e3 * b[2]:8.1f} µs, median {1e3 * b[0]:8.1f} µs")
+        print(f"thesis / edge: {b[2] / a[2]:.1f} × (fastest), {b[0] / a[0]:.1f} × (median)")
         return
     stages(ranger, groups, args.repeats)
 
