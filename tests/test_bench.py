@@ -27,6 +27,16 @@ def test_spread_of_nothing_is_nan_not_an_error() -> None:
     assert bench.Spread.of([1.0, 2.0, 3.0]).max == 3.0
 
 
+def test_a_comparison_is_timed_in_alternating_rounds_so_that_both_sides_see_the_same_load() -> None:
+    """`edge bench ranging` compares edge with the thesis' pipeline: timed one after the other,
+    the machine's load fell on one side. Each round runs each call its number of times in turn."""
+    order: list[str] = []
+    figures = bench._interleaved_ms([(lambda: order.append("ours"), 3), (lambda: order.append("theirs"), 1)], 4)
+    assert order == (["ours"] * 3 + ["theirs"]) * 4
+    for median, p90, fastest in figures:
+        assert 0.0 <= fastest <= median <= p90
+
+
 def test_blindaid_reports_work_and_the_latency_it_makes() -> None:
     config = load_config(None, ["blindaid.fan_zones=3"])  # a short fan: the figures, not their number
     out = bench.measure_blindaid(config, passes=1)
