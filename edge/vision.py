@@ -619,8 +619,8 @@ class SpotFinder:
     def _unsnapped(self, cand: Candidate) -> Candidate:
         """JPEG frames: a spot placed on an 8 × 8 block's centre line is one whose light JPEG kept
         only as the block's mean along that axis, and where in the block it was is lost: its σ
-        along that axis is the block's. (Tuning-12, quality 51: spots of a 352 px camera 0.6 px from the truth,
-        snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.)"""
+        along that axis is the block's. (Tuning-12, quality 51: spots of a 352 px camera 0.6 px
+        from the truth, snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.)"""
         if not self._jpeg:
             return cand
         snapped = [abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in cand.pixel.tolist()]
