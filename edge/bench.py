@@ -20,15 +20,6 @@ if TYPE_CHECKING:
     from edge.thesis import ThesisRig
 
 
-def _median_ms(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(times), float(np.percentile(times, 90))
-
-
 def _interleaved_ms(runs: Sequence[tuple[Callable[[], object], int]], rounds: int
                     ) -> list[tuple[float, float, float]]:
     """Median, 90th percentile and fastest time (ms) of each call of `runs`, (call, n) each, timed
@@ -45,6 +36,12 @@ def _interleaved_ms(runs: Sequence[tuple[Callable[[], object], int]], rounds: in
                 fn()
                 mine.append((time.perf_counter() - t0) * 1e3)
     return [(statistics.median(t), float(np.percentile(t, 90)), min(t)) for t in times]
+
+
+def _median_ms(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
+    """Median and 90th percentile time (ms) of `repeats` runs of `fn`."""
+    median, p90, _ = _interleaved_ms([(fn, repeats)], 1)[0]
+    return median, p90
 
 
 def bench_render(config: Config, repeats: int = 20) -> list[str]:

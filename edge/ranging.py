@@ -822,8 +822,10 @@ class Ranger:
                 cu, cv = c.pixel.tolist()  # (plain floats: cheaper than numpy's scalars)
                 u, v = int(round(cu)), int(round(cv))
                 for other in found:
+                    if other == name:
+                        continue
                     near = self._near_path[other]
-                    if other == name or not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
+                    if not (0 <= v < near.shape[0] and 0 <= u < near.shape[1] and near.item(v, u)):
                         continue
                     pair = self._blob_pair(group, found, name, c, other)
                     if pair is None:

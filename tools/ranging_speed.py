@@ -26,8 +26,6 @@ from __future__ import annotations
 import argparse
 import functools
 import gc
-import statistics
-import time
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -45,16 +43,6 @@ PAN = -90.0  # as bench_ranging: a wall in the office, about 1.3 m away
 # The `auto` channel measures the frames' chroma in a finder's first groups: past them, every
 # call does the same work.
 WARM_UP = 10
-
-
-def fastest(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
-    """Fastest and median time of `fn` (µs)."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter_ns()
-        fn()
-        times.append(time.perf_counter_ns() - t0)
-    return min(times) / 1e3, statistics.median(times) / 1e3
 
 
 def main() -> None:
@@ -143,7 +131,7 @@ def stages(ranger: Ranger, groups: list[FrameGroup], repeats: int) -> None:
     ]
     print(f"{'stage':48s} fastest of {repeats} (µs)")
     for label, fn in rows:
-        print(f"{label:48s} {fastest(fn, repeats)[0]:8.1f}")
+        print(f"{label:48s} {1e3 * _interleaved_ms([(fn, repeats)], 1)[0][2]:8.1f}")
 
 
 if __name__ == "__main__":
