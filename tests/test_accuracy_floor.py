@@ -131,3 +131,23 @@ def test_fused_floor_of_spots_on_a_plane() -> None:
     assert fl.fused_sigma(points, sig, d, facing) == pytest.approx(expected)
     assert expected < 0.02
     assert fl.fused_sigma(points, np.array([math.inf, 0.02, 0.005]), d, facing) == math.inf
+
+
+def test_fusion_weights_carry_the_lasers_depth_errors_to_the_reference_s_range() -> None:
+    rig = default_rig()
+    d = np.array([laser.d for laser in rig.lasers])
+    facing = np.array([0.0, 0.0, -1.0])
+    points = np.array([laser.point_at_depth(2.0) for laser in rig.lasers])
+    sig = np.array([0.02, 0.02, 0.005])
+    w = fl.fusion_weights(points, sig, d, facing)
+    # A wall 1 cm nearer in every laser's depth is a wall 1 cm nearer: the fit passes that on whole.
+    assert w.sum() == pytest.approx(1.0)
+    assert math.sqrt(float(((w * sig) ** 2).sum())) == pytest.approx(fl.fused_sigma(points, sig, d, facing))
+    # Errors that only tilt the wall about the reference's point leave its range alone: the slope is free.
+    assert float(w @ (points[:, 1] - points[0, 1])) == pytest.approx(0.0, abs=1e-12)
+    alone = fl.fusion_weights(points[:1], sig[:1], d[:1], facing)
+    assert alone.tolist() == [1.0]
+    lost = fl.fusion_weights(points, np.array([math.inf, 0.02, 0.005]), d, facing)
+    assert not lost.any()
+    no_parallel = fl.fusion_weights(points, np.array([0.02, math.inf, 0.005]), d, facing)
+    assert no_parallel[1] == 0.0 and no_parallel.sum() == pytest.approx(1.0)

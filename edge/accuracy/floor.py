@@ -242,28 +242,32 @@ def spot_floor(spots: Sequence[Spot], sensor: Sensor, speckle_cov_px: np.ndarray
                  np.asarray(gradient, dtype=np.float64), clipped)
 
 
-def fused_sigma(points: np.ndarray, sigmas_m: np.ndarray, directions: np.ndarray, normal: np.ndarray,
-                min_spread_m: float = 0.01) -> float:
-    """The floor of the reference laser's range from the depths of spots that all lie on one plane.
+def fusion_weights(points: np.ndarray, sigmas_m: np.ndarray, directions: np.ndarray, normal: np.ndarray,
+                   min_spread_m: float = 0.01) -> np.ndarray:
+    """How the reference laser's range follows from the depths of spots that all lie on one plane:
+    weights w (n,), the reference's error being Σ wᵢ δzᵢ of the lasers' depth errors δzᵢ (0 for a
+    laser of infinite σ). Zeros when the reference spot itself cannot be located.
 
     `points` (n, 3): the spots' true points, camera frame, the reference's first; `sigmas_m` (n,):
     each laser's range floor; `directions` (n, 3): the lasers' beams; `normal` (3,): the plane's
     normal, camera frame. The plane z = a + g·(y − y_ref) + h·(x − x_ref) has an unknown offset a and
     slopes g, h — a slope only where the points spread at least `min_spread_m` along it (else it
     cannot be measured, and hardly matters). A laser's depth error δz_i moves its point along its beam
-    d_i, which is δz_i·(1 − (g·d_y + h·d_x)/d_z) off the plane; the reference's depth follows from
-    the fitted offset the same way back.
+    d_i, which is δz_i·(1 − (g·d_y + h·d_x)/d_z) off the plane; weighted least squares fits the
+    offset, and the reference's depth follows from it the same way back.
     """
     pts = np.asarray(points, dtype=np.float64)
     sig = np.asarray(sigmas_m, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
+    weights = np.zeros(len(pts))
     if not (math.isfinite(float(sig[0])) and sig[0] > 0):
-        return math.inf  # the reference spot itself cannot be located
+        return weights
     n = np.asarray(normal, dtype=np.float64)
     g, h = (-n[1] / n[2], -n[0] / n[2]) if abs(n[2]) > 1e-9 else (0.0, 0.0)
-    across = np.maximum(np.abs(1.0 - (g * d[:, 1] + h * d[:, 0]) / d[:, 2]), 1e-9)
-    keep = np.isfinite(sig) & (sig > 0)
-    pts, eff = pts[keep], (sig * across)[keep]
+    signed = 1.0 - (g * d[:, 1] + h * d[:, 0]) / d[:, 2]
+    across = np.where(signed < 0.0, -1.0, 1.0) * np.maximum(np.abs(signed), 1e-9)
+    keep = np.flatnonzero(np.isfinite(sig) & (sig > 0))
+    pts, eff = pts[keep], np.abs(sig * across)[keep]
     dx, dy = pts[:, 0] - pts[0, 0], pts[:, 1] - pts[0, 1]
     cols = [np.ones(len(pts))]
     if np.ptp(dy) >= min_spread_m:
@@ -272,5 +276,22 @@ def fused_sigma(points: np.ndarray, sigmas_m: np.ndarray, directions: np.ndarray
         cols.append(dx)
     design = np.stack(cols[: len(pts)], axis=1)  # no more unknowns than spots
     info = design.T @ (design / eff[:, None] ** 2)
-    var_a = float(np.linalg.inv(info)[0, 0]) if np.linalg.cond(info) < 1e12 else float(eff[0]) ** 2
-    return math.sqrt(var_a) / float(across[0])
+    if np.linalg.cond(info) < 1e12:
+        # The fitted offset is row 0 of (DᵀWD)⁻¹DᵀW applied to the off-plane errors δzᵢ·acrossᵢ.
+        offset = (np.linalg.inv(info) @ (design / eff[:, None] ** 2).T)[0]
+        weights[keep] = offset * across[keep] / across[0]
+    else:
+        weights[0] = 1.0
+    return weights
+
+
+def fused_sigma(points: np.ndarray, sigmas_m: np.ndarray, directions: np.ndarray, normal: np.ndarray,
+                min_spread_m: float = 0.01) -> float:
+    """The floor of the reference laser's range from the depths of spots that all lie on one plane
+    (:func:`fusion_weights`, whose arguments these are): √Σ (wᵢ σᵢ)²."""
+    sig = np.asarray(sigmas_m, dtype=np.float64)
+    w = fusion_weights(points, sig, directions, normal, min_spread_m)
+    if not w.any():
+        return math.inf  # the reference spot itself cannot be located
+    used = w != 0.0
+    return math.sqrt(float(((w[used] * sig[used]) ** 2).sum()))
