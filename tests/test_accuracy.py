@@ -190,8 +190,13 @@ def test_a_tiny_family_is_recorded_replayed_and_reported(tmp_path: Path) -> None
         assert zone.truth is not None and "floor" in zone.truth
         if zone.truth["lasers"]["center"]["visible"]:
             assert zone.truth["floor"]["lasers"]["center"]["snr"] > 0
+    # The oracle ranged each zone whose reference it sees, from the same frames, to within a few floors.
+    for row in run.rows:
+        if row["visible"] and row["floor"].get("sigma_m"):
+            assert row["oracle_error_m"] is not None
+            assert abs(row["oracle_error_m"]) < 5.0 * row["floor"]["sigma_m"], row
     text = "\n".join(report(runs, "tuning", 3, "true"))
-    for label in ("tuning-0", "family:", "coverage", "÷ floor", "targets", "wrong ok = 0"):
+    for label in ("tuning-0", "family:", "coverage", "÷ floor", "the oracle's", "targets", "wrong ok = 0"):
         assert label in text
 
 

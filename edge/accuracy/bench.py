@@ -60,6 +60,7 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
                   rig: str, folder: Path) -> Run:
     """Record condition `cond` of the configuration (`config_path` with `overrides`), range it with
     the `rig` asked for (one of RIGS) and score it. Recordings go to `folder`."""
+    from edge.accuracy.oracle import ZoneOracle
     from edge.accuracy.truth import floor_truth
     from edge.recording import read_recording
     from edge.replay import zone_groups
@@ -82,6 +83,7 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     else:
         raise ValueError(f"rig must be one of {', '.join(RIGS)}, got {rig!r}")
     ranger = Ranger(ranging_rig, config.ranging)
+    oracle = ZoneOracle.of(config)
     reference = recording.rig.reference.name
     outcomes, rows = [], []
     for zone in recording.zones:
@@ -89,7 +91,9 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
         # reads them: zone_groups).
         groups, _ = zone_groups(recording, zone)
         result = ranger.range_zone(zone.index, zone.pan_deg, zone.tilt_deg, groups)
-        outcome = ZoneOutcome.of(result, zone.truth, reference, _frame_snr(groups, zone, reference))
+        t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
+        outcome = ZoneOutcome.of(result, zone.truth, reference, _frame_snr(groups, zone, reference),
+                                 oracle.error_m(groups, zone.truth or {}, t_s))
         outcomes.append(outcome)
         rows.append(_row(cond, zone.pan_deg, zone.tilt_deg, outcome, result, zone.truth or {}, reference))
     return Run(cond, tuple(outcomes), said, time.monotonic() - began, tuple(rows))
@@ -138,6 +142,7 @@ def _row(cond: Condition, pan: float, tilt: float, z: ZoneOutcome, result: ZoneR
         "status": z.status, "detail": result.detail, "range_m": z.range_m, "sigma_m": z.sigma_m,
         "truth_m": z.truth_m, "error_m": z.error_m, "visible": z.visible, "observable": z.observable,
         "wrong": z.wrong, "floor": floor, "frame_snr": None if z.frame_snr is None else round(z.frame_snr, 2),
+        "oracle_error_m": None if z.oracle_error_m is None else round(z.oracle_error_m, 7),
         "spot": None if mine is None else mine.to_json(),
     }
 
@@ -188,14 +193,15 @@ def _pct(x: float) -> str:
 
 
 HEADER = (f"{'condition':<14} {'covered':>8} {'ok':>3} {'mean|e|':>8} {'med|e|':>7} {'mean%':>6} "
-          f"{'e/floor':>7} {'med':>5} {'≤2σ':>5} {'wrong':>5} {'σ/floor':>7}  set-up")
+          f"{'e/floor':>7} {'med':>5} {'e/orc':>5} {'≤2σ':>5} {'wrong':>5} {'σ/floor':>7}  set-up")
 
 
 def condition_line(run: Run) -> str:
     f = run.figures
     return (f"{run.condition.name:<14} {f.covered:>3}/{f.observable:<4} {f.ok:>3} {_mm(f.mean_abs_m):>8} "
             f"{_mm(f.median_abs_m):>7} {_num(100 * f.mean_rel):>6} {_num(f.mean_ratio):>7} "
-            f"{_num(f.median_ratio, '.1f'):>5} {_pct(f.within_2sigma):>5} {f.wrong_ok:>5} "
+            f"{_num(f.median_ratio, '.1f'):>5} {_num(f.over_oracle, '.1f'):>5} {_pct(f.within_2sigma):>5} "
+            f"{f.wrong_ok:>5} "
             f"{_num(f.sigma_over_floor):>7}  {run.condition.describe()}")
 
 
@@ -208,7 +214,8 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
         f"ranging accuracy on {len(runs)} conditions of the {family_name} family (seeds {seeds}), "
         f"{zones} zones each, ranged with the {rig} rig",
         "  covered: ok / observable zones (reference spot's matched-filter SNR ≥ 6 in its frames); |e| in mm over "
-        "covered zones; e/floor: |error| ÷ the floor's σ (0.80 at the floor); σ/floor: median claimed σ ÷ floor",
+        "covered zones; e/floor: |error| ÷ the floor's σ (0.80 at the floor); e/orc: that ÷ the oracle's on the "
+        "same zones; σ/floor: median claimed σ ÷ floor",
         HEADER,
     ]
     lines += [condition_line(r) for r in runs]
@@ -225,6 +232,9 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
         f"mean {_num(100 * pooled.mean_rel)} % of range",
         f"  |error| ÷ floor: mean {_num(pooled.mean_ratio)}, median {_num(pooled.median_ratio)}; "
         f"claimed σ ÷ floor: median {_num(pooled.sigma_over_floor)}",
+        f"  beside the oracle (a fit told each spot's true pixel and shape) on {pooled.oracle_scored} covered zones: "
+        f"|error| ÷ floor mean {_num(pooled.ratio_beside_oracle)}, the oracle's {_num(pooled.oracle_ratio)}: "
+        f"{_num(pooled.over_oracle)} × the oracle's",
         f"  within 2σ: {_pct(pooled.within_2sigma)} of {pooled.scored} ok zones with truth "
         f"(worst condition {_pct(min((f.within_2sigma for f in per if f.scored), default=math.nan))})",
         f"  observable zones not ok: {missed}",
