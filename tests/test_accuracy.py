@@ -196,7 +196,12 @@ def test_a_tiny_family_is_recorded_replayed_and_reported(tmp_path: Path) -> None
             assert row["oracle_error_m"] is not None
             assert abs(row["oracle_error_m"]) < 5.0 * row["floor"]["sigma_m"], row
     text = "\n".join(report(runs, "tuning", 3, "true"))
-    for label in ("tuning-0", "family:", "coverage", "÷ floor", "the oracle's", "targets", "wrong ok = 0"):
+    kind = f"    {tiny.frames} "
+    assert tiny.frames in {"grey lossless", "grey JPEG", "3-colour lossless", "3-colour JPEG", "Bayer lossless",
+                           "Bayer JPEG"}
+    assert sum(line.startswith(kind) and "(1): coverage" in line for line in text.splitlines()) == 1
+    for label in ("tuning-0", "family:", "coverage", "÷ floor", "the oracle's", "by kind of frames", "targets",
+                  "wrong ok = 0"):
         assert label in text
 
 

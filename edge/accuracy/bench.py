@@ -205,6 +205,22 @@ def condition_line(run: Run) -> str:
             f"{_num(f.sigma_over_floor):>7}  {run.condition.describe()}")
 
 
+def _by_frames(runs: Sequence[Run]) -> list[str]:
+    """The family's figures by kind of frames (:attr:`Condition.frames`): where the estimator
+    stands furthest from the floor and from the oracle."""
+    kinds: dict[str, list[ZoneOutcome]] = {}
+    for r in runs:
+        kinds.setdefault(r.condition.frames, []).extend(r.outcomes)
+    lines = ["  by kind of frames (conditions):"]
+    for kind, outcomes in sorted(kinds.items()):
+        f = Figures.of(outcomes)
+        lines.append(
+            f"    {kind:<17} ({sum(r.condition.frames == kind for r in runs)}): coverage "
+            f"{_pct(f.coverage)} ({f.covered} of {f.observable}), {f.wrong_ok} wrong, |error| ÷ floor mean "
+            f"{_num(f.mean_ratio)}, {_num(f.over_oracle)} × the oracle's")
+    return lines
+
+
 def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[str]:
     """The benchmark's printout: a line per condition, the family's figures and the targets."""
     if not runs:
@@ -240,6 +256,7 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
         f"  observable zones not ok: {missed}",
         f"  observable by the renderer's SNR, before the camera's JPEG and demosaicing: {pooled.observable_model}, "
         f"{pooled.covered_model} of them ok (coverage {_pct(_share(pooled.covered_model, pooled.observable_model))})",
+        *_by_frames(runs),
         f"  time: {sum(r.seconds for r in runs):.0f} s of work",
         "targets (to be met on the evaluation family):",
     ]

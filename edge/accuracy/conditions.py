@@ -149,6 +149,13 @@ class Condition:
             f"sweep.poses_deg={poses}",
         )
 
+    @property
+    def frames(self) -> str:
+        """The kind of frames the camera delivers, as the estimator meets them: the sensor (grey,
+        3-colour, Bayer) and lossless or JPEG."""
+        sensor = "grey" if not self.colour else ("3-colour" if self.bayer == "none" else "Bayer")
+        return f"{sensor} {'JPEG' if self.jpeg_quality else 'lossless'}"
+
     def describe(self) -> str:
         """One short line of what matters most to ranging."""
         sensor = "grey" if not self.colour else ("3-colour" if self.bayer == "none" else f"bayer-{self.bayer}")
