@@ -80,6 +80,17 @@ MATCHED_SNR = 5.0
 # Red's noise differs this much between the four pixels of a 2 × 2 block only behind a Bayer filter
 # (demosaicing interpolates red at three of them, which averages their noise).
 BAYER_CONTRAST = 1.25
+# Fitting a spot's red pixels behind a Bayer filter: what the interpolation between them adds to the
+# demosaiced spot's variance (px², bilinear's tent over the red pixels' 2 px pitch), the narrowest
+# width held likely, and how far (in log width) the prior lets the red pixels move it.
+_DEMOSAIC_SPREAD_PX2 = 0.5
+_MIN_SITE_WIDTH_PX = 0.4
+_SITE_WIDTH_PRIOR = 0.4
+_PIXEL_VAR = 1.0 / 12.0  # a pixel's area widens a spot's samples by this variance (px²)
+# A spot's red pixels tell its width when its log's variance is below this (the prior's is 0.16);
+# then the zone's other spots are held near the widths so told, within this much (log px).
+_WIDTH_TOLD = 0.1
+_SHARED_WIDTH_SPREAD = 0.1
 
 
 # Path samples (about half a pixel apart) whose noise `SpotFinder._local` measures together.
@@ -146,50 +157,77 @@ def _centre(coef: np.ndarray) -> tuple[float, float]:
 
 
 def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.ndarray, du: float, dv: float,
-               size: float) -> tuple[float, float, np.ndarray, float] | None:
-    """A round Gaussian fitted by weighted least squares (Gauss–Newton) to the pixels `sites` of
-    `above` (their noise variances `var`), started at (du, dv) with width `size`: its centre, the
+               size: float, width: tuple[float, float] | None = None
+               ) -> tuple[float, float, np.ndarray, float, float, float] | None:
+    """A round Gaussian fitted by weighted least squares (Levenberg–Marquardt) to the pixels `sites`
+    of `above` (their noise variances `var`), started at (du, dv) with width `size`: its centre, the
     centre's covariance (2, 2) and χ² per degree of freedom; None when it does not converge to a
     spot. For the red pixels of a Bayer filter, 2 px apart: too few above the noise for a fit of
-    logarithms, and the demosaiced pixels between them lock a centroid onto them."""
+    logarithms, and the demosaiced pixels between them lock a centroid onto them.
+
+    A spot as small as the filter's period lights one or two red pixels: their values fix the
+    centre only with its width, which they cannot tell. The width is then held near what the
+    demosaiced spot shows (`size`, less the interpolation's spread) by a prior, whose uncertainty
+    the centre's covariance carries; a spot that lights enough red pixels overrules it."""
     y, x = np.nonzero(sites)
     if y.size < 8:
         return None
     xs, ys = offs[x].astype(np.float64), offs[y].astype(np.float64)
     val = above[y, x].astype(np.float64)
     w = 1.0 / var[y, x]
-    amp = max(float(val.max()), 1e-9)
-    u, v, t = du, dv, math.log(max(size, 0.5))
-    for _ in range(8):
-        s2 = math.exp(2.0 * t)
-        r2 = (xs - u) ** 2 + (ys - v) ** 2
+    if width is None:
+        t0 = 0.5 * math.log(max(size * size - _DEMOSAIC_SPREAD_PX2, _MIN_SITE_WIDTH_PX**2))
+        prior = 1.0 / _SITE_WIDTH_PRIOR**2
+    else:
+        t0, prior = width[0], 1.0 / width[1] ** 2
+
+    def model(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        w2 = math.exp(2.0 * p[3])
+        s2 = w2 + _PIXEL_VAR
+        r2 = (xs - p[1]) ** 2 + (ys - p[2]) ** 2
         g = np.exp(-0.5 * r2 / s2)
-        m = amp * g
-        jac = np.stack([g, m * (xs - u) / s2, m * (ys - v) / s2, m * r2 / s2], axis=1)
+        m = p[0] * g
+        jac = np.stack([g, m * (xs - p[1]) / s2, m * (ys - p[2]) / s2, m * r2 * w2 / (s2 * s2)], axis=1)
+        res = val - m
+        return jac, res, float((w * res * res).sum()) + prior * (p[3] - t0) ** 2
+
+    p = np.array([max(float(val.max()), 1e-9), du, dv, t0])
+    jac, res, cost = model(p)
+    damping = 1e-3
+    for _ in range(20):
         jw = jac * w[:, None]
+        info = jw.T @ jac
+        info[3, 3] += prior
+        grad = jw.T @ res
+        grad[3] -= prior * (p[3] - t0)
         try:
-            step = np.linalg.solve(jw.T @ jac, jw.T @ (val - m))
+            step = np.linalg.solve(info + damping * np.diag(np.diag(info)), grad)
         except np.linalg.LinAlgError:
             return None
-        amp += float(step[0])
-        u += float(np.clip(step[1], -0.5, 0.5))
-        v += float(np.clip(step[2], -0.5, 0.5))
-        t += float(np.clip(step[3], -0.3, 0.3))
-        if abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3:
-            break
+        step[1:3] = np.clip(step[1:3], -0.5, 0.5)
+        step[3] = float(np.clip(step[3], -0.3, 0.3))
+        trial = p + step
+        tj, tr, tc = model(trial)
+        if tc <= cost:
+            p, jac, res, cost = trial, tj, tr, tc
+            damping = max(damping / 3.0, 1e-7)
+            if abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3:
+                break
+        else:
+            damping *= 4.0
+            if damping > 1e6:
+                break
+    amp, u, v, t = (float(c) for c in p)
     if amp <= 0 or not 0.3 < math.exp(t) < 6.0 or abs(u - du) > 1.0 or abs(v - dv) > 1.0:
         return None
-    s2 = math.exp(2.0 * t)
-    r2 = (xs - u) ** 2 + (ys - v) ** 2
-    m = amp * np.exp(-0.5 * r2 / s2)
-    jac = np.stack([m / amp, m * (xs - u) / s2, m * (ys - v) / s2, m * r2 / s2], axis=1)
     info = (jac * w[:, None]).T @ jac
+    info[3, 3] += prior
     try:
-        cov = np.linalg.inv(info)[1:3, 1:3]
+        full = np.linalg.inv(info)
     except np.linalg.LinAlgError:
         return None
-    chi2 = float((w * (val - m) ** 2).sum()) / max(y.size - 4, 1)
-    return u, v, cov, chi2
+    chi2 = float((w * res * res).sum()) / max(y.size - 4, 1)
+    return u, v, full[1:3, 1:3], chi2, t, float(full[3, 3])
 
 
 def _fit_unsaturated(signal: np.ndarray, unsaturated: np.ndarray, r: int, floor: float
@@ -297,6 +335,8 @@ class Candidate:
     # The position's covariance (var u, var v, cov uv; px²), where its axes are placed unequally
     # well: only the part along the laser's path moves the depth. None: sigma_px² on each axis.
     cov_px: tuple[float, float, float] | None = None
+    # Behind a Bayer filter, the spot's width as its red pixels' fit found it: (log px, its variance).
+    site_width: tuple[float, float] | None = None
 
 
 # Not frozen (never changed once made): a frozen dataclass costs 4 × as much to build; see Candidate.
@@ -528,7 +568,8 @@ class SpotFinder:
         """Candidate spots per laser from laser-on and laser-off frames of one pose.
 
         Several frames of each kind are averaged (same pose: same speckle, less pixel noise).
-        `lasers`: the lasers that were on (default: all of this finder's).
+        `lasers`: the lasers that were on (default: all of this finder's). Behind a Bayer filter,
+        spots are placed twice: the second time with the width the first told (`_shared_width`).
         """
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
         if self._auto and len(self._chroma_lag2) < AUTO_GROUPS and on[0].ndim == 3:
@@ -598,17 +639,39 @@ class SpotFinder:
         found: dict[str, list[Candidate]] = {}
         scales = self._scales(on, off, gain)
         planes = self._planes(on, off)
+        refined: dict[str, list[tuple[tuple, Candidate]]] = {}  # each candidate with how it was refined
         for name, ss in seeds.items():
             out = []
             for u, v, peak, row, mf, here in ss:
                 others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius
                           ] if len(everywhere) > 1 else []
-                cand = self._refine(self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak,
-                                    mf, texture, scales, planes)
+                args = (self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak, mf, texture, scales,
+                        planes)
+                cand = self._refine(*args)
                 if cand is not None:
-                    out.append(self._unsnapped(cand))
-            found[name] = out
+                    out.append((args, cand))
+            refined[name] = out
+        # Behind a Bayer filter, the spots placed by their red pixels are placed again, with the
+        # width that the spots whose red pixels told it share (see _shared_width).
+        shared = self._shared_width([c for out in refined.values() for _, c in out])
+        for name, out in refined.items():
+            found[name] = [self._unsnapped((self._refine(*args, width=shared) or c)
+                                           if shared is not None and c.site_width is not None else c)
+                           for args, c in out]
         return found
+
+    @staticmethod
+    def _shared_width(cands: Sequence[Candidate]) -> tuple[float, float] | None:
+        """Behind a Bayer filter: the spots' common width (log px, and how far a spot may stray from
+        it), from those whose red pixels told their own width well; None if none did. The lasers
+        share the optics and, mostly, the depth: a small spot lights one or two red pixels, which
+        fix its centre only with a width that they cannot tell, and the others can."""
+        told = [c.site_width for c in cands if c.site_width is not None and c.site_width[1] < _WIDTH_TOLD]
+        if not told:
+            return None
+        weights = [1.0 / var for _, var in told]
+        mean = sum(w * t for w, (t, _) in zip(weights, told)) / sum(weights)
+        return mean, _SHARED_WIDTH_SPREAD
 
     def _misfit_grow(self, misfit: float) -> float:
         """What a spot's variance is multiplied by for its fit's `misfit` (see JPEG_MISFIT_KNEE)."""
@@ -853,7 +916,8 @@ class SpotFinder:
 
     def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak, matched=0.0,
                 texture: _Texture | None = None, scales: tuple[float, float] | None = None,
-                planes: tuple[np.ndarray, ...] | None = None) -> Candidate | None:
+                planes: tuple[np.ndarray, ...] | None = None, width: tuple[float, float] | None = None
+                ) -> Candidate | None:
         """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
         thresholded difference in a window, which is unbiased for a symmetric spot; the window
         grows for big (near, defocused, saturated) spots so that it never clips one, and pixels
@@ -934,17 +998,19 @@ class SpotFinder:
             usable = mine
         misfit = 1.0
         cov = None
+        site_width = None  # (log px, variance) where a fit of a Bayer filter's red pixels placed the spot
         if texture.bayer is not None:
             rr, rc = divmod(texture.bayer, 2)
             red = (((v0 - rw + np.arange(2 * rw + 1)) % 2 == rr)[:, None]
                    & ((u0 - rw + np.arange(2 * rw + 1)) % 2 == rc)[None, :])
             var_all = noise**2 + np.maximum(above, 0.0) * shot  # each pixel's noise variance
-            fit = _fit_sites(above, red if usable is None else red & usable, var_all, offs, du, dv, size)
+            fit = _fit_sites(above, red if usable is None else red & usable, var_all, offs, du, dv, size, width)
             # A fit that leaves far more than noise, or knows the centre to worse than a pixel, has
             # not found the spot's shape: the centroid then.
             # (Nor does one whose covariance is not positive: an ill-conditioned fit.)
             if fit is not None and fit[3] < 10.0 and float(np.trace(fit[2])) < 1.0 and min(np.diag(fit[2])) > 0.0:
-                du, dv, cov, misfit = fit
+                du, dv, cov, misfit, log_width, var_log_width = fit
+                site_width = (log_width, var_log_width)
                 misfit = max(misfit, 1.0)
                 cu, cv = u0 + du, v0 + dv
                 cov = cov * texture.sites * self._misfit_grow(misfit)
@@ -1021,4 +1087,5 @@ class SpotFinder:
             cross,
             matched,
             misfit,
+            site_width=site_width,
         )

@@ -3,6 +3,7 @@ the lights that are not lasers."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import cv2
@@ -283,3 +284,65 @@ def test_box5_sums_five_columns_of_each_row_as_the_2d_slices_did() -> None:
         for k in (2, 3, 4):
             inner += cols[:, k : n - 4 + k]
         assert np.array_equal(_box5(cols), expected)
+
+
+def _bayer_window(rng: np.random.Generator, centre: np.ndarray, sd: float, total: float, r: int = 6):
+    """A small red spot behind an RGGB filter, demosaiced as OpenCV does: the red plane's
+    difference about the window's middle, its red pixels, their noise and the offsets."""
+    from edge.accuracy.floor import spot_profile
+
+    h = w = 2 * r + 13
+    own = np.where((np.arange(h)[:, None] % 2 == 0) & (np.arange(w)[None, :] % 2 == 0), 2,
+                   np.where((np.arange(h)[:, None] % 2 == 1) & (np.arange(w)[None, :] % 2 == 1), 0, 1))
+    g, _ = spot_profile(centre, np.eye(2) * sd**2, 0, 0, w, h)
+    room, read, e_per_step = 400.0, 4.0, 4.0
+
+    def frame(light: np.ndarray) -> np.ndarray:
+        electrons = rng.poisson(light) + rng.normal(0.0, read, light.shape)
+        raw = np.clip(np.rint(electrons / e_per_step), 0, 65535).astype(np.uint16)
+        return cv2.cvtColor(raw, cv2.COLOR_BayerRGGB2BGR)[..., 2].astype(np.float64)
+
+    response = np.array([0.03, 0.10, 1.0])
+    diff = frame(room + total * response[own] * g) - frame(np.full((h, w), room))
+    c = h // 2
+    win = diff[c - r:c + r + 1, c - r:c + r + 1]
+    sites = own[c - r:c + r + 1, c - r:c + r + 1] == 2
+    var = 2.0 * (room + read**2) / e_per_step**2 + np.maximum(win, 0.0) / e_per_step
+    return win, sites, var, np.arange(-r, r + 1).astype(np.float64), c
+
+
+def test_a_small_spot_behind_a_bayer_filter_is_placed_by_its_red_pixels_once_its_width_is_known() -> None:
+    """A spot of σ 0.7 px lights one or two red pixels (2 px apart): their values place it only
+    together with its width, which they barely tell. Told the width (by the zone's other spots,
+    `_shared_width`), the fit of its red pixels places it several times better."""
+    from edge.vision import _fit_sites
+
+    rng = np.random.default_rng(3)
+    free, told = [], []
+    sd = 0.7
+    for _ in range(120):
+        centre = np.array([12.0, 12.0]) + rng.uniform(-1.0, 1.0, 2)
+        win, sites, var, offs, c = _bayer_window(rng, centre, sd, 30000.0)
+        start = centre - c + rng.normal(0.0, 0.2, 2)
+        size = math.sqrt(sd * sd + 0.5)  # as the demosaiced spot shows it
+        for out, width in ((free, None), (told, (math.log(sd), 0.05))):
+            fit = _fit_sites(win, sites, var, offs, float(start[0]), float(start[1]), size, width)
+            assert fit is not None
+            out.append((fit[0] + c - centre[0], fit[1] + c - centre[1]))
+    rms_free = np.sqrt((np.array(free) ** 2).mean())
+    rms_told = np.sqrt((np.array(told) ** 2).mean())
+    assert rms_told < 0.03 and rms_told < 0.6 * rms_free, (rms_told, rms_free)
+
+
+def test_spots_share_the_width_their_red_pixels_told() -> None:
+    from edge.vision import _SHARED_WIDTH_SPREAD, _WIDTH_TOLD, Candidate
+
+    def cand(site_width: tuple[float, float] | None) -> Candidate:
+        return Candidate("center", np.zeros(2), 0.1, 20.0, 1.0, 0.5, 0.0, site_width=site_width)
+
+    told = [cand((math.log(0.8), 0.01)), cand((math.log(1.0), 0.03))]
+    untold = [cand((math.log(3.0), _WIDTH_TOLD * 2)), cand(None)]
+    mean, spread = SpotFinder._shared_width(told + untold)
+    # Weighted by how well each told it: 3 parts of 0.8 px to 1 of 1 px.
+    assert mean == pytest.approx((3 * math.log(0.8) + math.log(1.0)) / 4) and spread == _SHARED_WIDTH_SPREAD
+    assert SpotFinder._shared_width(untold) is None  # nothing told: each spot keeps its own fit
