@@ -115,12 +115,16 @@ def test_depth_gradient_of_the_centre_laser_is_z_squared_over_f_b() -> None:
         assert abs(g[1]) < 1e-6 * abs(g[0])  # moving across the epipolar line changes nothing
 
 
-def test_fused_floor_of_spots_on_a_plane() -> None:
+def _wall_spots() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The default rig's spots on a wall facing it 2 m away: beams, normal, points and floors."""
     rig = default_rig()
     d = np.array([laser.d for laser in rig.lasers])
-    facing = np.array([0.0, 0.0, -1.0])
     points = np.array([laser.point_at_depth(2.0) for laser in rig.lasers])
-    sig = np.array([0.02, 0.02, 0.005])
+    return d, np.array([0.0, 0.0, -1.0]), points, np.array([0.02, 0.02, 0.005])
+
+
+def test_fused_floor_of_spots_on_a_plane() -> None:
+    d, facing, points, sig = _wall_spots()
     assert fl.fused_sigma(points[:1], sig[:1], d[:1], facing) == pytest.approx(0.02)
     # Centre and parallel alone: the plane's slope along y takes the second spot.
     assert fl.fused_sigma(points[:2], sig[:2], d[:2], facing) == pytest.approx(0.02)
@@ -134,11 +138,7 @@ def test_fused_floor_of_spots_on_a_plane() -> None:
 
 
 def test_fusion_weights_carry_the_lasers_depth_errors_to_the_reference_s_range() -> None:
-    rig = default_rig()
-    d = np.array([laser.d for laser in rig.lasers])
-    facing = np.array([0.0, 0.0, -1.0])
-    points = np.array([laser.point_at_depth(2.0) for laser in rig.lasers])
-    sig = np.array([0.02, 0.02, 0.005])
+    d, facing, points, sig = _wall_spots()
     w = fl.fusion_weights(points, sig, d, facing)
     # A wall 1 cm nearer in every laser's depth is a wall 1 cm nearer: the fit passes that on whole.
     assert w.sum() == pytest.approx(1.0)
