@@ -18,6 +18,7 @@ from __future__ import annotations
 import bisect
 import functools
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -88,9 +89,14 @@ _MIN_SITE_WIDTH_PX = 0.4
 _SITE_WIDTH_PRIOR = 0.4
 _PIXEL_VAR = 1.0 / 12.0  # a pixel's area widens a spot's samples by this variance (px²)
 # A spot's red pixels tell its width when its log's variance is below this (the prior's is 0.16);
-# then the zone's other spots are held near the widths so told, within this much (log px).
+# then other spots at much the same depth, in this view or earlier ones, are held near the widths
+# so told, within this much (log px).
 _WIDTH_TOLD = 0.1
 _SHARED_WIDTH_SPREAD = 0.1
+# A spot's width follows its depth: told widths count for a spot at another inverse depth as
+# exp(−½ (Δ/scale)²), scale in 1/m; the finder keeps the latest so many (one sweep's zones).
+_WIDTH_DEPTH_SCALE = 0.1
+_TOLD_KEPT = 64
 
 
 # Path samples (about half a pixel apart) whose noise `SpotFinder._local` measures together.
@@ -444,6 +450,8 @@ class SpotFinder:
         self._radius = 4
         self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
         self._jpeg: bool | None = None  # are the frames JPEG's? (from the first laser-off frame)
+        # Behind a Bayer filter: the widths that spots' red pixels told, with where (inverse depth).
+        self._told: deque[tuple[float, float, float]] = deque(maxlen=_TOLD_KEPT)
 
     def _band(self, laser: Laser) -> _Band:
         cam = self.rig.camera
@@ -569,7 +577,8 @@ class SpotFinder:
 
         Several frames of each kind are averaged (same pose: same speckle, less pixel noise).
         `lasers`: the lasers that were on (default: all of this finder's). Behind a Bayer filter,
-        spots are placed twice: the second time with the width the first told (`_shared_width`).
+        spots are placed twice: the second time with the width that spots at much the same depth
+        told, in this view or earlier ones (`_shared_width`).
         """
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
         if self._auto and len(self._chroma_lag2) < AUTO_GROUPS and on[0].ndim == 3:
@@ -652,25 +661,32 @@ class SpotFinder:
                     out.append((args, cand))
             refined[name] = out
         # Behind a Bayer filter, the spots placed by their red pixels are placed again, with the
-        # width that the spots whose red pixels told it share (see _shared_width).
-        shared = self._shared_width([c for out in refined.values() for _, c in out])
+        # width that spots at their depth told (see _shared_width); this view's join the finder's.
+        told = [(c.along, *c.site_width) for out in refined.values() for _, c in out
+                if c.site_width is not None and c.site_width[1] < _WIDTH_TOLD]
+        pool = [*self._told, *told]
         for name, out in refined.items():
-            found[name] = [self._unsnapped((self._refine(*args, width=shared) or c)
-                                           if shared is not None and c.site_width is not None else c)
-                           for args, c in out]
+            placed = []
+            for args, c in out:
+                width = self._shared_width(pool, c.along) if c.site_width is not None else None
+                placed.append(self._unsnapped((self._refine(*args, width=width) or c) if width is not None else c))
+            found[name] = placed
+        self._told.extend(told)
         return found
 
     @staticmethod
-    def _shared_width(cands: Sequence[Candidate]) -> tuple[float, float] | None:
-        """Behind a Bayer filter: the spots' common width (log px, and how far a spot may stray from
-        it), from those whose red pixels told their own width well; None if none did. The lasers
-        share the optics and, mostly, the depth: a small spot lights one or two red pixels, which
-        fix its centre only with a width that they cannot tell, and the others can."""
-        told = [c.site_width for c in cands if c.site_width is not None and c.site_width[1] < _WIDTH_TOLD]
-        if not told:
-            return None
-        weights = [1.0 / var for _, var in told]
-        mean = sum(w * t for w, (t, _) in zip(weights, told)) / sum(weights)
+    def _shared_width(told: Sequence[tuple[float, float, float]], along: float) -> tuple[float, float] | None:
+        """Behind a Bayer filter: the width (log px, and how far a spot may stray from it) of a spot
+        at inverse depth `along`, from spots whose red pixels told theirs, `told` (inverse depth,
+        log width, its variance), those at much the same depth counting most; None if none is
+        near. The lasers share the optics, and a spot's width follows its depth: a small spot
+        lights one or two red pixels, which fix its centre only with a width that they cannot
+        tell, and other spots can."""
+        near = [math.exp(-0.5 * ((a - along) / _WIDTH_DEPTH_SCALE) ** 2) for a, _, _ in told]
+        if not near or max(near) < 0.1:
+            return None  # none within two scales of this depth
+        weights = [n / var for n, (_, _, var) in zip(near, told)]
+        mean = sum(w * t for w, (_, t, _) in zip(weights, told)) / sum(weights)
         return mean, _SHARED_WIDTH_SPREAD
 
     def _misfit_grow(self, misfit: float) -> float:

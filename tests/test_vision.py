@@ -334,15 +334,29 @@ def test_a_small_spot_behind_a_bayer_filter_is_placed_by_its_red_pixels_once_its
     assert rms_told < 0.03 and rms_told < 0.6 * rms_free, (rms_told, rms_free)
 
 
-def test_spots_share_the_width_their_red_pixels_told() -> None:
-    from edge.vision import _SHARED_WIDTH_SPREAD, _WIDTH_TOLD, Candidate
+def test_spots_share_the_width_their_red_pixels_told_at_much_the_same_depth() -> None:
+    from edge.vision import _SHARED_WIDTH_SPREAD, _WIDTH_DEPTH_SCALE
 
-    def cand(site_width: tuple[float, float] | None) -> Candidate:
-        return Candidate("center", np.zeros(2), 0.1, 20.0, 1.0, 0.5, 0.0, site_width=site_width)
-
-    told = [cand((math.log(0.8), 0.01)), cand((math.log(1.0), 0.03))]
-    untold = [cand((math.log(3.0), _WIDTH_TOLD * 2)), cand(None)]
-    mean, spread = SpotFinder._shared_width(told + untold)
-    # Weighted by how well each told it: 3 parts of 0.8 px to 1 of 1 px.
+    near = [(0.5, math.log(0.8), 0.01), (0.5, math.log(1.0), 0.03)]  # (inverse depth, log width, variance)
+    far = [(0.5 + 10 * _WIDTH_DEPTH_SCALE, math.log(3.0), 0.01)]  # a spot much nearer the camera
+    mean, spread = SpotFinder._shared_width(near + far, 0.5)
+    # Weighted by how well each told it: 3 parts of 0.8 px to 1 of 1 px; the near spot counts nothing.
     assert mean == pytest.approx((3 * math.log(0.8) + math.log(1.0)) / 4) and spread == _SHARED_WIDTH_SPREAD
-    assert SpotFinder._shared_width(untold) is None  # nothing told: each spot keeps its own fit
+    assert SpotFinder._shared_width(near, 0.5 + 5 * _WIDTH_DEPTH_SCALE) is None  # none told at that depth
+    assert SpotFinder._shared_width([], 0.5) is None  # nothing told: each spot keeps its own fit
+
+
+def test_a_finder_keeps_the_widths_its_spots_told_for_the_zones_that_follow() -> None:
+    """A view whose spots cannot tell their width takes it from earlier views' spots at the same
+    depth: the finder keeps them (one sweep's worth)."""
+    from edge.vision import _TOLD_KEPT, _WIDTH_TOLD
+
+    renderer = _renderer(load_scene("office"), bayer="bilinear", output_bits=16)
+    finder = SpotFinder(renderer.rig)
+    kept = []
+    for k, pan in enumerate(np.arange(-180.0, 180.0, 45.0)):
+        on, off = _pair(renderer, pan=float(pan), seed=k)
+        finder.find([on], [off])
+        kept.append(len(finder._told))
+    assert kept[-1] > 0 and kept == sorted(kept) and kept[-1] <= _TOLD_KEPT
+    assert all(var < _WIDTH_TOLD and 0.3 < math.exp(t) < 6.0 for _, t, var in finder._told)
