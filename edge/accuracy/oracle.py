@@ -12,9 +12,10 @@ errors are shared and shaped by the algorithm, cannot bias it. Each laser's pixe
 over the zone's views and turned into a depth error, and the lasers on the reference's surface are
 fused as the floor fuses them (:func:`edge.accuracy.floor.fusion_weights`).
 
-It is no bound: least squares is the efficient estimator only for white noise, and JPEG's is not
-(the estimator can beat the oracle there). What it says is how far an estimator that knows where to
-look, and what it looks for, gets on these frames.
+It is no bound: unweighted least squares is efficient only where the noise is white and even.
+JPEG's is not white, and a bright spot's own shot noise is not even; the estimator, which weighs
+each pixel by its noise, beats the oracle on 3-colour frames. What the oracle says is how far an
+estimator that knows where to look, and what it looks for, gets on these frames.
 
 The fit (:func:`fit_centre`) is pure; :class:`ZoneOracle` asks the renderer for the truths.
 """
