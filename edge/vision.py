@@ -19,7 +19,7 @@ import bisect
 import functools
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -645,34 +645,38 @@ class SpotFinder:
         # Every seed of every laser: a neighbouring spot, whichever laser's, must not pull a
         # spot's centroid (the centre and parallel spots are 4 px apart at 5 m).
         everywhere = [(u, v) for ss in seeds.values() for u, v, _, _, _, _ in ss]
-        found: dict[str, list[Candidate]] = {}
         scales = self._scales(on, off, gain)
         planes = self._planes(on, off)
-        refined: dict[str, list[tuple[tuple, Candidate]]] = {}  # each candidate with how it was refined
+        refined: dict[str, list[tuple[Callable[..., Candidate | None], Candidate]]] = {}  # (how it was refined)
         for name, ss in seeds.items():
-            out = []
+            out: list[tuple[Callable[..., Candidate | None], Candidate]] = []
             for u, v, peak, row, mf, here in ss:
                 others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius
                           ] if len(everywhere) > 1 else []
-                args = (self.bands[name], (u, v), row, others, on, off, gain, here, shot, peak, mf, texture, scales,
-                        planes)
-                cand = self._refine(*args)
+                refine = functools.partial(self._refine, self.bands[name], (u, v), row, others, on, off, gain, here,
+                                           shot, peak, mf, texture, scales, planes)
+                cand = refine()
                 if cand is not None:
-                    out.append((args, cand))
+                    out.append((refine, cand))
             refined[name] = out
-        # Behind a Bayer filter, the spots placed by their red pixels are placed again, with the
-        # width that spots at their depth told (see _shared_width); this view's join the finder's.
+        if texture.bayer is not None:  # (only then are spots placed by their red pixels)
+            self._place_again(refined)
+        return {name: [self._unsnapped(c) for _, c in out] for name, out in refined.items()}
+
+    def _place_again(self, refined: dict[str, list[tuple[Callable[..., Candidate | None], Candidate]]]) -> None:
+        """Behind a Bayer filter: each spot that its red pixels placed, placed again (in `refined`,
+        each candidate with the call that refined it) with the width that spots at its depth
+        told, in this view or earlier ones (see _shared_width); this view's told widths join the
+        finder's."""
         told = [(c.along, *c.site_width) for out in refined.values() for _, c in out
                 if c.site_width is not None and c.site_width[1] < _WIDTH_TOLD]
         pool = [*self._told, *told]
-        for name, out in refined.items():
-            placed = []
-            for args, c in out:
-                width = self._shared_width(pool, c.along) if c.site_width is not None else None
-                placed.append(self._unsnapped((self._refine(*args, width=width) or c) if width is not None else c))
-            found[name] = placed
         self._told.extend(told)
-        return found
+        for out in refined.values():
+            for i, (refine, c) in enumerate(out):
+                width = None if c.site_width is None else self._shared_width(pool, c.along)
+                if width is not None:
+                    out[i] = (refine, refine(width=width) or c)
 
     @staticmethod
     def _shared_width(told: Sequence[tuple[float, float, float]], along: float) -> tuple[float, float] | None:
