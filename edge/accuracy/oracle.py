@@ -116,8 +116,9 @@ class ZoneOracle:
         points: list[np.ndarray] = []
         sigmas: list[float] = []
         normal: np.ndarray | None = None
+        frames = [(group, *_difference(group)) for group in groups]  # once for all the lasers
         for name in used:
-            fitted = self._depth_error(name, groups, t_s)
+            fitted = self._depth_error(name, frames, t_s)
             if fitted is None:
                 if name == used[0]:
                     return None  # the reference's own spot cannot be fitted
@@ -137,27 +138,22 @@ class ZoneOracle:
             return None
         return float(weights @ np.array(depth_errors))
 
-    def _depth_error(self, laser: str, groups: Sequence[FrameGroup], t_s: float
+    def _depth_error(self, laser: str, frames: Sequence[tuple[FrameGroup, np.ndarray, np.ndarray]], t_s: float
                      ) -> tuple[float, np.ndarray, np.ndarray] | None:
-        """`laser`'s depth error, its pixel error averaged over the views, with its spot's true
-        point and its surface's normal (camera frame) in the first view it is fitted in; None if it
-        is fitted in none."""
+        """`laser`'s depth error, its pixel error averaged over the views (`frames`: each group with
+        its difference and usable pixels, :func:`_difference`), with its spot's true point and its
+        surface's normal (camera frame) in the first view it is fitted in; None if it is fitted in
+        none."""
         rig = self.renderer.rig
         errors: list[np.ndarray] = []
         first: SpotTruth | None = None
         view = (0.0, 0.0)
-        for group in groups:
+        for group, diff, usable in frames:
             pan, tilt = group.view
             model = self.renderer.spot_model(pan, tilt, laser, t_s)
             if model is None or model.truth.pixel is None or laser not in group.lasers:
                 continue
-            on = np.mean([f.astype(np.float64) for f in group.on], axis=0)
-            off = np.mean([f.astype(np.float64) for f in group.off], axis=0)
-            frames = np.stack(group.on)
-            top = np.iinfo(frames.dtype).max if frames.dtype.kind in "ui" else math.inf
-            clipped = (frames >= top).reshape(len(group.on), *frames.shape[1:3], -1)
-            usable = np.logical_not(clipped.any(axis=(0, 3)))
-            fitted = fit_centre(on - off, usable, model.truth.pixel, model.covariance, self.bayer)
+            fitted = fit_centre(diff, usable, model.truth.pixel, model.covariance, self.bayer)
             if fitted is None:
                 continue
             errors.append(fitted - model.truth.pixel)
@@ -169,3 +165,14 @@ class ZoneOracle:
         depths = triangulate(rig.laser(laser), rig.camera, np.stack([pixel, pixel + np.mean(errors, axis=0)]))[:, 2]
         normal = self.renderer.camera_to_world(*view).inverse().rotate(first.normal_world)
         return float(depths[1] - depths[0]), np.asarray(first.point_camera), normal
+
+
+def _difference(group: FrameGroup) -> tuple[np.ndarray, np.ndarray]:
+    """A frame group's mean laser-on less mean laser-off frame, and which pixels no laser-on frame
+    clipped: (h, w[, C]) float64 and (h, w) bool."""
+    on = np.mean([f.astype(np.float64) for f in group.on], axis=0)
+    off = np.mean([f.astype(np.float64) for f in group.off], axis=0)
+    frames = np.stack(group.on)
+    top = np.iinfo(frames.dtype).max if frames.dtype.kind in "ui" else math.inf
+    clipped = (frames >= top).reshape(len(group.on), *frames.shape[1:3], -1)
+    return on - off, np.logical_not(clipped.any(axis=(0, 3)))
