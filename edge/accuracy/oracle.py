@@ -15,7 +15,10 @@ fused as the floor fuses them (:func:`edge.accuracy.floor.fusion_weights`).
 It is no bound: unweighted least squares is efficient only where the noise is white and even.
 JPEG's is not white, and a bright spot's own shot noise is not even; the estimator, which weighs
 each pixel by its noise, beats the oracle on 3-colour frames. What the oracle says is how far an
-estimator that knows where to look, and what it looks for, gets on these frames.
+estimator that knows where to look, and what it looks for, gets on these frames. It fits one spot
+at a time: another laser's spot within its window (the centre and parallel spots merge far away)
+pulls it, which the estimator's deblending does not suffer. Leaving out the zones with another spot
+within 8 px of the reference changed the evaluation sets' pooled ratio from 1.11 to 1.12.
 
 The fit (:func:`fit_centre`) is pure; :class:`ZoneOracle` asks the renderer for the truths.
 """

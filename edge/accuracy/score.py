@@ -18,7 +18,8 @@ The figures of ``edge bench accuracy``, and the issue's targets:
   the oracle's own on the same zones (:mod:`edge.accuracy.oracle`: a least-squares fit that knows
   each spot's true pixel and shape). The issue's "ideal estimator's error on the same frames",
   as near as the bench can run one (target: ≤ 1.5); it counts what JPEG and demosaicing cost, which
-  the floor leaves out, but is no bound: the estimator can beat it where the noise is not white.
+  the floor leaves out, but is no bound: the estimator can beat it where the noise is not white
+  and even.
 - **within 2σ**: the share of ``ok`` zones whose |error| ≤ 2 × the σ they claim (target ≥ 90 % in
   every condition; geometry.md asks about 95 %).
 - **wrong ok**: ``ok`` zones more than 10 % off, or ``ok`` where the camera cannot see the reference
