@@ -355,3 +355,22 @@ def test_speckle_on_a_grid_is_the_speckle_at_its_points():
         grid = optics.speckle_grid(np.random.default_rng(3), xs, ys, 0.45, grain)
         assert grid.shape == field.shape and np.allclose(grid, field, rtol=0, atol=1e-9)
         assert field.std() > 0.1  # a speckle, not a flat field
+
+
+def test_a_display_gamma_brightens_the_shadows_and_undoes_exactly() -> None:
+    from edge.sim.render import linear_values, tone_curve
+
+    x = np.linspace(0.0, 1.0, 2001, dtype=np.float32)
+    y = tone_curve(x, 2.2)
+    assert y[0] == 0.0 and y[-1] == pytest.approx(1.0)
+    assert np.all(np.diff(y) > 0)  # monotonic: a brighter light is never a darker value
+    assert y[200] == pytest.approx(0.1 ** (1 / 2.2), rel=1e-5)  # (x = 0.1)
+    assert np.abs(linear_values(y, 2.2) - x).max() < 1e-6
+    # The camera delivers the curve: a plain wall's linear frame and its gamma frame agree
+    # through it, within the rounding of a level.
+    plain_wall = ("sim.surfaces.texture_scale=0", "sim.beam.speckle=0")
+    linear, curved = _small(*plain_wall), _small("sim.sensor.gamma=2.2", *plain_wall)
+    e = linear.render_electrons(0.0, 0.0, {"center": 1.0})
+    flat, bent = linear.digitise(e, None).astype(float), curved.digitise(e, None).astype(float)
+    assert np.abs(255.0 * tone_curve((flat / 255.0).astype(np.float32), 2.2) - bent).max() <= 1.5
+    assert bent.mean() > flat.mean() * 1.3  # the room's mid-tones lifted

@@ -91,9 +91,10 @@ class ZoneOracle:
     """The oracle's range error for the zones of one simulated recording, from the renderer that
     made it (the rig it ranges with is the renderer's, the true one)."""
 
-    def __init__(self, renderer: Renderer, bayer: bool) -> None:
+    def __init__(self, renderer: Renderer, bayer: bool, gamma: float = 1.0) -> None:
         self.renderer = renderer
         self.bayer = bayer
+        self.gamma = gamma  # the camera's tone curve, which the oracle undoes (it fits linear light)
 
     @classmethod
     def of(cls, config: Config) -> ZoneOracle:
@@ -103,7 +104,7 @@ class ZoneOracle:
 
         sensor = config.sim.sensor
         renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
-        return cls(renderer, sensor.colour and sensor.bayer != "none")
+        return cls(renderer, sensor.colour and sensor.bayer != "none", sensor.gamma)
 
     def error_m(self, groups: Sequence[FrameGroup], truth: dict, t_s: float) -> float | None:
         """The oracle's error of the zone's reference range (m), from its frame `groups` and the
@@ -119,7 +120,7 @@ class ZoneOracle:
         points: list[np.ndarray] = []
         sigmas: list[float] = []
         normal: np.ndarray | None = None
-        frames = [(group, *_difference(group)) for group in groups]  # once for all the lasers
+        frames = [(group, *_difference(group, self.gamma)) for group in groups]  # once for all the lasers
         for name in used:
             fitted = self._depth_error(name, frames, t_s)
             if fitted is None:
@@ -170,12 +171,21 @@ class ZoneOracle:
         return float(depths[1] - depths[0]), np.asarray(first.point_camera), normal
 
 
-def _difference(group: FrameGroup) -> tuple[np.ndarray, np.ndarray]:
-    """A frame group's mean laser-on less mean laser-off frame, and which pixels no laser-on frame
-    clipped: (h, w[, C]) float64 and (h, w) bool."""
-    on = np.mean([f.astype(np.float64) for f in group.on], axis=0)
-    off = np.mean([f.astype(np.float64) for f in group.off], axis=0)
+def _difference(group: FrameGroup, gamma: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A frame group's mean laser-on less mean laser-off frame, in linear light (the frames'
+    tone curve `gamma` undone), and which pixels no laser-on frame clipped: (h, w[, C]) float64
+    and (h, w) bool."""
     frames = np.stack(group.on)
     top = np.iinfo(frames.dtype).max if frames.dtype.kind in "ui" else math.inf
+
+    def linear(f: np.ndarray) -> np.ndarray:
+        if gamma == 1.0:
+            return f.astype(np.float64)
+        from edge.sim.render import linear_values
+
+        return linear_values(f / top, gamma)
+
+    on = np.mean([linear(f) for f in group.on], axis=0)
+    off = np.mean([linear(f) for f in group.off], axis=0)
     clipped = (frames >= top).reshape(len(group.on), *frames.shape[1:3], -1)
     return on - off, np.logical_not(clipped.any(axis=(0, 3)))

@@ -473,7 +473,14 @@ class Renderer:
         np.clip(e, 0, top, out=e)
         # 16-bit PNGs hold the sensor's values scaled to the full 16-bit range (geometry.md).
         full = 255.0 if sensor.output_bits == 8 else 65535.0
-        e *= np.float32(full / top)
+        if sensor.gamma != 1.0:
+            # (Before demosaicing, where an ISP applies it after: for a spot's few pixels the
+            # order matters far less than the curve itself.)
+            e *= np.float32(1.0 / top)
+            e = tone_curve(e, sensor.gamma)
+            e *= np.float32(full)
+        else:
+            e *= np.float32(full / top)
         np.rint(e, out=e)
         out: np.ndarray = e.astype(np.uint8 if sensor.output_bits == 8 else np.uint16)
         if mosaic:
@@ -491,6 +498,29 @@ class Renderer:
                 raise CameraError(f"simulated camera: OpenCV could not round-trip a {out.shape} frame through JPEG")
             out = decoded
         return out
+
+
+# Below this fraction of full scale the tone curve is a straight line (a power law's slope is
+# infinite at 0); at and above it, x^(1/gamma), scaled to meet the line.
+_TOE = 0.01
+
+
+def tone_curve(x: np.ndarray, gamma: float) -> np.ndarray:
+    """Linear values `x` (0-1 of full scale) through a display gamma: x^(1/gamma) above a linear
+    toe (below `_TOE`), continuous at it; 0 and 1 stay put (float32 in, float32 out)."""
+    x = np.asarray(x, dtype=np.float32)
+    inv = 1.0 / gamma
+    slope = np.float32(_TOE ** (inv - 1.0))
+    return np.where(x < _TOE, x * slope, np.power(np.maximum(x, np.float32(_TOE)), np.float32(inv))).astype(np.float32)
+
+
+def linear_values(y: np.ndarray, gamma: float) -> np.ndarray:
+    """The inverse of :func:`tone_curve`: delivered values `y` (0-1 of full scale) back to linear
+    ones (float64)."""
+    y = np.asarray(y, dtype=np.float64)
+    inv = 1.0 / gamma
+    knee = _TOE**inv
+    return np.where(y < knee, y / _TOE ** (inv - 1.0), np.power(np.maximum(y, knee), gamma))
 
 
 def _mosaic(bgr: np.ndarray) -> np.ndarray:

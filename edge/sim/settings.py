@@ -31,9 +31,14 @@ class SensorConfig:
     # Rolling shutter: row 0's exposure start to the last row's. The IMX219's 640×480 mode runs at
     # up to 206 fps, so it reads out in under 5 ms; a webcam takes most of its frame period.
     readout_ms: float = 5.0
+    # The tone curve of the delivered values: 1 is linear (raw values, as geometry.md's frames);
+    # 1.8-2.4 is a camera's display gamma (an ISP's, a webcam's), value ∝ light^(1/gamma) with a
+    # linear toe. A Pi camera's ISP applies one unless its tuning file says otherwise.
+    gamma: float = 1.0
 
     def __post_init__(self) -> None:
         require(self.full_well_e > 0, "full_well_e", "must be positive")
+        require(1.0 <= self.gamma <= 3.0, "gamma", f"must be 1-3 (1: linear), got {self.gamma}")
         require(self.read_noise_e >= 0, "read_noise_e", "must be >= 0")
         require(8 <= self.adc_bits <= 16, "adc_bits", f"must be 8-16, got {self.adc_bits}")
         require(0 <= self.jpeg_quality <= 100, "jpeg_quality", "must be 0-100")
