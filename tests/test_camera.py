@@ -117,11 +117,33 @@ class _FakePicamera2:
 
     last: _FakePicamera2 | None = None
 
-    def __init__(self, camera_num: int = 0) -> None:
+    tuning_files = {"imx219.json": {"version": 2.0, "algorithms": [
+        {"rpi.black_level": {"black_level": 4096}},
+        {"rpi.contrast": {"ce_enable": 1, "gamma_curve": [0, 0, 1024, 5040, 65535, 65535]}},
+    ]}}
+
+    def __init__(self, camera_num: int = 0, tuning: dict | None = None) -> None:
         _FakePicamera2.last = self
+        self.tuning = tuning
         self.camera_controls = {"FrameDurationLimits": (23_000, 1_000_000, 33_333)}
         self.queue: list[_FakeRequest] = []
         self.flushes: list[int] = []
+
+    @staticmethod
+    def global_camera_info() -> list[dict]:
+        return [{"Model": "imx219", "Num": 0}]
+
+    @classmethod
+    def load_tuning_file(cls, name: str) -> dict:
+        import copy
+
+        if name not in cls.tuning_files:
+            raise RuntimeError(f"Tuning file {name} not found")
+        return copy.deepcopy(cls.tuning_files[name])
+
+    @staticmethod
+    def find_tuning_algo(tuning: dict, name: str) -> dict:
+        return next(algo for algo in tuning["algorithms"] if name in algo)[name]
 
     def create_video_configuration(self, main, controls, raw=None):
         return {"main": main, "controls": dict(controls), "raw": raw}
@@ -174,6 +196,22 @@ def test_picamera2_fixed_settings(fake_picamera2):
     assert fake.config["main"] == {"size": (640, 480), "format": "RGB888"}
     assert fake.config["raw"] == {"size": (1640, 1232)}  # the binned full field of view
     assert isinstance(cam, Picamera2Camera)
+
+
+def test_picamera2_frames_are_linear_unless_asked_otherwise(fake_picamera2, monkeypatch, caplog):
+    Picamera2Camera(CameraSettings(), (640, 480))
+    tuning = fake_picamera2.last.tuning
+    contrast = fake_picamera2.find_tuning_algo(tuning, "rpi.contrast")
+    assert contrast["gamma_curve"] == [0, 0, 65535, 65535] and contrast["ce_enable"] == 0
+    assert fake_picamera2.find_tuning_algo(tuning, "rpi.black_level") == {"black_level": 4096}  # the rest kept
+    Picamera2Camera(CameraSettings(linear=False), (640, 480))
+    assert fake_picamera2.last.tuning is None  # the camera's own tuning, curve and all
+    # A sensor without a tuning file still opens, with its ISP's curve, and says so.
+    monkeypatch.setattr(fake_picamera2, "tuning_files", {})
+    with caplog.at_level("WARNING"):
+        cam = Picamera2Camera(CameraSettings(), (640, 480))
+    assert fake_picamera2.last.tuning is None and cam.closed is False
+    assert "imx219 tuning file" in caplog.text and "gamma curve" in caplog.text
 
 
 def test_picamera2_timestamps_and_frame_choice(fake_picamera2):
