@@ -353,6 +353,14 @@ class Config:
     mode: Mode = "rangefinder"
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
+    def __post_init__(self) -> None:
+        # The Pi camera's frames come through camera.gamma's curve (the ISP is set to it): ranging
+        # must undo that one, or a spot's light no longer adds to the room's in its values.
+        require(self.camera.backend != "picamera2" or self.ranging.frame_gamma == self.camera.gamma,
+                "ranging.frame_gamma",
+                f"must be camera.gamma ({self.camera.gamma:g}) with the Pi camera, whose frames come through that "
+                f"curve; got {self.ranging.frame_gamma:g}")
+
 
 def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> Config:
     """Read and validate a configuration file (default: ``config/sim.toml``)."""

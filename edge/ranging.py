@@ -24,8 +24,10 @@ from typing import Literal
 import numpy as np
 
 from edge.deblend import DEBLEND_PX, Placed, place_pair
+from edge.errors import ConfigError
 from edge.rig import CameraModel, Laser, Pose, Rig
 from edge.schema import require
+from edge.tone import linear_light
 from edge.vision import Candidate, SpotFinder
 
 OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT = "ok", "no_spot", "ambiguous", "out_of_range", "fault"
@@ -90,6 +92,10 @@ class RangingConfig:
     # A range whose σ is more than this fraction of it is not `ok` but `ambiguous`: at 2σ it could
     # be 10 % off, a wrong range for any user (a spot placed to a pixel on a small camera).
     max_sigma_fraction: float = 0.05
+    # The tone curve of the frames (1: linear values, as a Pi camera with camera.linear gives;
+    # about 2.2 for a webcam's sRGB): ranging undoes it first, for a spot's light then adds to the
+    # room's in the values, and noise is as the sensor made it.
+    frame_gamma: float = 1.0
 
     def __post_init__(self) -> None:
         require(0.5 <= self.band_halfwidth_px <= 20, "band_halfwidth_px", "must be 0.5-20 px")
@@ -100,6 +106,7 @@ class RangingConfig:
         require(self.surface_sigma_per_m >= 0, "surface_sigma_per_m", "must be >= 0")
         require(self.alone_min_snr >= self.min_snr, "alone_min_snr", "must be >= min_snr")
         require(0 < self.max_sigma_fraction <= 1, "max_sigma_fraction", "must be in (0, 1]")
+        require(1.0 <= self.frame_gamma <= 3.0, "frame_gamma", f"must be 1-3 (1: linear), got {self.frame_gamma}")
 
 
 # Not frozen, though never changed once made: a frozen dataclass costs 3 × as much to build
@@ -604,6 +611,23 @@ class Ranger:
         # a margin for rounding a spot's pixel), so that most spots need no search of the path.
         self._near_path = {name: self.finder.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
         self._inv_depths = self.finder.inv_depth_range()
+        self._luts: dict[np.dtype, np.ndarray] = {}  # frame_gamma's, by the frames' type
+
+    def _linear(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
+        """The frame groups with `frame_gamma`'s curve undone: 16-bit values proportional to light
+        (a table a type of integer frame, made once)."""
+        first = groups[0].off[0] if groups[0].off else groups[0].on[0]
+        self.finder.delivered(first)
+        lut = self._luts.get(first.dtype)
+        if lut is None:
+            if first.dtype not in (np.uint8, np.uint16):
+                raise ConfigError(f"ranging.frame_gamma: only 8- and 16-bit frames can be made linear, "
+                                  f"not {first.dtype}")
+            top = np.iinfo(first.dtype).max
+            codes = np.arange(top + 1, dtype=np.float64) / top
+            lut = self._luts[first.dtype] = np.rint(65535.0 * linear_light(codes, self.config.frame_gamma)
+                                                    ).astype(np.uint16)
+        return [replace(g, on=[lut[f] for f in g.on], off=[lut[f] for f in g.off]) for g in groups]
 
     def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:
         """Range one zone from its frame groups; the result is for the zone's pose."""
@@ -611,6 +635,8 @@ class Ranger:
         ref = rig.reference.name
         if not groups:
             return ZoneResult(index, pan_deg, tilt_deg, FAULT, detail="no usable frame pair")
+        if self.config.frame_gamma != 1.0:
+            groups = self._linear(groups)
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         # How many of the frame groups each spot showed in, against how many it could have.

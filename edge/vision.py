@@ -450,6 +450,9 @@ class SpotFinder:
         self._radius = 4
         self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
         self._jpeg: bool | None = None  # are the frames JPEG's? (from the first laser-off frame)
+        # The full scale of the camera's own values where they were linearised before the finder
+        # saw them (`delivered`): their quantisation, not the linear values', floors the noise.
+        self._delivered_scale: float | None = None
         # Behind a Bayer filter: the widths that spots' red pixels told, with where (inverse depth).
         self._told: deque[tuple[float, float, float]] = deque(maxlen=_TOLD_KEPT)
 
@@ -493,6 +496,14 @@ class SpotFinder:
         level = float(np.median(profile))
         spread = 1.4826 * float(np.median(np.abs(profile - level)))
         return float(profile.max()) - level > max(8.0 * spread, 0.15 * self.full_scale(off))
+
+    def delivered(self, frame: np.ndarray) -> None:
+        """Told, before the first frames of a sweep are found in, a frame as the camera delivered
+        it where the frames the finder is given were made linear from it (ranging's
+        `frame_gamma`): whether it is JPEG's, and the step of its values, are read from it."""
+        if self._jpeg is None:
+            self._jpeg = jpeg_blockiness(frame) > JPEG_BLOCKINESS
+        self._delivered_scale = self.full_scale(frame)
 
     @staticmethod
     def full_scale(image: np.ndarray) -> float:
@@ -615,7 +626,8 @@ class SpotFinder:
             noise = 1.4826 * _kth(work, mid)
         else:
             noise = 0.0
-        noise = max(noise, 0.5 / (self.full_scale(on[0]) * math.sqrt(len(on))))  # quantisation
+        quantum_scale = self._delivered_scale or self.full_scale(on[0])
+        noise = max(noise, 0.5 / (quantum_scale * math.sqrt(len(on))))  # quantisation
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
         shot = noise**2 / (2.0 * max(off_level, 1e-3))

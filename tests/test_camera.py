@@ -198,18 +198,30 @@ def test_picamera2_fixed_settings(fake_picamera2):
     assert isinstance(cam, Picamera2Camera)
 
 
-def test_picamera2_frames_are_linear_unless_asked_otherwise(fake_picamera2, monkeypatch, caplog):
-    Picamera2Camera(CameraSettings(), (640, 480))
+def test_picamera2_frames_come_through_the_configured_tone_curve(fake_picamera2, monkeypatch, caplog):
+    from edge.hw.camera import curve_points
+    from edge.tone import tone_curve
+
+    Picamera2Camera(CameraSettings(), (640, 480))  # gamma 1: linear
     tuning = fake_picamera2.last.tuning
     contrast = fake_picamera2.find_tuning_algo(tuning, "rpi.contrast")
     assert contrast["gamma_curve"] == [0, 0, 65535, 65535] and contrast["ce_enable"] == 0
     assert fake_picamera2.find_tuning_algo(tuning, "rpi.black_level") == {"black_level": 4096}  # the rest kept
-    Picamera2Camera(CameraSettings(linear=False), (640, 480))
-    assert fake_picamera2.last.tuning is None  # the camera's own tuning, curve and all
+    Picamera2Camera(CameraSettings(gamma=2.2), (640, 480))
+    curve = fake_picamera2.find_tuning_algo(fake_picamera2.last.tuning, "rpi.contrast")["gamma_curve"]
+    assert curve == curve_points(2.2)
+    xs, ys = np.array(curve[0::2]), np.array(curve[1::2])
+    assert xs[0] == ys[0] == 0 and xs[-1] == ys[-1] == 65535 and np.all(np.diff(xs) > 0)
+    assert np.all(np.diff(ys) >= 0)
+    # What ranging undoes (edge.tone) is what the ISP applies, between the points too (it
+    # interpolates them linearly): within a level of an 8-bit frame.
+    x = np.linspace(0.0, 1.0, 4001)
+    isp = np.interp(x * 65535, xs, ys) / 65535
+    assert np.abs(isp - tone_curve(x.astype(np.float32), 2.2)).max() < 1.0 / 255
     # A sensor without a tuning file still opens, with its ISP's curve, and says so.
     monkeypatch.setattr(fake_picamera2, "tuning_files", {})
     with caplog.at_level("WARNING"):
-        cam = Picamera2Camera(CameraSettings(), (640, 480))
+        cam = Picamera2Camera(CameraSettings(gamma=2.2), (640, 480))
     assert fake_picamera2.last.tuning is None and cam.closed is False
     assert "imx219 tuning file" in caplog.text and "gamma curve" in caplog.text
 

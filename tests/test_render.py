@@ -358,14 +358,14 @@ def test_speckle_on_a_grid_is_the_speckle_at_its_points():
 
 
 def test_a_display_gamma_brightens_the_shadows_and_undoes_exactly() -> None:
-    from edge.sim.render import linear_values, tone_curve
+    from edge.tone import linear_light, tone_curve
 
     x = np.linspace(0.0, 1.0, 2001, dtype=np.float32)
     y = tone_curve(x, 2.2)
     assert y[0] == 0.0 and y[-1] == pytest.approx(1.0)
     assert np.all(np.diff(y) > 0)  # monotonic: a brighter light is never a darker value
     assert y[200] == pytest.approx(0.1 ** (1 / 2.2), rel=1e-5)  # (x = 0.1)
-    assert np.abs(linear_values(y, 2.2) - x).max() < 1e-6
+    assert np.abs(linear_light(y, 2.2) - x).max() < 1e-6
     # The camera delivers the curve: a plain wall's linear frame and its gamma frame agree
     # through it, within the rounding of a level.
     plain_wall = ("sim.surfaces.texture_scale=0", "sim.beam.speckle=0")

@@ -33,6 +33,7 @@ import numpy as np
 
 from edge.accuracy.floor import fusion_weights, spot_profile
 from edge.ranging import FrameGroup, triangulate
+from edge.tone import linear_light
 
 if TYPE_CHECKING:
     from edge.config import Config
@@ -181,9 +182,7 @@ def _difference(group: FrameGroup, gamma: float = 1.0) -> tuple[np.ndarray, np.n
     def linear(f: np.ndarray) -> np.ndarray:
         if gamma == 1.0:
             return f.astype(np.float64)
-        from edge.sim.render import linear_values
-
-        return linear_values(f / top, gamma)
+        return linear_light(f / top, gamma)
 
     on = np.mean([linear(f) for f in group.on], axis=0)
     off = np.mean([linear(f) for f in group.off], axis=0)

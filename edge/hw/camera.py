@@ -54,12 +54,11 @@ class CameraSettings:
     # delivery, measured once, stands in for them (t_start = delivery − latency − exposure).
     latency_ms: float = 0.0
     timeout_s: float = 1.0  # no frame for this long is a camera fault
-    # picamera2: have the ISP deliver linear values (its tuning file's gamma curve made a straight
-    # line, adaptive contrast off). With the curve, a spot's value stops being proportional to its
-    # light, and in a dark part of the room noise and stray blobs are lifted 10 × over the bright
-    # parts: on 32 tuning conditions a gamma of 2.2 cost 3 points of coverage and made 2 wrong
-    # ranges of ghosts.
-    linear: bool = True
+    # picamera2: the tone curve the ISP is set to, value = light^(1/gamma) (edge.tone; 1: linear),
+    # in place of its tuning file's own curve, with adaptive contrast off; ranging.frame_gamma
+    # must be the same, so that ranging undoes it exactly. A known curve, not none: 8-bit values
+    # through it keep more levels in the shadows, where dim spots are.
+    gamma: float = 1.0
 
     def __post_init__(self) -> None:
         # Physical ranges: sensors' analogue gain tops out at 16-64x, no frame takes a second.
@@ -74,6 +73,7 @@ class CameraSettings:
         )
         require(0 <= self.latency_ms <= 1000, "latency_ms", "must be 0-1000 ms")
         require(0 < self.timeout_s <= 60, "timeout_s", "must be more than 0 and at most 60 s")
+        require(1.0 <= self.gamma <= 3.0, "gamma", f"must be 1-3 (1: linear), got {self.gamma}")
 
     @property
     def frame_ns(self) -> int:
@@ -103,7 +103,7 @@ class Picamera2Camera:
         self.closed = False
         self._first_t: int | None = None
         self._flush = True  # picamera2 picks frames by timestamp itself (capture_request(flush=))
-        tuning = _linear_tuning(Picamera2, camera_num) if settings.linear else None
+        tuning = _tuning_with_curve(Picamera2, camera_num, settings.gamma)
         try:
             self._cam = Picamera2(camera_num) if tuning is None else Picamera2(camera_num, tuning=tuning)
         except Exception as exc:
@@ -227,26 +227,39 @@ class Picamera2Camera:
         return Frame(image, t_start, exposure_us, readout_ns, sequence, metadata)
 
 
-def _linear_tuning(picamera2: Any, camera_num: int) -> dict | None:
-    """The camera's own tuning file (by its sensor's model) with its gamma curve a straight line
-    and adaptive contrast off, for linear frames; None, with a warning, where it cannot be read
-    (the ISP then applies its curve, and ranging is less sure of dim spots)."""
+def _tuning_with_curve(picamera2: Any, camera_num: int, gamma: float) -> dict | None:
+    """The camera's own tuning file (by its sensor's model) with its tone curve `gamma`'s
+    (:func:`edge.tone.tone_curve`) and adaptive contrast off; None, with a warning, where it
+    cannot be read (the ISP then applies its own curve, which ranging cannot undo exactly)."""
     model = "?"
     try:
         model = str(picamera2.global_camera_info()[camera_num]["Model"])
         tuning = picamera2.load_tuning_file(f"{model}.json")
     except Exception as exc:
-        log.warning("camera: cannot read the %s tuning file to make frames linear (%s); frames keep "
-                    "the ISP's gamma curve", model, exc)
+        log.warning("camera: cannot read the %s tuning file to set its tone curve (%s); frames keep "
+                    "the ISP's own gamma curve", model, exc)
         return None
     try:
         contrast = picamera2.find_tuning_algo(tuning, "rpi.contrast")
     except Exception:
-        contrast = None  # no contrast stage: its frames are linear already
+        contrast = None  # no contrast stage: its frames are linear, whatever gamma says
+        log.warning("camera: the %s tuning file has no tone curve (rpi.contrast): frames are linear", model)
     if isinstance(contrast, dict):
         contrast["ce_enable"] = 0
-        contrast["gamma_curve"] = [0, 0, 65535, 65535]
+        contrast["gamma_curve"] = curve_points(gamma)
     return tuning
+
+
+def curve_points(gamma: float) -> list[int]:
+    """`gamma`'s tone curve as the ISP takes it: x0, y0, x1, y1, … in 16-bit units, denser in the
+    shadows where the curve bends most (a straight line for 1)."""
+    if gamma == 1.0:
+        return [0, 0, 65535, 65535]
+    from edge.tone import TOE, tone_curve
+
+    xs = sorted({0, round(TOE * 65535), *(round(65535 * (i / 32) ** 2) for i in range(1, 33))})
+    ys = tone_curve(np.array(xs, dtype=np.float32) / 65535.0, gamma) * 65535.0
+    return [v for x, y in zip(xs, ys.tolist()) for v in (x, int(round(y)))]
 
 
 def _noise_reduction_off() -> Any:

@@ -28,6 +28,7 @@ from edge.sim import optics
 from edge.sim.materials import TEXTURE_FLOOR
 from edge.sim.scene import Scene, SceneGeometry
 from edge.sim.settings import RigErrorConfig, SimConfig
+from edge.tone import tone_curve
 
 # Shade of room light by surface orientation: floors get most of a ceiling light, ceilings least.
 _AMBIENT_BY_NORMAL_Z = (0.8, 0.2)  # factor = a + b · n_z
@@ -498,29 +499,6 @@ class Renderer:
                 raise CameraError(f"simulated camera: OpenCV could not round-trip a {out.shape} frame through JPEG")
             out = decoded
         return out
-
-
-# Below this fraction of full scale the tone curve is a straight line (a power law's slope is
-# infinite at 0); at and above it, x^(1/gamma), scaled to meet the line.
-_TOE = 0.01
-
-
-def tone_curve(x: np.ndarray, gamma: float) -> np.ndarray:
-    """Linear values `x` (0-1 of full scale) through a display gamma: x^(1/gamma) above a linear
-    toe (below `_TOE`), continuous at it; 0 and 1 stay put (float32 in, float32 out)."""
-    x = np.asarray(x, dtype=np.float32)
-    inv = 1.0 / gamma
-    slope = np.float32(_TOE ** (inv - 1.0))
-    return np.where(x < _TOE, x * slope, np.power(np.maximum(x, np.float32(_TOE)), np.float32(inv))).astype(np.float32)
-
-
-def linear_values(y: np.ndarray, gamma: float) -> np.ndarray:
-    """The inverse of :func:`tone_curve`: delivered values `y` (0-1 of full scale) back to linear
-    ones (float64)."""
-    y = np.asarray(y, dtype=np.float64)
-    inv = 1.0 / gamma
-    knee = _TOE**inv
-    return np.where(y < knee, y / _TOE ** (inv - 1.0), np.power(np.maximum(y, knee), gamma))
 
 
 def _mosaic(bgr: np.ndarray) -> np.ndarray:

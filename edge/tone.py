@@ -1,0 +1,32 @@
+"""A camera's tone curve: linear light to the values it delivers, and back.
+
+Cameras made to be looked at store x^(1/gamma) of the light, not the light (a Pi camera's ISP unless
+its tuning file says otherwise, a webcam's sRGB). Ranging wants values proportional to light: a
+spot's light then adds to the room's, and noise is what the sensor made. Pure; no hardware.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Below this fraction of full scale the curve is a straight line (a power law's slope is infinite
+# at 0; sRGB's toe is the same idea); at and above it x^(1/gamma), the line meeting it there.
+TOE = 0.01
+
+
+def tone_curve(x: np.ndarray, gamma: float) -> np.ndarray:
+    """Linear values `x` (0-1 of full scale) as a camera of display gamma `gamma` delivers them;
+    0 and 1 stay put (float32)."""
+    x = np.asarray(x, dtype=np.float32)
+    inv = 1.0 / gamma
+    slope = np.float32(TOE ** (inv - 1.0))
+    return np.where(x < TOE, x * slope, np.power(np.maximum(x, np.float32(TOE)), np.float32(inv))).astype(np.float32)
+
+
+def linear_light(y: np.ndarray, gamma: float) -> np.ndarray:
+    """The inverse of :func:`tone_curve`: delivered values `y` (0-1 of full scale) back to values
+    proportional to light (float64)."""
+    y = np.asarray(y, dtype=np.float64)
+    inv = 1.0 / gamma
+    knee = TOE**inv
+    return np.where(y < knee, y / TOE ** (inv - 1.0), np.power(np.maximum(y, knee), gamma))
