@@ -93,7 +93,7 @@ class RangingConfig:
     # A range whose σ is more than this fraction of it is not `ok` but `ambiguous`: at 2σ it could
     # be 10 % off, a wrong range for any user (a spot placed to a pixel on a small camera).
     max_sigma_fraction: float = 0.05
-    # The tone curve of the frames (1: linear values, as a Pi camera with camera.linear gives;
+    # The tone curve of the frames (1: linear values, as a Pi camera at camera.gamma = 1 gives;
     # about 2.2 for a webcam's sRGB): ranging undoes it first, for a spot's light then adds to the
     # room's in the values, and noise is as the sensor made it.
     frame_gamma: float = 1.0

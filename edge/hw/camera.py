@@ -56,8 +56,8 @@ class CameraSettings:
     timeout_s: float = 1.0  # no frame for this long is a camera fault
     # picamera2: the tone curve the ISP is set to, value = light^(1/gamma) (edge.tone; 1: linear),
     # in place of its tuning file's own curve, with adaptive contrast off; ranging.frame_gamma
-    # must be the same, so that ranging undoes it exactly. A known curve, not none: 8-bit values
-    # through it keep more levels in the shadows, where dim spots are.
+    # must be the same, so that ranging undoes it exactly (the tuning file's own curve it could
+    # not). 1 keeps the frames linear, as every figure of the accuracy bench is measured on.
     gamma: float = 1.0
 
     def __post_init__(self) -> None:

@@ -31,7 +31,7 @@ class SensorConfig:
     # Rolling shutter: row 0's exposure start to the last row's. The IMX219's 640×480 mode runs at
     # up to 206 fps, so it reads out in under 5 ms; a webcam takes most of its frame period.
     readout_ms: float = 5.0
-    # The tone curve of the delivered values: 1 is linear (raw values, as geometry.md's frames);
+    # The tone curve of the delivered values: 1 is linear (values proportional to light);
     # 1.8-2.4 is a camera's display gamma (an ISP's, a webcam's), value ∝ light^(1/gamma) with a
     # linear toe. A Pi camera's ISP applies one unless its tuning file says otherwise.
     gamma: float = 1.0
