@@ -119,8 +119,10 @@ def test_spots_beyond_the_image_are_absent(repo: Path) -> None:
 def test_doorway_beam_is_lost_beyond_the_working_range(repo: Path) -> None:
     config = load_config(repo / "config" / "sim.toml")
     renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
-    pans = [p for p in np.arange(0, 360, 5.625) if (renderer.spots(p, 0.0)["center"].depth_m or 0) > 10]
-    assert pans, "the office's doorway should let some beams out"
+    # Round the zones until the first beam that leaves (any(): each view the renderer casts costs
+    # about 0.15 s, and the first doorway zone is the 4th of 64).
+    beams = ((renderer.spots(p, 0.0)["center"].depth_m or 0) for p in np.arange(0, 360, 5.625))
+    assert any(depth > 10 for depth in beams), "the office's doorway should let some beams out"
 
 
 def _speckle_jitter(renderer: Renderer, pans: np.ndarray, name: str = "center") -> np.ndarray:
@@ -136,8 +138,10 @@ def test_speckle_shifts_the_centroid_by_about_a_tenth_of_a_pixel(repo: Path) -> 
     config = load_config(repo / "config" / "sim.toml")
     config = replace(config, sim=replace(config.sim, ambient=replace(config.sim.ambient, white_e_per_ms=0.0)))
     renderer = Renderer(load_scene("office"), config.rig.build(), config.sim)
-    # The west wall, squarely, nudged a few PTU positions at a time: fresh speckle each view.
-    errors = _speckle_jitter(renderer, -90.0 + 0.0514 * np.arange(60))
+    # The west wall, squarely, nudged a few PTU positions at a time: fresh speckle each view. 30
+    # views (each a cast of its own, ~0.15 s): spread 0.065/0.094 px and |mean| 0.023 px (60 gave
+    # 0.065/0.095 and 0.006): the renderer is seeded, so these are the values every run.
+    errors = _speckle_jitter(renderer, -90.0 + 0.0514 * np.arange(30))
     spread = errors.std(axis=0)
     # geometry: 0.1 px at 1.3 m is ~0.5 % of range for the 3.5 cm baseline — the thesis rig's floor.
     assert 0.04 < spread[0] < 0.2 and 0.04 < spread[1] < 0.2, spread
