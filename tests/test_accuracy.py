@@ -221,7 +221,7 @@ def test_the_calibrated_rig_is_fitted_from_a_simulated_board(tmp_path: Path) -> 
 
     c = replace(cond.condition("tuning", 0), width=320, height=240, fx=265.0, cx=159.5, cy=119.5, k1=0.0,
                 jpeg_quality=0, bayer="none", colour=True, laser_angle_deg=0.3)
-    run = run_condition(None, [], c, 2, "calibrated", tmp_path)
+    run = run_condition(None, [], c, 2, "calibrated", tmp_path, oracle=False)
     assert run.rig == "calibrated" and len(run.outcomes) == 2
     board = read_recording(tmp_path / "tuning-0-calibration")
     assert [z.truth["range_m"] for z in board.zones if z.truth] == pytest.approx(CALIBRATION_DISTANCES_M, abs=0.01)

@@ -510,7 +510,7 @@ def test_a_loose_blob_beside_the_spot_that_gives_the_same_range_is_no_ambiguity(
     from edge.accuracy import conditions as cond
     from edge.accuracy.bench import run_condition
 
-    run = run_condition(None, [], cond.condition("tuning", 31), 24, "true", tmp_path)
+    run = run_condition(None, [], cond.condition("tuning", 31), 24, "true", tmp_path, oracle=False)
     rows = {row["zone"]: row for row in run.rows}
     ghost = rows[9]
     assert ghost["status"] == OK, ghost["detail"]
@@ -586,7 +586,7 @@ def test_a_reference_seen_only_as_faint_blobs_is_looked_for_in_the_views_pooled(
     from edge.accuracy import conditions as cond
     from edge.accuracy.bench import run_condition
 
-    run = run_condition(None, [], cond.condition("tuning", 7), 24, "true", tmp_path)
+    run = run_condition(None, [], cond.condition("tuning", 7), 24, "true", tmp_path, oracle=False)
     rows = {row["zone"]: row for row in run.rows}
     for zone in (6, 21):
         assert rows[zone]["status"] == OK, rows[zone]["detail"]
@@ -611,7 +611,7 @@ def test_a_spot_that_jpeg_snapped_to_a_block_centre_is_placed_only_to_the_block(
     from edge.accuracy import conditions as cond
     from edge.accuracy.bench import run_condition
 
-    run = run_condition(None, [], cond.condition("tuning", 12), 24, "true", tmp_path)
+    run = run_condition(None, [], cond.condition("tuning", 12), 24, "true", tmp_path, oracle=False)
     rows = {row["zone"]: row for row in run.rows}
     assert rows[16]["status"] == AMBIGUOUS and "too loosely" in rows[16]["detail"]
     assert not any(row["wrong"] for row in run.rows)

@@ -57,9 +57,10 @@ class Run:
 
 
 def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condition, zones: int,
-                  rig: str, folder: Path) -> Run:
+                  rig: str, folder: Path, oracle: bool = True) -> Run:
     """Record condition `cond` of the configuration (`config_path` with `overrides`), range it with
-    the `rig` asked for (one of RIGS) and score it. Recordings go to `folder`."""
+    the `rig` asked for (one of RIGS) and score it, beside the oracle's ranging unless `oracle` is
+    False (it takes about as long as the recording). Recordings go to `folder`."""
     from edge.accuracy.oracle import ZoneOracle
     from edge.accuracy.truth import floor_truth
     from edge.recording import read_recording
@@ -83,7 +84,7 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     else:
         raise ValueError(f"rig must be one of {', '.join(RIGS)}, got {rig!r}")
     ranger = Ranger(ranging_rig, config.ranging)
-    oracle = ZoneOracle.of(config)
+    zone_oracle = ZoneOracle.of(config) if oracle else None
     reference = recording.rig.reference.name
     outcomes, rows = [], []
     for zone in recording.zones:
@@ -93,7 +94,7 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
         result = ranger.range_zone(zone.index, zone.pan_deg, zone.tilt_deg, groups)
         t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
         outcome = ZoneOutcome.of(result, zone.truth, reference, _frame_snr(groups, zone, reference),
-                                 oracle.error_m(groups, zone.truth or {}, t_s))
+                                 zone_oracle.error_m(groups, zone.truth or {}, t_s) if zone_oracle else None)
         outcomes.append(outcome)
         rows.append(_row(cond, zone.pan_deg, zone.tilt_deg, outcome, result, zone.truth or {}, reference))
     return Run(cond, tuple(outcomes), said, time.monotonic() - began, tuple(rows))
