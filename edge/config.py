@@ -353,6 +353,12 @@ class Config:
     mode: Mode = "rangefinder"
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
+    @property
+    def frames_gamma(self) -> float:
+        """The tone curve this configuration's camera delivers frames through: the simulated
+        sensor's, or, for a real camera, the one ranging is told (camera.gamma for the Pi camera)."""
+        return self.sim.sensor.gamma if self.camera.backend == "sim" else self.ranging.frame_gamma
+
     def __post_init__(self) -> None:
         # The Pi camera's frames come through camera.gamma's curve (the ISP is set to it): ranging
         # must undo that one, or a spot's light no longer adds to the room's in its values.

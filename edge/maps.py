@@ -134,10 +134,10 @@ def read_scan(path: str | Path, default_rig: Rig, ranging: Any = None) -> Scan:
     if fmt == "edge-sweep/1":
         from edge.ranging import RangingConfig
         from edge.recording import read_recording
-        from edge.replay import Replayer
+        from edge.replay import Replayer, ranging_for
 
         recording = read_recording(file.parent)
-        replayer = Replayer(recording.rig, "triangulate", ranging or RangingConfig())
+        replayer = Replayer(recording.rig, "triangulate", ranging_for(recording, ranging or RangingConfig()))
         return Scan(str(file), recording.rig, list(replayer.zones(recording)))
     if not isinstance(doc, dict):
         fail(RecordingError, str(file), "", "expected a JSON object")

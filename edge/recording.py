@@ -171,9 +171,15 @@ class SweepFile:
     lasers: tuple[LaserKeys, ...]
     mount: Mount | None = None
     range_limits_m: tuple[float, float] | None = None
+    # edge's own key, beyond recording.md (which lets the format grow): the tone curve the frames
+    # came through, value = light^(1/frame_gamma) (edge.tone); absent: not said (linear, or as the
+    # replaying configuration's ranging.frame_gamma says).
+    frame_gamma: float | None = None
     zones: tuple[ZoneRecord, ...]
 
     def __post_init__(self) -> None:
+        require(self.frame_gamma is None or 1.0 <= self.frame_gamma <= 3.0, "frame_gamma",
+                f"must be 1-3 (1: linear), got {self.frame_gamma}")
         names = self.rig().laser_names
         seen: dict[int, int] = {}
         for position, zone in enumerate(self.zones):
@@ -207,6 +213,7 @@ class Recording:
     zones: tuple[ZoneRecord, ...]
     created: str | None = None
     device: str | None = None
+    frame_gamma: float | None = None  # the frames' tone curve, where the recording says it
 
     def load_image(self, zone: ZoneRecord, frame: FrameRecord) -> np.ndarray:
         """Decode one frame: uint8 or uint16, grey (H, W) or colour BGR (H, W, 3).
@@ -352,7 +359,7 @@ def read_recording(path: str | Path, check_images: bool = True) -> Recording:
             file = _frame_path(folder, frame.file, fail_here)
             if check_images:
                 _check_png_header(file, rig.camera, fail_here)
-    return Recording(folder, rig, doc.zones, doc.created, doc.device)
+    return Recording(folder, rig, doc.zones, doc.created, doc.device, doc.frame_gamma)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -411,10 +418,11 @@ class RecordingWriter:
     """
 
     def __init__(self, path: str | Path, rig: Rig, device: str | None = None,
-                 created: str | None = None):
+                 created: str | None = None, frame_gamma: float = 1.0):
         self.path = Path(path)
         self.rig = rig
         self.device = device
+        self.frame_gamma = frame_gamma  # the frames' tone curve: written where it is not linear
         self.created = created or timestamp()
         absolute = Path(os.path.abspath(self.path))
         self._partial = absolute.with_name(f"{absolute.name}.partial-{os.getpid()}")
@@ -595,6 +603,8 @@ class RecordingWriter:
         if self.device is not None:
             doc["device"] = self.device
         doc |= rig_to_json(self.rig)
+        if self.frame_gamma != 1.0:
+            doc["frame_gamma"] = self.frame_gamma
         doc["zones"] = self._zones
         with open(self._partial / SWEEP_JSON, "w", encoding="utf-8") as f:
             json.dump(doc, f, indent=1, allow_nan=False)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -67,6 +67,14 @@ def zone_groups(recording: Recording, zone: ZoneRecord) -> tuple[list[FrameGroup
             if lasers:
                 groups.append(FrameGroup(on, off, lasers, view))
     return groups, dropped
+
+
+def ranging_for(recording: Recording, config: RangingConfig) -> RangingConfig:
+    """`config` for ranging `recording`: with the tone curve its frames came through, where the
+    recording says it (its `frame_gamma`), whatever the configuration says."""
+    if recording.frame_gamma is None or recording.frame_gamma == config.frame_gamma:
+        return config
+    return replace(config, frame_gamma=recording.frame_gamma)
 
 
 class Replayer:

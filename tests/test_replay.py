@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from edge.config import load_config
+from edge.errors import RecordingError
 from edge.ranging import OK
 from edge.recording import RecordingWriter, read_recording
 from edge.replay import Replayer, score, straddles_switch, zone_groups
@@ -156,3 +157,34 @@ def test_frames_exposed_across_a_laser_switch_are_dropped(tmp_path: Path) -> Non
     result = next(Replayer(recording.rig).zones(recording))
     assert result.status == OK and result.range_m == pytest.approx(1.5, rel=0.01)
     assert len(result.lasers) == 3
+
+
+def test_a_recording_says_the_tone_curve_its_frames_came_through(tmp_path: Path) -> None:
+    """A camera with a display gamma records its curve (sweep.json's `frame_gamma`, an edge key the
+    format lets grow); replay ranges with it whatever the configuration says, as ranging that is
+    told the curve does. A linear recording says nothing, and its sweep.json is as before."""
+    from edge.replay import ranging_for
+
+    curved = read_recording(record_targets(load_config(None, ["sim.sensor.gamma=2.2"]), [0.8, 2.0],
+                                           tmp_path / "curved", pairs=1))
+    plain = read_recording(record_targets(load_config(), [0.8], tmp_path / "plain", pairs=1))
+    assert curved.frame_gamma == 2.2 and plain.frame_gamma is None
+    assert "frame_gamma" not in json.loads((tmp_path / "plain" / "sweep.json").read_text())
+    default = load_config().ranging
+    assert ranging_for(curved, default).frame_gamma == 2.2 and ranging_for(plain, default) is default
+    told = list(Replayer(curved.rig, "triangulate", default.__class__(frame_gamma=2.2)).zones(curved))
+    replayed = json.loads(subprocess.run(
+        [sys.executable, "-m", "edge", "replay", str(tmp_path / "curved"), "--json"],
+        capture_output=True, text=True, check=True).stdout)["zones"]
+    assert all(r.status == OK for r in told)
+    assert [z["range_m"] for z in replayed] == pytest.approx([r.range_m for r in told], abs=1e-4)  # (rounded)
+    as_delivered = list(Replayer(curved.rig, "triangulate", default).zones(curved))
+    for z, t, d in zip(replayed, told, as_delivered):  # the spots' SNR tells which it was
+        assert z["lasers"]["center"]["snr"] == pytest.approx(t.lasers["center"].snr, abs=0.06)
+        assert z["lasers"]["center"]["snr"] > 1.25 * d.lasers["center"].snr  # (1.46 at 2 m)
+    # A curve outside 1-3 is refused, naming the file and the key.
+    doc = json.loads((tmp_path / "curved" / "sweep.json").read_text())
+    doc["frame_gamma"] = 0.5
+    (tmp_path / "curved" / "sweep.json").write_text(json.dumps(doc))
+    with pytest.raises(RecordingError, match=r"sweep\.json.*frame_gamma: must be 1-3"):
+        read_recording(tmp_path / "curved")

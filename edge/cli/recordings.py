@@ -50,7 +50,7 @@ def add_parsers(sub: Any) -> None:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from edge.recording import read_recording
-    from edge.replay import Replayer, format_score, replay_document, score
+    from edge.replay import Replayer, format_score, ranging_for, replay_document, score
 
     recording = read_recording(args.recording)
     rig = recording.rig
@@ -58,7 +58,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         from edge.calibration.file import read_calibration
 
         rig = read_calibration(args.calibration).apply(rig)
-    replayer = Replayer(rig, args.estimator, load(args).ranging)
+    replayer = Replayer(rig, args.estimator, ranging_for(recording, load(args).ranging))
     results = list(replayer.zones(recording, progress("ranging")))
     if args.json:
         json.dump(replay_document(recording, results), sys.stdout)

@@ -75,7 +75,7 @@ def _live_sweep(config, out: Path, recording: Path | None) -> int:
 
     # The recording keeps the rig it was ranged with, calibration included, so replay agrees.
     rig = believed_rig(config).rig
-    writer = RecordingWriter(recording, rig, device=device) if recording else None
+    writer = RecordingWriter(recording, rig, device=device, frame_gamma=config.frames_gamma) if recording else None
     with writer or contextlib.nullcontext() as recorder:
         sweep = run_configured_sweep(config, progress("sweep"), recorder=recorder)
     report = sweep.report

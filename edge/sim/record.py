@@ -129,7 +129,7 @@ def _record(
     frame_ns = camera.frame_ns
     exposure_ns = int(camera.exposure_us * 1000)
     clock_ns = 0
-    with RecordingWriter(out, config.rig.build(), device=device) as writer:
+    with RecordingWriter(out, config.rig.build(), device=device, frame_gamma=config.sim.sensor.gamma) as writer:
         for index, (renderer, pan, tilt) in enumerate(views):
             names = list(renderer.rig.laser_names)
             frames: list[tuple[np.ndarray, list[str], dict]] = []
