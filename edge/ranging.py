@@ -28,7 +28,7 @@ from edge.deblend import DEBLEND_PX, Placed, place_pair
 from edge.errors import ConfigError
 from edge.rig import CameraModel, Laser, Pose, Rig
 from edge.schema import require
-from edge.tone import linear_light
+from edge.tone import linear_table, require_gamma
 from edge.vision import Candidate, SpotFinder
 
 OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT = "ok", "no_spot", "ambiguous", "out_of_range", "fault"
@@ -107,7 +107,7 @@ class RangingConfig:
         require(self.surface_sigma_per_m >= 0, "surface_sigma_per_m", "must be >= 0")
         require(self.alone_min_snr >= self.min_snr, "alone_min_snr", "must be >= min_snr")
         require(0 < self.max_sigma_fraction <= 1, "max_sigma_fraction", "must be in (0, 1]")
-        require(1.0 <= self.frame_gamma <= 3.0, "frame_gamma", f"must be 1-3 (1: linear), got {self.frame_gamma}")
+        require_gamma(self.frame_gamma, "frame_gamma")
 
 
 # Not frozen, though never changed once made: a frozen dataclass costs 3 × as much to build
@@ -612,22 +612,14 @@ class Ranger:
         # a margin for rounding a spot's pixel), so that most spots need no search of the path.
         self._near_path = {name: self.finder.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
         self._inv_depths = self.finder.inv_depth_range()
-        self._luts: dict[np.dtype, np.ndarray] = {}  # frame_gamma's, by the frames' type
 
     def _linear(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
-        """The frame groups with `frame_gamma`'s curve undone: 16-bit values proportional to light
-        (a table a type of integer frame, made once)."""
+        """The frame groups with `frame_gamma`'s curve undone: 16-bit values proportional to light."""
         first = groups[0].off[0] if groups[0].off else groups[0].on[0]
+        if first.dtype not in (np.uint8, np.uint16):
+            raise ConfigError(f"ranging.frame_gamma: only 8- and 16-bit frames can be made linear, not {first.dtype}")
         self.finder.delivered(first)
-        lut = self._luts.get(first.dtype)
-        if lut is None:
-            if first.dtype not in (np.uint8, np.uint16):
-                raise ConfigError(f"ranging.frame_gamma: only 8- and 16-bit frames can be made linear, "
-                                  f"not {first.dtype}")
-            top = np.iinfo(first.dtype).max
-            codes = np.arange(top + 1, dtype=np.float64) / top
-            lut = self._luts[first.dtype] = np.rint(65535.0 * linear_light(codes, self.config.frame_gamma)
-                                                    ).astype(np.uint16)
+        lut = linear_table(first.dtype, self.config.frame_gamma)
         # (cv2.LUT: a quarter of numpy's time for 8-bit frames; it takes no other kind)
         apply = (lambda f: cv2.LUT(f, lut)) if first.dtype == np.uint8 else lut.take
         return [replace(g, on=[apply(f) for f in g.on], off=[apply(f) for f in g.off]) for g in groups]

@@ -39,6 +39,7 @@ from edge.errors import EdgeError, RecordingError
 from edge.fsutil import fsync_dir, output_problem, process_alive, read_small
 from edge.rig import CameraModel, Laser, Mount, Rig, Vec3
 from edge.schema import Check, FieldError, Label, build, describe, fail, read_json, require, show
+from edge.tone import require_gamma
 
 FORMAT = "edge-sweep/1"
 SWEEP_JSON = "sweep.json"
@@ -178,8 +179,8 @@ class SweepFile:
     zones: tuple[ZoneRecord, ...]
 
     def __post_init__(self) -> None:
-        require(self.frame_gamma is None or 1.0 <= self.frame_gamma <= 3.0, "frame_gamma",
-                f"must be 1-3 (1: linear), got {self.frame_gamma}")
+        if self.frame_gamma is not None:
+            require_gamma(self.frame_gamma, "frame_gamma")
         names = self.rig().laser_names
         seen: dict[int, int] = {}
         for position, zone in enumerate(self.zones):

@@ -7,7 +7,11 @@ spot's light then adds to the room's, and noise is what the sensor made. Pure; n
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
+
+from edge.schema import require
 
 # Below this fraction of full scale the curve is a straight line (a power law's slope is infinite
 # at 0; sRGB's toe is the same idea); at and above it x^(1/gamma), the line meeting it there.
@@ -30,3 +34,18 @@ def linear_light(y: np.ndarray, gamma: float) -> np.ndarray:
     inv = 1.0 / gamma
     knee = TOE**inv
     return np.where(y < knee, y / TOE ** (inv - 1.0), np.power(np.maximum(y, knee), gamma))
+
+
+def require_gamma(gamma: float, key: str) -> None:
+    """A configured or recorded curve's check: 1 (linear) to 3 (FieldError naming `key`)."""
+    require(1.0 <= gamma <= 3.0, key, f"must be 1-3 (1: linear), got {gamma}")
+
+
+@functools.lru_cache(maxsize=8)
+def linear_table(dtype: np.dtype, gamma: float) -> np.ndarray:
+    """Every value of an 8- or 16-bit frame delivered through `gamma`'s curve, as 16-bit values
+    proportional to light: a lookup table (uint16, read-only), made once a type and curve."""
+    top = np.iinfo(dtype).max
+    table = np.rint(65535.0 * linear_light(np.arange(top + 1, dtype=np.float64) / top, gamma)).astype(np.uint16)
+    table.flags.writeable = False
+    return table

@@ -33,7 +33,7 @@ import numpy as np
 
 from edge.accuracy.floor import fusion_weights, spot_profile
 from edge.ranging import FrameGroup, triangulate
-from edge.tone import linear_light
+from edge.tone import linear_table
 
 if TYPE_CHECKING:
     from edge.config import Config
@@ -178,13 +178,8 @@ def _difference(group: FrameGroup, gamma: float = 1.0) -> tuple[np.ndarray, np.n
     and (h, w) bool."""
     frames = np.stack(group.on)
     top = np.iinfo(frames.dtype).max if frames.dtype.kind in "ui" else math.inf
-
-    def linear(f: np.ndarray) -> np.ndarray:
-        if gamma == 1.0:
-            return f.astype(np.float64)
-        return linear_light(f / top, gamma)
-
-    on = np.mean([linear(f) for f in group.on], axis=0)
-    off = np.mean([linear(f) for f in group.off], axis=0)
+    table = linear_table(frames.dtype, gamma) if gamma != 1.0 else None  # (the table ranging undoes it by)
+    on = np.mean([f.astype(np.float64) if table is None else table[f] for f in group.on], axis=0)
+    off = np.mean([f.astype(np.float64) if table is None else table[f] for f in group.off], axis=0)
     clipped = (frames >= top).reshape(len(group.on), *frames.shape[1:3], -1)
     return on - off, np.logical_not(clipped.any(axis=(0, 3)))

@@ -25,6 +25,7 @@ import numpy as np
 from edge.errors import CameraError
 from edge.hw.base import Frame
 from edge.schema import require
+from edge.tone import require_gamma
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +74,7 @@ class CameraSettings:
         )
         require(0 <= self.latency_ms <= 1000, "latency_ms", "must be 0-1000 ms")
         require(0 < self.timeout_s <= 60, "timeout_s", "must be more than 0 and at most 60 s")
-        require(1.0 <= self.gamma <= 3.0, "gamma", f"must be 1-3 (1: linear), got {self.gamma}")
+        require_gamma(self.gamma, "gamma")
 
     @property
     def frame_ns(self) -> int:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from edge.schema import require
+from edge.tone import require_gamma
 
 
 @dataclass(frozen=True)
@@ -38,7 +39,7 @@ class SensorConfig:
 
     def __post_init__(self) -> None:
         require(self.full_well_e > 0, "full_well_e", "must be positive")
-        require(1.0 <= self.gamma <= 3.0, "gamma", f"must be 1-3 (1: linear), got {self.gamma}")
+        require_gamma(self.gamma, "gamma")
         require(self.read_noise_e >= 0, "read_noise_e", "must be >= 0")
         require(8 <= self.adc_bits <= 16, "adc_bits", f"must be 8-16, got {self.adc_bits}")
         require(0 <= self.jpeg_quality <= 100, "jpeg_quality", "must be 0-100")
