@@ -8,10 +8,15 @@ spot's light then adds to the room's, and noise is what the sensor made. Pure; n
 from __future__ import annotations
 
 import functools
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from edge.schema import require
+
+if TYPE_CHECKING:
+    import numpy as np
+
+# (numpy is imported where it is used: configuration checks its curves with require_gamma, and
+# `edge doctor` reads configuration where numpy may be missing or broken.)
 
 # Below this fraction of full scale the curve is a straight line (a power law's slope is infinite
 # at 0; sRGB's toe is the same idea); at and above it x^(1/gamma), the line meeting it there.
@@ -21,6 +26,8 @@ TOE = 0.01
 def tone_curve(x: np.ndarray, gamma: float) -> np.ndarray:
     """Linear values `x` (0-1 of full scale) as a camera of display gamma `gamma` delivers them;
     0 and 1 stay put (float32)."""
+    import numpy as np
+
     x = np.asarray(x, dtype=np.float32)
     inv = 1.0 / gamma
     slope = np.float32(TOE ** (inv - 1.0))
@@ -30,6 +37,8 @@ def tone_curve(x: np.ndarray, gamma: float) -> np.ndarray:
 def linear_light(y: np.ndarray, gamma: float) -> np.ndarray:
     """The inverse of :func:`tone_curve`: delivered values `y` (0-1 of full scale) back to values
     proportional to light (float64)."""
+    import numpy as np
+
     y = np.asarray(y, dtype=np.float64)
     inv = 1.0 / gamma
     knee = TOE**inv
@@ -45,6 +54,8 @@ def require_gamma(gamma: float, key: str) -> None:
 def linear_table(dtype: np.dtype, gamma: float) -> np.ndarray:
     """Every value of an 8- or 16-bit frame delivered through `gamma`'s curve, as 16-bit values
     proportional to light: a lookup table (uint16, read-only), made once a type and curve."""
+    import numpy as np
+
     top = np.iinfo(dtype).max
     table = np.rint(65535.0 * linear_light(np.arange(top + 1, dtype=np.float64) / top, gamma)).astype(np.uint16)
     table.flags.writeable = False

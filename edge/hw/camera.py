@@ -25,7 +25,7 @@ import numpy as np
 from edge.errors import CameraError
 from edge.hw.base import Frame
 from edge.schema import require
-from edge.tone import require_gamma
+from edge.tone import TOE, require_gamma, tone_curve
 
 log = logging.getLogger(__name__)
 
@@ -256,8 +256,6 @@ def curve_points(gamma: float) -> list[int]:
     shadows where the curve bends most (a straight line for 1)."""
     if gamma == 1.0:
         return [0, 0, 65535, 65535]
-    from edge.tone import TOE, tone_curve
-
     xs = sorted({0, round(TOE * 65535), *(round(65535 * (i / 32) ** 2) for i in range(1, 33))})
     ys = tone_curve(np.array(xs, dtype=np.float32) / 65535.0, gamma) * 65535.0
     return [v for x, y in zip(xs, ys.tolist()) for v in (x, int(round(y)))]
