@@ -169,7 +169,8 @@ class TargetCalibration:
         self.deadline = self.started + timeout_s
         self.last: ZoneResult | None = None  # the latest pair's range, for whoever holds the target
         self.recorded: ZoneResult | None = None  # the latest distance taken, as the rig in use ranged it
-        self._writer = RecordingWriter(self.folder, nominal, device=device)
+        # (The curve its frames came through, as the ranger is told it: a replay undoes the same.)
+        self._writer = RecordingWriter(self.folder, nominal, device=device, frame_gamma=ranger.config.frame_gamma)
         self._writer.__enter__()
         self._open = True
 
