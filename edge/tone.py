@@ -8,6 +8,7 @@ spot's light then adds to the room's, and noise is what the sensor made. Pure; n
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from edge.schema import require
@@ -60,3 +61,56 @@ def linear_table(dtype: np.dtype, gamma: float) -> np.ndarray:
     table = np.rint(65535.0 * linear_light(np.arange(top + 1, dtype=np.float64) / top, gamma)).astype(np.uint16)
     table.flags.writeable = False
     return table
+
+
+# --- the curve a camera applies, measured from two exposures of a still scene ------------------
+#
+# Light doubles with the exposure; a value delivered through a curve grows by 2^(1/gamma). So two
+# frames of the same still scene at exposures t and k·t tell the curve: the gamma that carries the
+# first's values to the second's. Values near black (the curve's toe, a sensor's black level) and
+# near full scale (clipped) tell nothing and are left out.
+MEASURE_FLOOR = 0.03  # of full scale, in the shorter exposure's frame (about 8 levels of 8 bits)
+MEASURE_CEILING = 0.85  # of full scale, in the longer's: below clipping and a curve's shoulder
+MEASURE_MIN_VALUES = 1000  # fewer values between those bounds: the picture is too dark to tell
+MEASURE_MAX_VALUES = 20000  # (an even sample of the rest: enough for the median's precision)
+MEASURE_GAMMAS = tuple(round(1.0 + 0.02 * i, 2) for i in range(101))  # 1.00 … 3.00
+
+
+@dataclass(frozen=True)
+class MeasuredCurve:
+    """What two exposures of a still scene say of a camera's tone curve."""
+
+    gamma: float  # the display gamma whose curve best carries one exposure's values to the other's
+    values: int  # how many values (pixels × colours) between the floor and the ceiling told it
+    misfit: float  # the median |difference| left at that gamma (0-1 of full scale)
+
+
+def measure_gamma(short: np.ndarray, long: np.ndarray, ratio: float) -> MeasuredCurve | None:
+    """The tone curve of a camera from two frames (or means of frames, 0-1 of full scale) of the
+    same still scene, `long` exposed `ratio` (> 1) times as long as `short`; None when too few
+    values lie between MEASURE_FLOOR and MEASURE_CEILING to tell. The fit is robust (median of
+    the differences); a scene that changed between the frames shows as a large misfit."""
+    import numpy as np
+
+    if not ratio > 1.0:
+        raise ValueError(f"the longer exposure must be longer: ratio {ratio}")
+    s = np.asarray(short, dtype=np.float64).ravel()
+    g = np.asarray(long, dtype=np.float64).ravel()
+    if s.shape != g.shape:
+        raise ValueError(f"frames of different sizes: {np.shape(short)} and {np.shape(long)}")
+    use = (s >= MEASURE_FLOOR) & (g <= MEASURE_CEILING)
+    s, g = s[use], g[use]
+    if s.size < MEASURE_MIN_VALUES:
+        return None
+    step = -(-s.size // MEASURE_MAX_VALUES)
+    s, g = s[::step], g[::step]
+
+    @functools.cache
+    def cost(gamma: float) -> float:
+        predicted = tone_curve(np.minimum(ratio * linear_light(s, gamma), 1.0), gamma)
+        return float(np.median(np.abs(g - predicted)))
+
+    # Coarse, then fine about the best (the cost falls smoothly towards its one minimum).
+    coarse = min(MEASURE_GAMMAS[::5], key=cost)
+    best = min((x for x in MEASURE_GAMMAS if abs(x - coarse) <= 0.1), key=cost)
+    return MeasuredCurve(best, int(s.size), cost(best))

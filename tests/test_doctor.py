@@ -24,7 +24,7 @@ from edge.doctor.spots import judge
 REPO = Path(__file__).resolve().parents[1]
 ACL = (REPO / "config" / "mosquitto-acl.conf").read_text()
 LINES = ["python", "packages", "pin factory", "groups & devices", "state folder", "clock", "calibration",
-         "pan-tilt unit", "camera", "laser center", "laser parallel", "laser sloped", "broker"]
+         "pan-tilt unit", "camera", "laser center", "laser parallel", "laser sloped", "tone curve", "broker"]
 # No broker (its line is tried on its own below); a silent unit is given up on sooner.
 NO_BROKER = ["mqtt.enabled=false", "ptu.timeout_s=0.2"]
 
@@ -62,8 +62,51 @@ def test_each_simulated_fault_fails_its_own_line_with_a_remedy(fault, line, word
     failed = next(x for x in result.checks.lines if x.check == line)
     assert words in failed.detail and failed.remedy
     # A stalled camera leaves the lasers unseen: not run (and said why), not failed.
-    unseen = ["laser center", "laser parallel", "laser sloped"] if line == "camera" else []
+    unseen = ["laser center", "laser parallel", "laser sloped", "tone curve"] if line == "camera" else []
     assert _by_status(result, "not run") == unseen
+
+
+@pytest.mark.parametrize("gamma", [1.0, 2.2])
+def test_the_tone_curve_line_measures_the_cameras_curve(gamma):
+    """Two exposures of the laser-off scene tell the simulated sensor's curve; told the same,
+    ranging undoes it and the line is ok, otherwise it fails with the setting that mends it."""
+    told = examine(None, [*NO_BROKER, f"sim.sensor.gamma={gamma}", f"ranging.frame_gamma={gamma}"])
+    line = next(x for x in told.checks.lines if x.check == "tone curve")
+    assert line.status == "ok", line
+    measured = float(line.detail.split()[1])
+    assert measured == pytest.approx(gamma, abs=0.06)
+    assert ("proportional to light" in line.detail) == (gamma == 1.0)
+    if gamma != 1.0:
+        untold = examine(None, [*NO_BROKER, f"sim.sensor.gamma={gamma}"])
+        assert _by_status(untold, "fail") == ["tone curve"]  # (a webcam's sRGB, not told to ranging)
+        failed = next(x for x in untold.checks.lines if x.check == "tone curve")
+        assert "but ranging undoes 1 (ranging.frame_gamma)" in failed.detail
+        assert f"ranging.frame_gamma = {gamma:.1f}" in failed.remedy
+
+
+def test_the_tone_curve_is_not_judged_in_the_dark():
+    result = examine(None, [*NO_BROKER, "sim.ambient.white_e_per_ms=10"])
+    assert _by_status(result, "not run") == ["tone curve"]
+    line = next(x for x in result.checks.lines if x.check == "tone curve")
+    assert "too dark to tell" in line.detail and "light the room" in line.detail
+
+
+def test_a_real_cameras_curve_is_mended_where_its_curve_is_set():
+    """The remedy follows the backend: a webcam's curve is told to ranging; the Pi camera's is set
+    in its ISP (camera.gamma), so a curve other than that one means the ISP did not take it."""
+    from edge.doctor.tone import judge as judge_curve
+    from edge.tone import tone_curve
+
+    light = np.random.default_rng(1).uniform(0.0, 0.2, (60, 80, 3))
+    short, long = (tone_curve(light * k, 2.2).astype(np.float64) for k in (1.0, 4.0))
+    webcam = load_config(None, ['camera.backend="opencv"'])
+    with pytest.raises(Problem, match="tone curve of gamma 2.2") as told:
+        judge_curve(short, 10000.0, long, 40000.0, webcam)
+    assert "set ranging.frame_gamma = 2.2" in told.value.remedy
+    pi = load_config(str(REPO / "config" / "device.toml"))
+    with pytest.raises(Problem) as isp:
+        judge_curve(long, 40000.0, short, 10000.0, pi)  # (either order)
+    assert "camera.gamma = 1" in isp.value.remedy and "tuning file" in isp.value.remedy
 
 
 # Makes numpy and OpenCV unimportable in the process it is loaded into (as sitecustomize), the way a

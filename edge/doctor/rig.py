@@ -31,6 +31,7 @@ FRAMES = 8  # frames taken to measure the camera's rate and exposure
 RATE_TOLERANCE = 0.03  # the shortest frame interval within 3 % of the configured period
 WEBCAM_RATE_TOLERANCE = 0.25  # a webcam's frames are dated on delivery: they jitter
 EXPOSURE_TOLERANCE = 0.05  # sensors round the exposure to whole lines
+TONE_FRAMES = 8  # frames averaged at each exposure for the tone curve (flicker averages out)
 
 
 def _ptu_remedy(message: str) -> str:
@@ -72,6 +73,8 @@ class RigChecks:
         self.lasers_problem: str | None = None
         self.capture: Capture | None = None
         self.rig: Rig | None = None  # the rig ranging believes (calibrated, if it is)
+        self._pins: Any = None  # the lasers' pin factory (the simulated camera watches it)
+        self._sim: dict[str, Any] = {}  # what the simulated camera is opened with
 
     def _typed(self) -> Config:
         if self.config is None:
@@ -158,6 +161,7 @@ class RigChecks:
                    "pose_step_deg": self.emulator.resolution_arcsec / 3600.0, "scene_epoch_ns": self.clock.now_ns()}
         elif config.camera.backend == "sim":
             sim = {"pose_deg": self._aim(), "scene_epoch_ns": self.clock.now_ns()}
+        self._pins, self._sim = pins, sim
         try:
             camera = open_camera(config, pins, self.clock, **sim)
         except EdgeError as exc:
@@ -251,6 +255,54 @@ class RigChecks:
             self.lasers.off()
         report = judge(name, on.frame.image, off.frame.image, rig)
         return _verdict(report, index, config, self._aim())
+
+    def tone_curve(self) -> str:
+        """The camera's tone curve from the laser-off scene at two exposures (edge.doctor.tone),
+        after the lasers' checks: the camera is reopened at the second exposure, as the
+        service would open it (one camera at a time: libcamera holds it until it is closed)."""
+        config = self._typed()
+        if self.camera_problem is not None or self.camera is None:
+            raise NotRun("needs frames from the camera (see camera)")
+        from dataclasses import replace
+
+        from edge.doctor.tone import judge, other_exposure_us
+        from edge.parts import open_camera
+
+        if self.lasers is not None:
+            self.lasers.off()
+        configured = self._mean_frame(self.camera, config.camera.exposure_us)
+        self.camera.close()
+        other_us = other_exposure_us(config.camera)
+        try:
+            camera = open_camera(replace(config, camera=replace(config.camera, exposure_us=other_us)),
+                                 self._pins, self.clock, **self._sim)
+            self.stack.callback(camera.close)
+            camera.start()
+            other = self._mean_frame(camera, other_us)
+        except EdgeError as exc:
+            raise Problem(f"at {other_us:g} µs: {exc}", _camera_remedy(self.settings)) from None
+        return judge(configured[0], configured[1], other[0], other[1], config)
+
+    def _mean_frame(self, camera: Camera, exposure_us: float) -> tuple[Any, float]:
+        """The mean of TONE_FRAMES frames exposed `exposure_us` (0-1 of full scale), and their
+        exposure as they report it (µs); Problem if the camera does not take that exposure."""
+        import numpy as np
+
+        frames = []
+        t_ns = self.clock.now_ns()
+        for _ in range(3 * TONE_FRAMES):  # (a new exposure may take a few frames to apply)
+            frame = camera.frame_after(t_ns)
+            t_ns = frame.t_start_ns + 1
+            if abs(frame.exposure_us / exposure_us - 1) <= EXPOSURE_TOLERANCE:
+                frames.append(frame)
+                if len(frames) == TONE_FRAMES:
+                    break
+        if len(frames) < TONE_FRAMES:
+            raise Problem(f"asked for {exposure_us:g} µs, the frames came at {frame.exposure_us:.0f} µs",
+                          "the sensor mode limits the exposure: see camera.exposure_us and camera.frame_rate_hz")
+        top = float(np.iinfo(frames[0].image.dtype).max) if frames[0].image.dtype.kind == "u" else 1.0
+        mean = np.mean([f.image for f in frames], axis=0, dtype=np.float64) / top
+        return mean, float(np.mean([f.exposure_us for f in frames]))
 
 
 def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, float]) -> str:

@@ -1,0 +1,72 @@
+"""The camera's tone curve, measured: is what it delivers proportional to light, as ranging assumes?
+
+Ranging adds a spot's light to the room's and weighs pixels by the sensor's noise: both hold in
+linear light. A Pi camera's ISP applies its tuning file's curve unless edge replaced it
+(``camera.gamma``), a webcam delivers sRGB; ranging undoes the curve ``ranging.frame_gamma`` names.
+If the two differ, spots in dark parts of the picture are read several times too faint or bright
+and their noise wrongly, and nothing else would say so: the first hour on a new camera should.
+
+The doctor takes the laser-off scene at the configured exposure and at another (4 × as long where
+the frame period allows, else a quarter), and :func:`edge.tone.measure_gamma` finds the curve that
+carries the one to the other. Pure: mean frames and the configuration in, the line out.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from edge.doctor.checklist import NotRun, Problem
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from edge.config import Config
+    from edge.hw.camera import CameraSettings
+
+EXPOSURE_RATIO = 4.0  # the second exposure's to the configured one's, where the frame period allows
+LONGEST_SHARE = 0.9  # of the frame period: the longest exposure asked for
+GAMMA_TOLERANCE = 0.15  # a measured gamma this near the one ranging undoes is that one
+MISFIT_LEVELS = 12.0  # a median difference left over this many 8-bit levels: the scene changed (noise
+# leaves 1-3 at a 4 × ratio)
+
+
+def other_exposure_us(settings: CameraSettings) -> float:
+    """The exposure to compare the configured one with: EXPOSURE_RATIO × as long where the frame
+    period leaves room for 1.5 × or more, else EXPOSURE_RATIO × as short."""
+    longest = LONGEST_SHARE * 1e6 / settings.frame_rate_hz
+    longer = min(EXPOSURE_RATIO * settings.exposure_us, longest)
+    if longer >= 1.5 * settings.exposure_us:
+        return longer
+    return settings.exposure_us / EXPOSURE_RATIO
+
+
+def judge(configured: np.ndarray, configured_us: float, other: np.ndarray, other_us: float, config: Config) -> str:
+    """The tone curve's line from mean laser-off frames (0-1 of full scale) at the configured
+    exposure and at the other (both in µs, as the frames reported them); Problem if it is not the
+    curve ranging undoes, NotRun if the frames cannot tell."""
+    from edge.tone import measure_gamma
+
+    (short, short_us), (long, long_us) = sorted([(configured, configured_us), (other, other_us)], key=lambda p: p[1])
+    measured = measure_gamma(short, long, long_us / short_us)
+    exposures = f"{short_us / 1e3:g} and {long_us / 1e3:g} ms"
+    if measured is None:
+        raise NotRun(f"the picture is too dark to tell at {exposures}: light the room, or aim the unit at a "
+                     "lit wall ([rangefinder] pan_deg, tilt_deg), and run the doctor again")
+    if measured.misfit * 255.0 > MISFIT_LEVELS:
+        raise NotRun(f"the picture changed between the exposures of {exposures} (a median "
+                     f"{measured.misfit * 255.0:.0f} levels off any curve): keep the room still, lights "
+                     "steady, and run the doctor again")
+    expected = config.ranging.frame_gamma
+    linear = " (values proportional to light)" if abs(measured.gamma - 1.0) <= GAMMA_TOLERANCE else ""
+    found = f"gamma {measured.gamma:.2f}{linear} from {measured.values} values at {exposures}"
+    if abs(measured.gamma - expected) <= GAMMA_TOLERANCE:
+        return f"{found}; ranging undoes {expected:g} (ranging.frame_gamma)"
+    backend = config.camera.backend
+    detail = f"frames come through a tone curve of {found}, but ranging undoes {expected:g} (ranging.frame_gamma)"
+    if backend == "picamera2":
+        raise Problem(detail, f"the ISP did not take edge's curve (camera.gamma = {config.camera.gamma:g}): "
+                              "`edge doctor -v` shows the camera's warning about its tuning file; update "
+                              "picamera2 and libcamera (sudo apt full-upgrade)")
+    if backend == "opencv":
+        raise Problem(detail, f"set ranging.frame_gamma = {measured.gamma:.1f} (a webcam's sRGB is about 2.2)")
+    raise Problem(detail, f"set ranging.frame_gamma = {measured.gamma:.1f}, or sim.sensor.gamma = {expected:g}")
