@@ -14,6 +14,7 @@ nudges) at the calibration distances, fitted as ``edge calibrate`` does; then
     nice -n 19 .venv/bin/python tools/calib_targets.py --seeds 20     # after ./dev has made .venv
     .venv/bin/python tools/calib_targets.py --seeds 10 --first 11 --json out.json
     .venv/bin/python tools/calib_targets.py --seeds 20 --no-sweep --speckle 0   # below speckle
+    .venv/bin/python tools/calib_targets.py --seeds 10 --set sim.sensor.gamma=2.2   # a display gamma
 
 Per check distance it also looks rig by rig: each laser's error over its own predicted 1 σ (z), and
 the rig whose errors are the most over their prediction.
@@ -79,7 +80,7 @@ def ray_errors(cal, truth) -> dict[str, dict[str, float]]:
 def ranging_ratio(config, truth, cal, folder: Path, seed: int) -> dict[str, float]:
     from edge.calibration.file import Calibration
     from edge.recording import read_recording
-    from edge.replay import Replayer
+    from edge.replay import Replayer, ranging_for
     from edge.sim.record import record_sweep
 
     sweep = replace(config, sim=replace(config.sim, seed=seed + 5000))
@@ -87,7 +88,7 @@ def ranging_ratio(config, truth, cal, folder: Path, seed: int) -> dict[str, floa
     errors = {}
     for name, rig in (("true", Calibration.from_rig(truth).apply(rec.rig)), ("calibrated", cal.apply(rec.rig))):
         errs = {}
-        for zone, result in zip(rec.zones, Replayer(rig).zones(rec)):
+        for zone, result in zip(rec.zones, Replayer(rig, config=ranging_for(rec, config.ranging)).zones(rec)):
             t = (zone.truth or {}).get("range_m")
             if result.status == "ok" and t:
                 errs[zone.index] = abs(result.range_m / t - 1)
@@ -98,14 +99,14 @@ def ranging_ratio(config, truth, cal, folder: Path, seed: int) -> dict[str, floa
     return {"zones": len(both), "true": true, "calibrated": calibrated, "ratio": calibrated / true}
 
 
-def one_seed(seed: int, folder: Path, sweep: bool, speckle: float = 1.0) -> dict:
+def one_seed(seed: int, folder: Path, sweep: bool, speckle: float = 1.0, extra: tuple[str, ...] = ()) -> dict:
     from edge.calibration.check import check_calibration
     from edge.calibration.fit import fit_calibration
     from edge.config import load_config
     from edge.recording import read_recording
     from edge.sim.record import record_targets
 
-    config = load_config(None, ["sweep.nudge_deg=0", f"sim.seed={seed}", f"sim.beam.speckle={speckle}"])
+    config = load_config(None, ["sweep.nudge_deg=0", f"sim.seed={seed}", f"sim.beam.speckle={speckle}", *extra])
     truth = mis_built(config.rig.build(), seed)
     rec = read_recording(record_targets(config, list(CAL_DISTANCES), folder / "cal", pairs=2, rig=truth))
     cal = fit_calibration(rec, CAL_DISTANCES)
@@ -119,7 +120,7 @@ def one_seed(seed: int, folder: Path, sweep: bool, speckle: float = 1.0) -> dict
     row["check"] = [{"distance_m": z.distance_m, "errors_m": {n: z.error(n) for n in z.depth_m},
                      "combined_m": z.combined_error} for z in check_calibration(check, CHECK_DISTANCES, cal)]
     if sweep:
-        row["ranging"] = ranging_ratio(load_config(None, [f"sim.seed={seed}"]), truth, cal, folder, seed)
+        row["ranging"] = ranging_ratio(load_config(None, [f"sim.seed={seed}", *extra]), truth, cal, folder, seed)
     return row
 
 
@@ -199,13 +200,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--speckle", type=float, default=1.0,
                    help="the simulator's speckle (0: none; the rays then show what the frames' noise and the "
                         "spot finder leave, the floor below speckle's)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a configuration override for every recording (e.g. sim.sensor.gamma=2.2)")
     args = p.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory(prefix="calib-targets-") as tmp:
         for seed in range(args.first, args.first + args.seeds):
             folder = Path(tmp) / f"seed-{seed}"
             folder.mkdir()
-            rows.append(one_seed(seed, folder, not args.no_sweep, args.speckle))
+            rows.append(one_seed(seed, folder, not args.no_sweep, args.speckle, tuple(args.set)))
             print(f"seed {seed}: " + ", ".join(f"{n} {e['angle_deg']:.4f}° {e['origin_mm']:.2f} mm"
                                                for n, e in rows[-1]["rays"].items()), file=sys.stderr)
     print("\n".join(summary(rows)))
