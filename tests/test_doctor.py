@@ -84,6 +84,49 @@ def test_the_tone_curve_line_measures_the_cameras_curve(gamma):
         assert f"ranging.frame_gamma = {gamma:.1f}" in failed.remedy
 
 
+def test_a_laser_that_lights_late_is_timed_and_the_setting_named_mends_it():
+    """A laser module that lights 12 ms after its GPIO edge, where lasers.settle_ms says 1: the
+    frame Capture takes as lit saw part of it. The doctor says how late, and the settle time it
+    names makes the line ok."""
+    slow = 'sim.laser_faults=[{laser="sloped", kind="slow", lag_ms=12}]'
+    result = examine(None, [*NO_BROKER, slow])
+    assert _by_status(result, "fail") == ["laser sloped"]
+    line = next(x for x in result.checks.lines if x.check == "laser sloped")
+    late = float(line.detail.split("comes about ")[1].split(" ms")[0])
+    assert 11.0 - 1.0 <= late <= 11.0 + 1.0  # 12 ms after the edge: 11 after the 1 ms believed
+    settle = int(line.remedy.split("lasers.settle_ms = ")[1].split()[0])
+    assert 12 <= settle <= 15
+    mended = examine(None, [*NO_BROKER, slow, f"lasers.settle_ms={settle}"])
+    assert mended.checks.ok, mended.checks.text()
+    assert "lit frames wholly lit" in next(x.detail for x in mended.checks.lines if x.check == "laser sloped")
+
+
+def test_a_spots_light_is_weighed_in_frames_lit_for_part_of_their_exposure(office):
+    """The renderer lights a laser for a share of a frame's exposure: that share is what the
+    doctor's timing reads back, and the lag it implies is the one that left it."""
+    from edge.doctor.timing import judge_timing, light_shares
+    from edge.sim.record import scene_for, true_rig
+    from edge.sim.render import Renderer
+
+    config = load_config()
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+    rng = np.random.default_rng(2)
+    off, other_off, full = (renderer.render(0.0, 0.0, lit, 0.0, rng) for lit in ({}, {}, {"center": 1.0}))
+    report = judge("center", full, off, office[0])
+    for share in (0.3, 0.6, 1.0):
+        part = renderer.render(0.0, 0.0, {"center": share}, 0.0, rng)
+        lit, left = light_shares(part, full, other_off, off, report.pixel)
+        assert lit == pytest.approx(share, abs=0.05) and abs(left) < 0.05
+    # Lit 40 % of a 10 ms exposure whose row began 4 ms after the switch was believed done: the
+    # light came 4 + 6 ms late, and a settle time of 1 + 10 (+ 1 ms to spare) would have waited.
+    with pytest.raises(Problem, match="comes about 10.0 ms after") as late:
+        judge_timing(0.4, 0.0, 4.0, 10.0, 1.0)
+    assert "lasers.settle_ms = 12 or more" in late.value.remedy
+    with pytest.raises(Problem, match="goes off later"):
+        judge_timing(1.0, 0.5, 4.0, 10.0, 1.0)
+    assert judge_timing(0.97, 0.02, 4.0, 10.0, 1.0).startswith("lit frames wholly lit")
+
+
 def test_the_tone_curve_is_not_judged_in_the_dark():
     result = examine(None, [*NO_BROKER, "sim.ambient.white_e_per_ms=10"])
     assert _by_status(result, "not run") == ["tone curve"]

@@ -31,6 +31,8 @@ FRAMES = 8  # frames taken to measure the camera's rate and exposure
 RATE_TOLERANCE = 0.03  # the shortest frame interval within 3 % of the configured period
 WEBCAM_RATE_TOLERANCE = 0.25  # a webcam's frames are dated on delivery: they jitter
 EXPOSURE_TOLERANCE = 0.05  # sensors round the exposure to whole lines
+SWITCH_LEAD_MS = 2.0  # a laser is switched on this long before a frame starts (a real sleep wakes late)
+LIT_AFTER_FRAMES = 3  # a frame this many after the first lit one saw the laser on all through
 TONE_FRAMES = 8  # frames averaged at each exposure for the tone curve (flicker averages out)
 
 
@@ -243,18 +245,43 @@ class RigChecks:
         if self.capture is None:
             raise NotRun(f"needs the lasers' pins ({self.lasers_problem}; see pin factory)")
         from edge.doctor.spots import judge
+        from edge.doctor.timing import judge_timing, light_shares
 
         rig = self.rig if self.rig is not None else config.rig.build()
+        capture, camera = self.capture, self.camera
+        period = config.camera.frame_ns
         try:
-            off = self.capture.take(())
-            on = self.capture.take((name,))
+            off = capture.take(())
+            # Switched on just before a frame starts: the frame taken as lit then starts as soon
+            # after the switch as the lasers' timing allows, the tightest a sweep meets.
+            settle_ns = int(round(config.lasers.settle_ms * 1e6))
+            lead_ns = int(SWITCH_LEAD_MS * 1e6) + settle_ns
+            start = off.frame.t_start_ns + period
+            while start - lead_ns <= self.clock.now_ns():
+                start += period
+            self.clock.sleep_until_ns(start - lead_ns)
+            on = capture.take((name,))
+            full = camera.frame_after(on.frame.t_start_ns + LIT_AFTER_FRAMES * period)
+            after = capture.take(())
         except EdgeError as exc:
             raise Problem(str(exc), _camera_remedy(self.settings)) from None
         finally:
             assert self.lasers is not None
             self.lasers.off()
         report = judge(name, on.frame.image, off.frame.image, rig)
-        return _verdict(report, index, config, self._aim())
+        if report.pixel is None and not report.inverted and not report.lit_when_off:
+            later = judge(name, full.image, off.frame.image, rig)
+            if later.pixel is not None and later.from_path_px[name] <= config.ranging.path_tolerance_px:
+                report = later  # it lights, but late: the timing below says by how much
+        line = _verdict(report, index, config, self._aim())
+        assert report.pixel is not None  # (_verdict raised otherwise)
+        frame, cam = on.frame, rig.camera
+        row_ns = frame.t_start_ns + int(report.pixel[1] * frame.readout_ns / max(cam.height - 1, 1))
+        shares = light_shares(frame.image, full.image, after.frame.image, off.frame.image, report.pixel)
+        if shares is None:
+            return f"{line}; its timing not judged (the spot is at the picture's edge)"
+        slack_ms = (row_ns - (on.laser_switch_ns + settle_ns)) / 1e6
+        return f"{line}; {judge_timing(*shares, slack_ms, frame.exposure_us / 1e3, config.lasers.settle_ms)}"
 
     def tone_curve(self) -> str:
         """The camera's tone curve from the laser-off scene at two exposures (edge.doctor.tone),

@@ -22,9 +22,10 @@ class LaserLight:
     """
 
     def __init__(self, lasers: Iterable[LaserWiring], factory: MockFactory, settle_ns: int = 0,
-                 broken: dict[str, str] | None = None) -> None:
+                 broken: dict[str, str] | None = None, lag_ns: dict[str, int] | None = None) -> None:
         self.settle_ns = int(settle_ns)
         self.broken = dict(broken or {})  # laser name → "dead" or "stuck" (simulated faults)
+        self.lag_ns = dict(lag_ns or {})  # laser name → its own time to switch, in place of settle_ns
         self._pins: dict[str, tuple[LaserPin, bool]] = {}
         for laser in lasers:
             if laser.pin is None:
@@ -43,7 +44,7 @@ class LaserLight:
         lit values from each of those times on; before the first time the laser is dark."""
         pin, active_high = self._pins[name]
         log = pin.log
-        times = np.array([t for t, _ in log], dtype=np.int64) + self.settle_ns
+        times = np.array([t for t, _ in log], dtype=np.int64) + self.lag_ns.get(name, self.settle_ns)
         lit = np.array([lvl is not None and lvl == active_high for _, lvl in log], dtype=np.float64)
         return times, lit
 
@@ -68,7 +69,7 @@ class LaserLight:
             out[name] = np.clip(frac, 0.0, 1.0)
         # A broken laser ignores its wire: a dead diode never lights, a shorted driver never stops.
         for name, kind in self.broken.items():
-            if name in out:
+            if name in out and kind in ("dead", "stuck"):
                 out[name] = np.full(t0.shape, 1.0 if kind == "stuck" else 0.0)
         return out
 

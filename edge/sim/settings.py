@@ -156,10 +156,16 @@ class CameraFault:
 @dataclass(frozen=True)
 class LaserFault:
     """A broken simulated laser (``[[sim.laser_faults]]``): ``dead`` never lights, ``stuck``
-    never goes off (a shorted driver)."""
+    never goes off (a shorted driver), ``slow`` switches `lag_ms` after its GPIO edge, whatever
+    ``lasers.settle_ms`` says (a driver's soft start; for the frames, the same as a camera whose
+    timestamps are late)."""
 
     laser: str = ""
-    kind: Literal["dead", "stuck"] = "dead"
+    kind: Literal["dead", "stuck", "slow"] = "dead"
+    lag_ms: float = 10.0
+
+    def __post_init__(self) -> None:
+        require(0 < self.lag_ms <= 1000, "lag_ms", "must be 0-1000 ms")
 
 
 @dataclass(frozen=True)
