@@ -193,6 +193,7 @@ def test_picamera2_fixed_settings(fake_picamera2):
     assert controls["ExposureTime"] == 8000 and controls["AnalogueGain"] == 2.0
     assert controls["FrameDurationLimits"] == (33_333, 33_333)
     assert controls["NoiseReductionMode"] == 0  # Off: no temporal denoise mixing frames
+    assert controls["Sharpness"] == 0.0  # no unsharp mask ringing round a spot
     assert fake.config["main"] == {"size": (640, 480), "format": "RGB888"}
     assert fake.config["raw"] == {"size": (1640, 1232)}  # the binned full field of view
     assert isinstance(cam, Picamera2Camera)

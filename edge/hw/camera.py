@@ -116,6 +116,9 @@ class Picamera2Camera:
             "AnalogueGain": float(settings.analogue_gain),
             "FrameDurationLimits": (frame_us, frame_us),
             "NoiseReductionMode": _noise_reduction_off(),
+            # No sharpening (rpi.sharpen's strength is the control's): its unsharp mask, thresholded
+            # and limited by brightness, rings round a spot and reshapes it by how bright it is.
+            "Sharpness": 0.0,
             # Fixed white balance: AWB would re-colour laser-on frames (a red spot) differently.
             "AwbEnable": False,
             "ColourGains": tuple(colour_gains),
