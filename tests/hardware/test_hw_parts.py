@@ -72,7 +72,8 @@ def test_the_camera_alone_at_its_rate_with_a_fixed_exposure(rig_config: Config) 
 
 
 def test_the_doctor_finds_every_part_ok(rig_config_path) -> None:
-    """Every line of `edge doctor` (each laser's spot on its own path, none when off, the broker)."""
+    """Every line of `edge doctor` (each laser's spot on its own path, none when off, lit frames wholly
+    lit; the camera's tone curve the one ranging undoes; the broker)."""
     from edge.doctor import examine
 
     result = examine(str(rig_config_path))
