@@ -295,6 +295,8 @@ class RigChecks:
         from edge.doctor.tone import judge, other_exposure_us
         from edge.parts import open_camera
 
+        if getattr(self.camera, "exposure_fixed", True) is False:
+            raise NotRun("the webcam refused a fixed exposure (see the log): two exposures cannot be told apart")
         if self.lasers is not None:
             self.lasers.off()
         configured = self._mean_frame(self.camera, config.camera.exposure_us)
@@ -305,6 +307,9 @@ class RigChecks:
                                  self._pins, self.clock, **self._sim)
             self.stack.callback(camera.close)
             camera.start()
+            if getattr(camera, "exposure_fixed", True) is False:
+                raise NotRun(f"the webcam refused a fixed exposure of {other_us:g} µs: two exposures cannot be "
+                             "told apart")
             other = self._mean_frame(camera, other_us)
         except EdgeError as exc:
             raise Problem(f"at {other_us:g} µs: {exc}", _camera_remedy(self.settings)) from None
