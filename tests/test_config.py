@@ -76,6 +76,8 @@ BAD = [
     ("[ptu]\nbaudrate = 1000\n", r"ptu\.baudrate: not a PTU-D46 baud rate: 1000"),
     ("[camera]\nbackend = \"gopro\"\n", r"camera\.backend: expected one of 'sim', 'picamera2', 'opencv'"),
     ("[sim]\nseed = 1.5\n", r"sim\.seed: expected a whole number, got number 1.5"),
+    ("[[sim.laser_faults]]\nlaser = \"center\"\nkind = \"slow\"\nlag_ms = 0\n",
+     r"sim\.laser_faults\[0\]\.lag_ms: must be more than 0 and at most 1000 ms"),
     ("log_level = \"loud\"\n", r"log_level: expected one of 'debug', 'info', 'warning', 'error', got 'loud'"),
     ("rig = 3\n", r"rig: expected a table, got number 3"),
     ("[sim\n", r"not valid TOML"),

@@ -165,7 +165,7 @@ class LaserFault:
     lag_ms: float = 10.0
 
     def __post_init__(self) -> None:
-        require(0 < self.lag_ms <= 1000, "lag_ms", "must be 0-1000 ms")
+        require(0 < self.lag_ms <= 1000, "lag_ms", "must be more than 0 and at most 1000 ms")
 
 
 @dataclass(frozen=True)
