@@ -152,6 +152,32 @@ def test_a_real_cameras_curve_is_mended_where_its_curve_is_set():
     assert "camera.gamma = 1" in isp.value.remedy and "tuning file" in isp.value.remedy
 
 
+# The Pi's own tone curve, as its tuning files give it (libcamera, rpi.contrast's gamma_curve for the
+# IMX219 and IMX477: linear in, delivered out, 16-bit pairs): what frames come through when the ISP
+# did not take camera.gamma's.
+STOCK_PI_CURVE = [0, 0, 1024, 5040, 2048, 9338, 3072, 12356, 4096, 15312, 5120, 18051, 6144, 20790, 7168, 23193,
+                  8192, 25744, 9216, 27942, 10240, 30035, 11264, 32005, 12288, 33975, 13312, 35815, 14336, 37600,
+                  15360, 39168, 16384, 40642, 18432, 43379, 20480, 45749, 22528, 47753, 24576, 49621, 26624, 51253,
+                  28672, 52698, 30720, 53925, 32768, 54979, 36864, 57012, 40960, 58656, 45056, 59954, 49152, 61183,
+                  53248, 62355, 57344, 63419, 61440, 64476, 65535, 65535]
+
+
+def test_a_pi_camera_that_kept_its_tuning_files_curve_is_caught():
+    """No power law, but far from linear: the doctor's gamma for it is well over 1 at the exposure
+    ratios it uses, and the Pi camera's line fails (3 is the simulated and default rig's ratio)."""
+    from edge.doctor.tone import judge as judge_curve
+
+    x, y = np.array(STOCK_PI_CURVE[0::2]) / 65535.0, np.array(STOCK_PI_CURVE[1::2]) / 65535.0
+    light = 0.4 * np.random.default_rng(1).uniform(0.0, 1.0, (120, 160, 3)) ** 2
+    pi = load_config(str(REPO / "config" / "device.toml"))
+    for ratio in (3.0, 4.0):
+        short, long = (np.round(255.0 * np.interp(np.minimum(light * k, 1.0), x, y)) / 255.0 for k in (1.0, ratio))
+        with pytest.raises(Problem, match=r"tone curve of gamma 1\.[3-9]") as kept:
+            judge_curve(short, 10000.0, long, 10000.0 * ratio, pi)
+        assert "did not take edge's curve" in kept.value.remedy
+        assert "no power law" in kept.value.detail  # (its toe is steep and its shoulder flat)
+
+
 # Makes numpy and OpenCV unimportable in the process it is loaded into (as sitecustomize), the way a
 # broken install would: every import of them raises ImportError.
 _BLOCKER = """

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
 EXPOSURE_RATIO = 4.0  # the second exposure's to the configured one's, where the frame period allows
 LONGEST_SHARE = 0.9  # of the frame period: the longest exposure asked for
 GAMMA_TOLERANCE = 0.15  # a measured gamma this near the one ranging undoes is that one
+POWER_LAW_LEVELS = 4.0  # a median difference over this many levels: a curve of another shape (a Pi's stock one)
 MISFIT_LEVELS = 12.0  # a median difference left over this many 8-bit levels: the scene changed (noise
 # leaves 1-3 at a 4 × ratio)
 
@@ -58,7 +59,9 @@ def judge(configured: np.ndarray, configured_us: float, other: np.ndarray, other
                      "steady, and run the doctor again")
     expected = config.ranging.frame_gamma
     linear = " (values proportional to light)" if abs(measured.gamma - 1.0) <= GAMMA_TOLERANCE else ""
-    found = f"gamma {measured.gamma:.2f}{linear} from {measured.values} values at {exposures}"
+    shape = (f", and no power law (a median {measured.misfit * 255.0:.0f} levels off the nearest)"
+             if measured.misfit * 255.0 > POWER_LAW_LEVELS else "")
+    found = f"gamma {measured.gamma:.2f}{linear}{shape} from {measured.values} values at {exposures}"
     if abs(measured.gamma - expected) <= GAMMA_TOLERANCE:
         return f"{found}; ranging undoes {expected:g} (ranging.frame_gamma)"
     backend = config.camera.backend
