@@ -16,55 +16,93 @@ Pure: frames in, a line or a Problem out.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from edge.doctor.checklist import Problem
+from edge.tone import linear_table
 from edge.vision import SpotFinder
 
 LIT_SHARE = 0.85  # the first lit frame must hold this much of the spot's full light
 DARK_SHARE = 0.15  # and the first dark frame no more than this
+SURE_SIGMAS = 3.0  # and only a shortfall (or excess) this many times the frames' noise counts
 WINDOW_PX = 4  # the spot's light is weighed in a (2·4 + 1)² window about it
 
 
-def _difference(frame: np.ndarray, off: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
-    """The laser channel of `frame` less the laser-off frame `off` in `box`, `off` scaled to
-    `frame`'s room light first (flicker: a few percent of a textured wall is as much light as a dim
-    spot), less the box border's median; full-scale units."""
-    a, b = SpotFinder.laser_channel(frame), SpotFinder.laser_channel(off)
+@dataclass(frozen=True)
+class Shares:
+    """A spot's light in the first frame taken as lit (`lit`) and in the first taken as dark after
+    it (`left`), as shares of its light in a frame lit all through; `sigma` is either's 1 σ from
+    the frames' own noise about the spot."""
+
+    lit: float
+    left: float
+    sigma: float
+
+
+def _linear(frame: np.ndarray, gamma: float) -> tuple[np.ndarray, float]:
+    """The laser channel of `frame` in values proportional to light (the tone curve `gamma` undone,
+    as ranging undoes it), and its full scale."""
+    plane = SpotFinder.laser_channel(frame)
+    if gamma == 1.0:
+        return plane, SpotFinder.full_scale(frame)
+    return linear_table(frame.dtype, gamma).take(plane), 65535.0
+
+
+def _difference(a: np.ndarray, b: np.ndarray, scale: float, box: tuple[slice, slice]) -> tuple[np.ndarray, float]:
+    """Plane `a` less plane `b` in `box` (full-scale units), `b` scaled to `a`'s room light first
+    (flicker: a few percent of a textured wall is as much light as a dim spot), less the box
+    border's median; and the border's robust spread (the pixels' noise there)."""
     sample = (slice(None, None, 4), slice(None, None, 4))
     level = float(np.median(b[sample]))
     gain = float(np.median(a[sample])) / level if level > 0 else 1.0
-    diff = (a[box].astype(np.float64) - gain * b[box].astype(np.float64)) / SpotFinder.full_scale(frame)
+    diff = (a[box].astype(np.float64) - gain * b[box].astype(np.float64)) / scale
     border = np.concatenate([diff[0], diff[-1], diff[1:-1, 0], diff[1:-1, -1]])
-    return diff - np.median(border)
+    centre = float(np.median(border))
+    return diff - centre, 1.4826 * float(np.median(np.abs(border - centre)))
 
 
-def light_shares(first: np.ndarray, full: np.ndarray, after: np.ndarray, off: np.ndarray,
-                 pixel: tuple[float, float]) -> tuple[float, float] | None:
+def light_shares(first: np.ndarray, full: np.ndarray, again: np.ndarray, after: np.ndarray, off: np.ndarray,
+                 pixel: tuple[float, float], gamma: float = 1.0) -> Shares | None:
     """The spot's light at `pixel` in the frames `first` and `after` as shares of its light in
-    `full` (lit all through), each against the laser-off frame `off`: by the spot's own shape in
-    `full` as a matched filter, whose weight on the spot's core keeps the room's noise out. None
-    where the window leaves the picture or `full` shows no spot there."""
+    `full` (lit all through), each against the laser-off frame `off`, in linear light (`gamma`:
+    the frames' tone curve). Weighed by the spot's own shape in `again`, another frame lit all
+    through, as a matched filter, whose weight on the spot's core keeps the room's noise out: a
+    shape taken from `full` itself would hold `full`'s noise, which it alone would match (a faint
+    spot's share read 75 % so). None where the window leaves the picture or `again` shows no spot
+    there."""
     u, v, r = int(round(pixel[0])), int(round(pixel[1])), WINDOW_PX
     h, w = full.shape[:2]
     if u - r < 0 or v - r < 0 or u + r >= w or v + r >= h:
         return None
     box = (slice(v - r, v + r + 1), slice(u - r, u + r + 1))
-    shape = np.maximum(_difference(full, off, box), 0.0)
-    norm = float((shape * shape).sum())
-    if norm <= 0.0:
+    dark, scale = _linear(off, gamma)
+    diffs = [_difference(_linear(f, gamma)[0], dark, scale, box) for f in (again, full, first, after)]
+    shape = np.maximum(diffs[0][0], 0.0)
+    whole = float((diffs[1][0] * shape).sum())
+    if whole <= 0.0:
         return None
-    return (float((_difference(first, off, box) * shape).sum()) / norm,
-            float((_difference(after, off, box) * shape).sum()) / norm)
+    # Each share's noise: the pixels' (at least a level's rounding, which JPEG can leave alone on a
+    # flat wall) through the filter, in both the frame's light and the whole light it is divided by.
+    level = 1.0 / (SpotFinder.full_scale(full) * math.sqrt(6.0))
+    if gamma != 1.0:  # a level's step in linear light where the spot is
+        table = linear_table(full.dtype, gamma)
+        q = min(int(np.median(SpotFinder.laser_channel(full)[box])), table.size - 2)
+        level = (int(table[q + 1]) - int(table[q])) / 65535.0 / math.sqrt(6.0)
+    noise = max(float(np.median([spread for _, spread in diffs])), level)
+    return Shares(float((diffs[2][0] * shape).sum()) / whole, float((diffs[3][0] * shape).sum()) / whole,
+                  noise * math.sqrt(2.0 * float((shape * shape).sum())) / whole)
 
 
-def judge_timing(share: float, left: float, slack_ms: float, exposure_ms: float, settle_ms: float) -> str:
+def judge_timing(shares: Shares, slack_ms: float, exposure_ms: float, settle_ms: float) -> str:
     """The timing line from a spot's light (:func:`light_shares`) in the first frame taken as lit
-    (`share`) and in the first taken as dark after it (`left`); `slack_ms` is how long after the
-    switch took effect (by the lasers' timing) the spot's row started its exposure in the first lit
-    frame. Problem if either frame saw the laser switch."""
-    if share < LIT_SHARE:
+    and in the first taken as dark after it; `slack_ms` is how long after the switch took effect
+    (by the lasers' timing) the spot's row started its exposure in the first lit frame. Problem if
+    either frame saw the laser switch: by more than LIT_SHARE or DARK_SHARE allow, and by more than
+    SURE_SIGMAS of the frames' noise (a faint spot in JPEG frames reads ±20 %)."""
+    share, left, sigma = shares.lit, shares.left, shares.sigma
+    if share < LIT_SHARE and 1.0 - share > SURE_SIGMAS * sigma:
         # The row's exposure began `slack_ms` after the switch was believed done and saw
         # `share` of the light: it came on `slack + (1 − share)·exposure` after that.
         if share > 0.1:
@@ -79,10 +117,10 @@ def judge_timing(share: float, left: float, slack_ms: float, exposure_ms: float,
             f"set lasers.settle_ms = {math.ceil(need + 1.0):d} or more (a slow laser module or driver); if "
             "every laser says so, the camera's frame timestamps are late: `edge doctor -v` and the README's "
             "hardware tests")
-    if left > DARK_SHARE:
+    if left > DARK_SHARE and left > SURE_SIGMAS * sigma:
         raise Problem(
             f"the first frame taken as dark after switching it off still holds {100 * left:.0f} % of its "
             f"spot's light: it goes off later than lasers.settle_ms ({settle_ms:g} ms) says",
             "raise lasers.settle_ms until this line is ok (a slow laser module or driver)")
-    return f"lit frames wholly lit ({100 * share:.0f} % of the light {slack_ms:.1f} ms after the switch), " \
-           f"dark ones dark ({100 * left:.0f} %)"
+    return (f"lit frames wholly lit ({100 * share:.0f} % of the light {slack_ms:.1f} ms after the switch), "
+            f"dark ones dark ({100 * left:.0f} %; ±{100 * sigma:.0f} % the noise)")
