@@ -74,6 +74,10 @@ MEASURE_CEILING = 0.85  # of full scale, in the longer's: below clipping and a c
 MEASURE_MIN_VALUES = 1000  # fewer values between those bounds: the picture is too dark to tell
 MEASURE_MAX_VALUES = 20000  # (an even sample of the rest: enough for the median's precision)
 MEASURE_GAMMAS = tuple(round(1.0 + 0.02 * i, 2) for i in range(101))  # 1.00 … 3.00
+# Curves whose misfit is within a tenth (and a quarter of an 8-bit level) of the best one's fit the
+# values alike.
+MEASURE_ALIKE = 0.1
+MEASURE_ALIKE_LEVELS = 0.25
 
 
 @dataclass(frozen=True)
@@ -83,13 +87,23 @@ class MeasuredCurve:
     gamma: float  # the display gamma whose curve best carries one exposure's values to the other's
     values: int  # how many values (pixels × colours) between the floor and the ceiling told it
     misfit: float  # the median |difference| left at that gamma (0-1 of full scale)
+    # The gammas the values cannot tell from it (a misfit within MEASURE_ALIKE of its): a dim
+    # picture's values all lie below the knee of the steeper curves, where every curve is straight.
+    low: float = 0.0
+    high: float = 0.0
 
 
-def measure_gamma(short: np.ndarray, long: np.ndarray, ratio: float) -> MeasuredCurve | None:
+def measure_gamma(short: np.ndarray, long: np.ndarray, ratio: float,
+                  chosen_by: tuple[np.ndarray, np.ndarray] | None = None) -> MeasuredCurve | None:
     """The tone curve of a camera from two frames (or means of frames, 0-1 of full scale) of the
     same still scene, `long` exposed `ratio` (> 1) times as long as `short`; None when too few
     values lie between MEASURE_FLOOR and MEASURE_CEILING to tell. The fit is robust (median of
-    the differences); a scene that changed between the frames shows as a large misfit."""
+    the differences); a scene that changed between the frames shows as a large misfit.
+
+    `chosen_by`: other frames (short, long) of the same scene, whose values choose the values
+    used. Values chosen by their own noise are biased: those just over the floor are mostly the
+    ones noise lifted, and in a dim room, where most values are near it, that read a linear
+    camera as gamma 2.56. Frames whose noise is not these frames' choose without that bias."""
     import numpy as np
 
     if not ratio > 1.0:
@@ -98,7 +112,10 @@ def measure_gamma(short: np.ndarray, long: np.ndarray, ratio: float) -> Measured
     g = np.asarray(long, dtype=np.float64).ravel()
     if s.shape != g.shape:
         raise ValueError(f"frames of different sizes: {np.shape(short)} and {np.shape(long)}")
-    use = (s >= MEASURE_FLOOR) & (g <= MEASURE_CEILING)
+    cs, cg = (s, g) if chosen_by is None else (np.asarray(f, dtype=np.float64).ravel() for f in chosen_by)
+    if cs.shape != s.shape or cg.shape != s.shape:
+        raise ValueError("the frames that choose the values must be the frames' size")
+    use = (cs >= MEASURE_FLOOR) & (cg <= MEASURE_CEILING)
     s, g = s[use], g[use]
     if s.size < MEASURE_MIN_VALUES:
         return None
@@ -110,7 +127,9 @@ def measure_gamma(short: np.ndarray, long: np.ndarray, ratio: float) -> Measured
         predicted = tone_curve(np.minimum(ratio * linear_light(s, gamma), 1.0), gamma)
         return float(np.median(np.abs(g - predicted)))
 
-    # Coarse, then fine about the best (the cost falls smoothly towards its one minimum).
+    # Coarse, then fine about the best.
     coarse = min(MEASURE_GAMMAS[::5], key=cost)
     best = min((x for x in MEASURE_GAMMAS if abs(x - coarse) <= 0.1), key=cost)
-    return MeasuredCurve(best, int(s.size), cost(best))
+    alike = cost(best) + max(MEASURE_ALIKE * cost(best), MEASURE_ALIKE_LEVELS / 255.0)
+    alike_gammas = [x for x in MEASURE_GAMMAS[::5] if cost(x) <= alike] + [best]
+    return MeasuredCurve(best, int(s.size), cost(best), min(alike_gammas), max(alike_gammas))

@@ -39,6 +39,20 @@ def test_two_exposures_of_a_still_scene_tell_the_curve(gamma, ratio):
     assert measured.misfit < 4.0 / 255.0  # what is left is the frames' noise, not a wrong curve
 
 
+def test_a_dim_picture_cannot_tell_a_linear_camera_from_a_curved_one_and_says_so():
+    """All its values below the knee of the steeper curves, where each curve is a straight line:
+    those curves fit as well as a linear one, and the measurement gives the span they cover; the
+    values choosing themselves by their own noise had read such a linear camera as gamma 2.56."""
+    light = _room(1, 0.055)  # values up to 5.5 % of full scale, as in a dim room at a short exposure
+    measured = measure_gamma(_frames(light, 1.0, 1.0, 2), _frames(light, 3.0, 1.0, 3), 3.0,
+                             chosen_by=(_frames(light, 1.0, 1.0, 4), _frames(light, 3.0, 1.0, 5)))
+    assert measured is not None and measured.low == 1.0 and measured.high >= 2.5
+    bright = _room(1, 0.4)
+    told = measure_gamma(_frames(bright, 1.0, 1.0, 2), _frames(bright, 3.0, 1.0, 3), 3.0,
+                         chosen_by=(_frames(bright, 1.0, 1.0, 4), _frames(bright, 3.0, 1.0, 5)))
+    assert told is not None and told.gamma == pytest.approx(1.0, abs=0.05) and told.high - told.low <= 0.2
+
+
 def test_a_picture_too_dark_to_tell_says_so():
     light = _room(1, 0.02)  # nearly everything below the floor in the shorter exposure
     assert measure_gamma(_frames(light, 1.0, 1.0, 2), _frames(light, 4.0, 1.0, 3), 4.0) is None

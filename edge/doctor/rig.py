@@ -324,7 +324,8 @@ class RigChecks:
         return judge(configured[0], configured[1], other[0], other[1], config)
 
     def _mean_frame(self, camera: Camera, exposure_us: float) -> tuple[Any, float]:
-        """The mean of TONE_FRAMES frames exposed `exposure_us` (0-1 of full scale), and their
+        """The means of two halves of TONE_FRAMES frames exposed `exposure_us` (0-1 of full scale;
+        (2, …) stacked: one half chooses the values the other's are measured by), and their
         exposure as they report it (µs); Problem if the camera does not take that exposure."""
         import numpy as np
 
@@ -341,8 +342,10 @@ class RigChecks:
             raise Problem(f"asked for {exposure_us:g} µs, the frames came at {frame.exposure_us:.0f} µs",
                           "the sensor mode limits the exposure: see camera.exposure_us and camera.frame_rate_hz")
         top = float(np.iinfo(frames[0].image.dtype).max) if frames[0].image.dtype.kind == "u" else 1.0
-        mean = np.mean([f.image for f in frames], axis=0, dtype=np.float64) / top
-        return mean, float(np.mean([f.exposure_us for f in frames]))
+        half = TONE_FRAMES // 2
+        means = np.stack([np.mean([f.image for f in part], axis=0, dtype=np.float64) / top
+                          for part in (frames[:half], frames[half:])])
+        return means, float(np.mean([f.exposure_us for f in frames]))
 
 
 def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, float]) -> str:

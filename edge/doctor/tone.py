@@ -26,6 +26,7 @@ if TYPE_CHECKING:
 EXPOSURE_RATIO = 4.0  # the second exposure's to the configured one's, where the frame period allows
 LONGEST_SHARE = 0.9  # of the frame period: the longest exposure asked for
 GAMMA_TOLERANCE = 0.15  # a measured gamma this near the one ranging undoes is that one
+UNTOLD_SPAN = 0.5  # gammas this far apart fitting the values alike: the picture cannot tell the curve
 POWER_LAW_LEVELS = 4.0  # a median difference over this many levels: a curve of another shape (a Pi's stock one)
 MISFIT_LEVELS = 12.0  # a median difference left over this many 8-bit levels: the scene changed (noise
 # leaves 1-3 at a 4 × ratio)
@@ -44,15 +45,25 @@ def other_exposure_us(settings: CameraSettings) -> float:
 def judge(configured: np.ndarray, configured_us: float, other: np.ndarray, other_us: float, config: Config) -> str:
     """The tone curve's line from mean laser-off frames (0-1 of full scale) at the configured
     exposure and at the other (both in µs, as the frames reported them); Problem if it is not the
-    curve ranging undoes, NotRun if the frames cannot tell."""
+    curve ranging undoes, NotRun if the frames cannot tell. Each mean may come as two (stacked,
+    (2, …)): of two halves of the frames, the first then chooses the values the second's are
+    measured by (:func:`edge.tone.measure_gamma`)."""
     from edge.tone import measure_gamma
 
     (short, short_us), (long, long_us) = sorted([(configured, configured_us), (other, other_us)], key=lambda p: p[1])
-    measured = measure_gamma(short, long, long_us / short_us)
+    if short.ndim == long.ndim and short.shape[0] == 2 and short.ndim >= 3:
+        # Two halves of each exposure's frames: the first chooses the values, the second is measured.
+        measured = measure_gamma(short[1], long[1], long_us / short_us, chosen_by=(short[0], long[0]))
+    else:
+        measured = measure_gamma(short, long, long_us / short_us)
     exposures = f"{short_us / 1e3:g} and {long_us / 1e3:g} ms"
     if measured is None:
         raise NotRun(f"the picture is too dark to tell at {exposures}: light the room, or aim the unit at a "
                      "lit wall ([rangefinder] pan_deg, tilt_deg), and run the doctor again")
+    if measured.high - measured.low > UNTOLD_SPAN:
+        raise NotRun(f"the picture is too dark to tell the curve at {exposures}: its values fit gammas "
+                     f"{measured.low:.1f}-{measured.high:.1f} alike; light the room, or aim the unit at a "
+                     "lit, pale wall ([rangefinder] pan_deg, tilt_deg), and run the doctor again")
     if measured.misfit * 255.0 > MISFIT_LEVELS:
         raise NotRun(f"the picture changed between the exposures of {exposures} (a median "
                      f"{measured.misfit * 255.0:.0f} levels off any curve): keep the room still, lights "
