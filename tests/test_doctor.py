@@ -161,11 +161,11 @@ def test_a_real_cameras_curve_is_mended_where_its_curve_is_set():
     short, long = (tone_curve(light * k, 2.2).astype(np.float64) for k in (1.0, 4.0))
     webcam = load_config(None, ['camera.backend="opencv"'])
     with pytest.raises(Problem, match="tone curve of gamma 2.2") as told:
-        judge_curve(short, 10000.0, long, 40000.0, webcam)
+        judge_curve((short,), 10000.0, (long,), 40000.0, webcam)
     assert "set ranging.frame_gamma = 2.2" in told.value.remedy
     pi = load_config(str(REPO / "config" / "device.toml"))
     with pytest.raises(Problem) as isp:
-        judge_curve(long, 40000.0, short, 10000.0, pi)  # (either order)
+        judge_curve((long,), 40000.0, (short,), 10000.0, pi)  # (either order)
     assert "camera.gamma = 1" in isp.value.remedy and "tuning file" in isp.value.remedy
 
 
@@ -190,7 +190,7 @@ def test_a_pi_camera_that_kept_its_tuning_files_curve_is_caught():
     for ratio in (3.0, 4.0):
         short, long = (np.round(255.0 * np.interp(np.minimum(light * k, 1.0), x, y)) / 255.0 for k in (1.0, ratio))
         with pytest.raises(Problem, match=r"tone curve of gamma 1\.[3-9]") as kept:
-            judge_curve(short, 10000.0, long, 10000.0 * ratio, pi)
+            judge_curve((short,), 10000.0, (long,), 10000.0 * ratio, pi)
         assert "did not take edge's curve" in kept.value.remedy
         assert "no power law" in kept.value.detail  # (its toe is steep and its shoulder flat)
 

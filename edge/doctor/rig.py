@@ -323,10 +323,10 @@ class RigChecks:
             raise Problem(f"at {other_us:g} µs: {exc}", _camera_remedy(self.settings)) from None
         return judge(configured[0], configured[1], other[0], other[1], config)
 
-    def _mean_frame(self, camera: Camera, exposure_us: float) -> tuple[Any, float]:
-        """The means of two halves of TONE_FRAMES frames exposed `exposure_us` (0-1 of full scale;
-        (2, …) stacked: one half chooses the values the other's are measured by), and their
-        exposure as they report it (µs); Problem if the camera does not take that exposure."""
+    def _mean_frame(self, camera: Camera, exposure_us: float) -> tuple[list[Any], float]:
+        """The means of two halves of TONE_FRAMES frames exposed `exposure_us` (0-1 of full scale:
+        one half chooses the values the other's are measured by), and their exposure as they report
+        it (µs); Problem if the camera does not take that exposure."""
         import numpy as np
 
         frames = []
@@ -343,8 +343,8 @@ class RigChecks:
                           "the sensor mode limits the exposure: see camera.exposure_us and camera.frame_rate_hz")
         top = float(np.iinfo(frames[0].image.dtype).max) if frames[0].image.dtype.kind == "u" else 1.0
         half = TONE_FRAMES // 2
-        means = np.stack([np.mean([f.image for f in part], axis=0, dtype=np.float64) / top
-                          for part in (frames[:half], frames[half:])])
+        means = [np.mean([f.image for f in part], axis=0, dtype=np.float64) / top
+                 for part in (frames[:half], frames[half:])]
         return means, float(np.mean([f.exposure_us for f in frames]))
 
 

@@ -13,6 +13,7 @@ carries the one to the other. Pure: mean frames and the configuration in, the li
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from edge.doctor.checklist import NotRun, Problem
@@ -42,20 +43,20 @@ def other_exposure_us(settings: CameraSettings) -> float:
     return settings.exposure_us / EXPOSURE_RATIO
 
 
-def judge(configured: np.ndarray, configured_us: float, other: np.ndarray, other_us: float, config: Config) -> str:
-    """The tone curve's line from mean laser-off frames (0-1 of full scale) at the configured
-    exposure and at the other (both in µs, as the frames reported them); Problem if it is not the
-    curve ranging undoes, NotRun if the frames cannot tell. Each mean may come as two (stacked,
-    (2, …)): of two halves of the frames, the first then chooses the values the second's are
-    measured by (:func:`edge.tone.measure_gamma`)."""
+def judge(configured: Sequence[np.ndarray], configured_us: float, other: Sequence[np.ndarray], other_us: float,
+          config: Config) -> str:
+    """The tone curve's line from laser-off frames at the configured exposure and at the other
+    (both in µs, as the frames reported them): for each, the mean of its frames (0-1 of full
+    scale), or the means of two halves of them, of which the first chooses the values the second's
+    are measured by (:func:`edge.tone.measure_gamma`). Problem if it is not the curve ranging
+    undoes, NotRun if the frames cannot tell."""
     from edge.tone import measure_gamma
 
     (short, short_us), (long, long_us) = sorted([(configured, configured_us), (other, other_us)], key=lambda p: p[1])
-    if short.ndim == long.ndim and short.shape[0] == 2 and short.ndim >= 3:
-        # Two halves of each exposure's frames: the first chooses the values, the second is measured.
+    if len(short) == 2 and len(long) == 2:
         measured = measure_gamma(short[1], long[1], long_us / short_us, chosen_by=(short[0], long[0]))
     else:
-        measured = measure_gamma(short, long, long_us / short_us)
+        measured = measure_gamma(short[-1], long[-1], long_us / short_us)
     exposures = f"{short_us / 1e3:g} and {long_us / 1e3:g} ms"
     if measured is None:
         raise NotRun(f"the picture is too dark to tell at {exposures}: light the room, or aim the unit at a "
