@@ -307,7 +307,7 @@ class RigChecks:
             raise NotRun("the webcam refused a fixed exposure (see the log): two exposures cannot be told apart")
         if self.lasers is not None:
             self.lasers.off()
-        configured = self._mean_frame(self.camera, config.camera.exposure_us)
+        configured = self._half_means(self.camera, config.camera.exposure_us)
         self.camera.close()
         other_us = other_exposure_us(config.camera)
         try:
@@ -318,12 +318,12 @@ class RigChecks:
             if getattr(camera, "exposure_fixed", True) is False:
                 raise NotRun(f"the webcam refused a fixed exposure of {other_us:g} µs: two exposures cannot be "
                              "told apart")
-            other = self._mean_frame(camera, other_us)
+            other = self._half_means(camera, other_us)
         except EdgeError as exc:
             raise Problem(f"at {other_us:g} µs: {exc}", _camera_remedy(self.settings)) from None
         return judge(configured[0], configured[1], other[0], other[1], config)
 
-    def _mean_frame(self, camera: Camera, exposure_us: float) -> tuple[list[Any], float]:
+    def _half_means(self, camera: Camera, exposure_us: float) -> tuple[list[Any], float]:
         """The means of two halves of TONE_FRAMES frames exposed `exposure_us` (0-1 of full scale:
         one half chooses the values the other's are measured by), and their exposure as they report
         it (µs); Problem if the camera does not take that exposure."""
