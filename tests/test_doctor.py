@@ -143,12 +143,25 @@ def test_a_spots_light_is_weighed_in_frames_lit_for_part_of_their_exposure(offic
     assert judge_timing(Shares(0.78, 0.18, 0.1), 4.0, 10.0, 1.0).startswith("lit frames wholly lit")
 
 
-@pytest.mark.parametrize("light", [10, 100])  # nothing to measure; values in every curve's straight toe
-def test_the_tone_curve_is_not_judged_in_the_dark(light):
-    result = examine(None, [*NO_BROKER, f"sim.ambient.white_e_per_ms={light}"])
+def test_the_tone_curve_is_not_judged_in_the_dark():
+    result = examine(None, [*NO_BROKER, "sim.ambient.white_e_per_ms=10"])
     assert _by_status(result, "not run") == ["tone curve"]
     line = next(x for x in result.checks.lines if x.check == "tone curve")
     assert "too dark to tell" in line.detail and "light the room" in line.detail
+
+
+@pytest.mark.parametrize("gamma", [1.0, 2.2])
+def test_a_dim_room_is_measured_again_with_more_gain(gamma):
+    """At a sixth of the office's light a linear camera's values all lie in the steeper curves'
+    straight toe, where those fit as well as a line: the two exposures are taken again with the
+    sensor's gain raised, which multiplies the light before the curve as the exposure does."""
+    result = examine(None, [*NO_BROKER, "sim.ambient.white_e_per_ms=100", f"sim.sensor.gamma={gamma}",
+                            f"ranging.frame_gamma={gamma}"])
+    line = next(x for x in result.checks.lines if x.check == "tone curve")
+    assert line.status == "ok", line
+    assert float(line.detail.split()[1]) == pytest.approx(gamma, abs=0.06)
+    # (A curve lifts the shadows out of its toe: then the configured gain is enough.)
+    assert ("(at gain " in line.detail) == (gamma == 1.0)
 
 
 def test_a_real_cameras_curve_is_mended_where_its_curve_is_set():

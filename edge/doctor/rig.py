@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from edge.config import Config
     from edge.doctor.spots import SpotReport
     from edge.hw.base import Camera, Frame
+    from edge.hw.camera import CameraSettings
     from edge.hw.lasers import Lasers
     from edge.hw.ptu import PanTiltUnit
     from edge.rig import Rig
@@ -300,8 +301,7 @@ class RigChecks:
             raise NotRun("needs frames from the camera (see camera)")
         from dataclasses import replace
 
-        from edge.doctor.tone import judge, other_exposure_us
-        from edge.parts import open_camera
+        from edge.doctor.tone import TooDark, brighter_gain, judge, other_exposure_us
 
         if getattr(self.camera, "exposure_fixed", True) is False:
             raise NotRun("the webcam refused a fixed exposure (see the log): two exposures cannot be told apart")
@@ -310,18 +310,40 @@ class RigChecks:
         configured = self._half_means(self.camera, config.camera.exposure_us)
         self.camera.close()
         other_us = other_exposure_us(config.camera)
+        other = self._half_means_opened(config.camera, other_us)
         try:
-            camera = open_camera(replace(config, camera=replace(config.camera, exposure_us=other_us)),
+            return judge(configured[0], configured[1], other[0], other[1], config)
+        except TooDark:
+            # A dim room: the same two exposures again with more analogue gain, which multiplies the
+            # light before the camera's curve as the exposure does.
+            gain = brighter_gain(configured[0], config.camera)
+            if gain is None:
+                raise
+        settings = replace(config.camera, analogue_gain=gain)
+        configured = self._half_means_opened(settings, config.camera.exposure_us)
+        other = self._half_means_opened(settings, other_us)
+        return f"{judge(configured[0], configured[1], other[0], other[1], config)} (at gain {gain:.1f})"
+
+    def _half_means_opened(self, settings: CameraSettings, exposure_us: float) -> tuple[list[Any], float]:
+        """:meth:`_half_means` of the camera opened with `settings` at `exposure_us`, then closed."""
+        from dataclasses import replace
+
+        from edge.parts import open_camera
+
+        config = self._typed()
+        try:
+            camera = open_camera(replace(config, camera=replace(settings, exposure_us=exposure_us)),
                                  self._pins, self.clock, **self._sim)
             self.stack.callback(camera.close)
             camera.start()
             if getattr(camera, "exposure_fixed", True) is False:
-                raise NotRun(f"the webcam refused a fixed exposure of {other_us:g} µs: two exposures cannot be "
-                             "told apart")
-            other = self._half_means(camera, other_us)
+                raise NotRun(f"the webcam refused a fixed exposure of {exposure_us:g} µs: two exposures cannot "
+                             "be told apart")
+            means = self._half_means(camera, exposure_us)
+            camera.close()
+            return means
         except EdgeError as exc:
-            raise Problem(f"at {other_us:g} µs: {exc}", _camera_remedy(self.settings)) from None
-        return judge(configured[0], configured[1], other[0], other[1], config)
+            raise Problem(f"at {exposure_us:g} µs: {exc}", _camera_remedy(self.settings)) from None
 
     def _half_means(self, camera: Camera, exposure_us: float) -> tuple[list[Any], float]:
         """The means of two halves of TONE_FRAMES frames exposed `exposure_us` (0-1 of full scale:

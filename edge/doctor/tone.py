@@ -27,10 +27,28 @@ if TYPE_CHECKING:
 EXPOSURE_RATIO = 4.0  # the second exposure's to the configured one's, where the frame period allows
 LONGEST_SHARE = 0.9  # of the frame period: the longest exposure asked for
 GAMMA_TOLERANCE = 0.15  # a measured gamma this near the one ranging undoes is that one
+BRIGHT_TARGET = 0.25  # a too dark picture is measured again with its brightest values lifted to this
+MAX_GAIN = 8.0  # (a Pi camera v2's sensor reaches 10.7)
 UNTOLD_SPAN = 0.5  # gammas this far apart fitting the values alike: the picture cannot tell the curve
 POWER_LAW_LEVELS = 4.0  # a median difference over this many levels: a curve of another shape (a Pi's stock one)
 MISFIT_LEVELS = 12.0  # a median difference left over this many 8-bit levels: the scene changed (noise
 # leaves 1-3 at a 4 × ratio)
+
+
+class TooDark(NotRun):
+    """The frames are too dark to tell the curve (more gain may make them bright enough)."""
+
+
+def brighter_gain(means: Sequence[np.ndarray], settings: CameraSettings) -> float | None:
+    """An analogue gain that lifts the brightest of a too dark picture (`means`: its mean frames at
+    the configured exposure, 0-1 of full scale) to about BRIGHT_TARGET, at most MAX_GAIN; None if
+    that is not half as much again as the configured gain. A sensor's analogue gain multiplies the
+    light before the camera's curve, as a longer exposure does, so the curve is read as well."""
+    import numpy as np
+
+    brightest = float(np.percentile(means[-1], 95.0))
+    gain = min(settings.analogue_gain * BRIGHT_TARGET / max(brightest, 1e-3), MAX_GAIN)
+    return gain if gain >= 1.5 * settings.analogue_gain else None
 
 
 def other_exposure_us(settings: CameraSettings) -> float:
@@ -59,12 +77,12 @@ def judge(configured: Sequence[np.ndarray], configured_us: float, other: Sequenc
         measured = measure_gamma(short[-1], long[-1], long_us / short_us)
     exposures = f"{short_us / 1e3:g} and {long_us / 1e3:g} ms"
     if measured is None:
-        raise NotRun(f"the picture is too dark to tell at {exposures}: light the room, or aim the unit at a "
-                     "lit wall ([rangefinder] pan_deg, tilt_deg), and run the doctor again")
+        raise TooDark(f"the picture is too dark to tell at {exposures}: light the room, or aim the unit at a "
+                      "lit wall ([rangefinder] pan_deg, tilt_deg), and run the doctor again")
     if measured.high - measured.low > UNTOLD_SPAN:
-        raise NotRun(f"the picture is too dark to tell the curve at {exposures}: its values fit gammas "
-                     f"{measured.low:.1f}-{measured.high:.1f} alike; light the room, or aim the unit at a "
-                     "lit, pale wall ([rangefinder] pan_deg, tilt_deg), and run the doctor again")
+        raise TooDark(f"the picture is too dark to tell the curve at {exposures}: its values fit gammas "
+                      f"{measured.low:.1f}-{measured.high:.1f} alike; light the room, or aim the unit at a "
+                      "lit, pale wall ([rangefinder] pan_deg, tilt_deg), and run the doctor again")
     if measured.misfit * 255.0 > MISFIT_LEVELS:
         raise NotRun(f"the picture changed between the exposures of {exposures} (a median "
                      f"{measured.misfit * 255.0:.0f} levels off any curve): keep the room still, lights "
