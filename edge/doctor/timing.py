@@ -112,15 +112,20 @@ def judge_timing(shares: Shares, slack_ms: float, exposure_ms: float, settle_ms:
             late = f"more than {slack_ms + exposure_ms:.0f} ms"
             need = settle_ms + slack_ms + exposure_ms
         raise Problem(
-            f"the first frame taken as lit holds {100 * share:.0f} % of its spot's light: the light "
+            f"the first frame taken as lit holds {_pct(share)} % of its spot's light: the light "
             f"comes {late} after lasers.settle_ms ({settle_ms:g} ms) says it has",
             f"set lasers.settle_ms = {math.ceil(need + 1.0):d} or more (a slow laser module or driver); if "
             "every laser says so, the camera's frame timestamps are late: `edge doctor -v` and the README's "
             "hardware tests")
     if left > DARK_SHARE and left > SURE_SIGMAS * sigma:
         raise Problem(
-            f"the first frame taken as dark after switching it off still holds {100 * left:.0f} % of its "
+            f"the first frame taken as dark after switching it off still holds {_pct(left)} % of its "
             f"spot's light: it goes off later than lasers.settle_ms ({settle_ms:g} ms) says",
             "raise lasers.settle_ms until this line is ok (a slow laser module or driver)")
-    return (f"lit frames wholly lit ({100 * share:.0f} % of the light {slack_ms:.1f} ms after the switch), "
-            f"dark ones dark ({100 * left:.0f} %; ±{100 * sigma:.0f} % the noise)")
+    return (f"lit frames wholly lit ({_pct(share)} % of the light {slack_ms:.1f} ms after the switch), "
+            f"dark ones dark ({_pct(left)} %; ±{_pct(sigma)} % the noise)")
+
+
+def _pct(share: float) -> int:
+    """A share in whole percent (never "-0")."""
+    return int(round(100.0 * share))
