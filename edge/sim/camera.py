@@ -121,7 +121,7 @@ class SimCamera:
                 raise ConfigError(f"{config.source}: sim.laser_faults[{i}].laser: no laser {fault.laser!r} "
                                   f"(the rig has {', '.join(laser.name for laser in lasers)})")
         light = LaserLight(config.rig.wiring(), lasers_factory, settle_ns=int(round(config.lasers.settle_ms * 1e6)),
-                           broken={f.laser: f.kind for f in config.sim.laser_faults},
+                           broken={f.laser: f.kind for f in config.sim.laser_faults if f.kind != "slow"},
                            lag_ns={f.laser: int(round(f.lag_ms * 1e6)) for f in config.sim.laser_faults
                                    if f.kind == "slow"})
         kwargs.setdefault("seed", config.sim.seed)

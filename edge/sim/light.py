@@ -69,7 +69,7 @@ class LaserLight:
             out[name] = np.clip(frac, 0.0, 1.0)
         # A broken laser ignores its wire: a dead diode never lights, a shorted driver never stops.
         for name, kind in self.broken.items():
-            if name in out and kind in ("dead", "stuck"):
+            if name in out:
                 out[name] = np.full(t0.shape, 1.0 if kind == "stuck" else 0.0)
         return out
 
