@@ -280,15 +280,16 @@ class RigChecks:
                 report = later  # it lights, but late: the timing below says by how much
         line = _verdict(report, index, config, self._aim())
         assert report.pixel is not None  # (_verdict raised otherwise)
-        frame, cam = on.frame, rig.camera
-        row_ns = frame.t_start_ns + int(report.pixel[1] * frame.readout_ns / max(cam.height - 1, 1))
         if later.snr < TIMING_MIN_SNR:  # (lit all through: a late laser's first frame is fainter)
             return (f"{line}; its timing not judged: the spot is too faint to weigh to a few percent (SNR "
                     f"{later.snr:.0f} lit all through, {TIMING_MIN_SNR:g} needed: aim at a nearer or paler wall)")
+        frame = on.frame
         shares = light_shares(frame.image, full.image, again.image, after.frame.image, off.frame.image,
                               report.pixel, config.ranging.frame_gamma)
         if shares is None:
             return f"{line}; its timing not judged (the spot is at the picture's edge)"
+        # When the spot's row began its exposure (a rolling shutter starts rows one after another).
+        row_ns = frame.t_start_ns + int(report.pixel[1] * frame.readout_ns / max(rig.camera.height - 1, 1))
         slack_ms = (row_ns - (on.laser_switch_ns + settle_ns)) / 1e6
         return f"{line}; {judge_timing(shares, slack_ms, frame.exposure_us / 1e3, config.lasers.settle_ms)}"
 
@@ -351,6 +352,8 @@ class RigChecks:
         it (µs); Problem if the camera does not take that exposure."""
         import numpy as np
 
+        from edge.vision import SpotFinder
+
         frames = []
         t_ns = self.clock.now_ns()
         for _ in range(3 * TONE_FRAMES):  # (a new exposure may take a few frames to apply)
@@ -363,7 +366,7 @@ class RigChecks:
         if len(frames) < TONE_FRAMES:
             raise Problem(f"asked for {exposure_us:g} µs, the frames came at {frame.exposure_us:.0f} µs",
                           "the sensor mode limits the exposure: see camera.exposure_us and camera.frame_rate_hz")
-        top = float(np.iinfo(frames[0].image.dtype).max) if frames[0].image.dtype.kind == "u" else 1.0
+        top = SpotFinder.full_scale(frames[0].image)
         half = TONE_FRAMES // 2
         means = [np.mean([f.image for f in part], axis=0, dtype=np.float64) / top
                  for part in (frames[:half], frames[half:])]

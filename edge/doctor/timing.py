@@ -50,13 +50,16 @@ def _linear(frame: np.ndarray, gamma: float) -> tuple[np.ndarray, float]:
     return linear_table(frame.dtype, gamma).take(plane), 65535.0
 
 
-def _difference(a: np.ndarray, b: np.ndarray, scale: float, box: tuple[slice, slice]) -> tuple[np.ndarray, float]:
+_SAMPLE = (slice(None, None, 4), slice(None, None, 4))  # every 4th pixel each way: a picture's room light
+
+
+def _difference(a: np.ndarray, b: np.ndarray, b_level: float, scale: float, box: tuple[slice, slice]
+                ) -> tuple[np.ndarray, float]:
     """Plane `a` less plane `b` in `box` (full-scale units), `b` scaled to `a`'s room light first
-    (flicker: a few percent of a textured wall is as much light as a dim spot), less the box
-    border's median; and the border's robust spread (the pixels' noise there)."""
-    sample = (slice(None, None, 4), slice(None, None, 4))
-    level = float(np.median(b[sample]))
-    gain = float(np.median(a[sample])) / level if level > 0 else 1.0
+    (flicker: a few percent of a textured wall is as much light as a dim spot; `b_level`: the
+    median of `b`'s sample), less the box border's median; and the border's robust spread (the
+    pixels' noise there)."""
+    gain = float(np.median(a[_SAMPLE])) / b_level if b_level > 0 else 1.0
     diff = (a[box].astype(np.float64) - gain * b[box].astype(np.float64)) / scale
     border = np.concatenate([diff[0], diff[-1], diff[1:-1, 0], diff[1:-1, -1]])
     centre = float(np.median(border))
@@ -78,7 +81,8 @@ def light_shares(first: np.ndarray, full: np.ndarray, again: np.ndarray, after: 
         return None
     box = (slice(v - r, v + r + 1), slice(u - r, u + r + 1))
     dark, scale = _linear(off, gamma)
-    diffs = [_difference(_linear(f, gamma)[0], dark, scale, box) for f in (again, full, first, after)]
+    dark_level = float(np.median(dark[_SAMPLE]))
+    diffs = [_difference(_linear(f, gamma)[0], dark, dark_level, scale, box) for f in (again, full, first, after)]
     shape = np.maximum(diffs[0][0], 0.0)
     whole = float((diffs[1][0] * shape).sum())
     if whole <= 0.0:

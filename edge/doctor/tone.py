@@ -71,10 +71,8 @@ def judge(configured: Sequence[np.ndarray], configured_us: float, other: Sequenc
     from edge.tone import measure_gamma
 
     (short, short_us), (long, long_us) = sorted([(configured, configured_us), (other, other_us)], key=lambda p: p[1])
-    if len(short) == 2 and len(long) == 2:
-        measured = measure_gamma(short[1], long[1], long_us / short_us, chosen_by=(short[0], long[0]))
-    else:
-        measured = measure_gamma(short[-1], long[-1], long_us / short_us)
+    # (One mean chooses its own values.)
+    measured = measure_gamma(short[-1], long[-1], long_us / short_us, chosen_by=(short[0], long[0]))
     exposures = f"{short_us / 1e3:g} and {long_us / 1e3:g} ms"
     if measured is None:
         raise TooDark(f"the picture is too dark to tell at {exposures}: light the room, or aim the unit at a "
