@@ -8,6 +8,7 @@ spot's light then adds to the room's, and noise is what the sensor made. Pure; n
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -91,6 +92,9 @@ class MeasuredCurve:
     # picture's values all lie below the knee of the steeper curves, where every curve is straight.
     low: float = 0.0
     high: float = 0.0
+    # The misfit the frames' noise alone would leave (0-1 of full scale), from the differences
+    # between the measured frames and those that chose the values; 0 when they are the same.
+    noise: float = 0.0
 
 
 def measure_gamma(short: np.ndarray, long: np.ndarray, ratio: float,
@@ -116,11 +120,16 @@ def measure_gamma(short: np.ndarray, long: np.ndarray, ratio: float,
     if cs.shape != s.shape or cg.shape != s.shape:
         raise ValueError("the frames that choose the values must be the frames' size")
     use = (cs >= MEASURE_FLOOR) & (cg <= MEASURE_CEILING)
-    s, g = s[use], g[use]
+    s, g, cs, cg = s[use], g[use], cs[use], cg[use]
     if s.size < MEASURE_MIN_VALUES:
         return None
     step = -(-s.size // MEASURE_MAX_VALUES)
-    s, g = s[::step], g[::step]
+    s, g, cs, cg = s[::step], g[::step], cs[::step], cg[::step]
+    # Each value's noise from two independent means of it (their difference has √2 of it), the
+    # shorter exposure's carried to the longer by the values' own ratio; as a median |residual|.
+    spread_s, spread_g = (1.4826 / math.sqrt(2.0) * float(np.median(np.abs(a - b))) for a, b in ((s, cs), (g, cg)))
+    carried = float(np.median(g / np.maximum(s, 1e-9)))
+    noise = 0.6745 * math.hypot(spread_g, carried * spread_s)
 
     @functools.cache
     def cost(gamma: float) -> float:
@@ -132,4 +141,4 @@ def measure_gamma(short: np.ndarray, long: np.ndarray, ratio: float,
     best = min((x for x in MEASURE_GAMMAS if abs(x - coarse) <= 0.1), key=cost)
     alike = cost(best) + max(MEASURE_ALIKE * cost(best), MEASURE_ALIKE_LEVELS / 255.0)
     alike_gammas = [x for x in MEASURE_GAMMAS[::5] if cost(x) <= alike] + [best]
-    return MeasuredCurve(best, int(s.size), cost(best), min(alike_gammas), max(alike_gammas))
+    return MeasuredCurve(best, int(s.size), cost(best), min(alike_gammas), max(alike_gammas), noise)

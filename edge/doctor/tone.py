@@ -30,7 +30,7 @@ GAMMA_TOLERANCE = 0.15  # a measured gamma this near the one ranging undoes is t
 BRIGHT_TARGET = 0.25  # a too dark picture is measured again with its brightest values lifted to this
 MAX_GAIN = 8.0  # (a Pi camera v2's sensor reaches 10.7)
 UNTOLD_SPAN = 0.5  # gammas this far apart fitting the values alike: the picture cannot tell the curve
-POWER_LAW_LEVELS = 4.0  # a median difference over this many levels: a curve of another shape (a Pi's stock one)
+POWER_LAW_LEVELS = 4.0  # a median difference this many levels over twice the noise's: a curve of another shape
 MISFIT_LEVELS = 12.0  # a median difference left over this many 8-bit levels: the scene changed (noise
 # leaves 1-3 at a 4 × ratio)
 
@@ -87,8 +87,9 @@ def judge(configured: Sequence[np.ndarray], configured_us: float, other: Sequenc
                      "steady, and run the doctor again")
     expected = config.ranging.frame_gamma
     linear = " (values proportional to light)" if abs(measured.gamma - 1.0) <= GAMMA_TOLERANCE else ""
-    shape = (f", and no power law (a median {measured.misfit * 255.0:.0f} levels off the nearest)"
-             if measured.misfit * 255.0 > POWER_LAW_LEVELS else "")
+    # A misfit well over what the frames' noise leaves: the curve has another shape.
+    off_law = (measured.misfit - 2.0 * measured.noise) * 255.0 > POWER_LAW_LEVELS
+    shape = f", and no power law (a median {measured.misfit * 255.0:.0f} levels off the nearest)" if off_law else ""
     found = f"gamma {measured.gamma:.2f}{linear}{shape} from {measured.values} values at {exposures}"
     if abs(measured.gamma - expected) <= GAMMA_TOLERANCE:
         return f"{found}; ranging undoes {expected:g} (ranging.frame_gamma)"
