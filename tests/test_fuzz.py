@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import copy
 import datetime
+import gc
 import json
 import math
 import shutil
@@ -499,13 +500,20 @@ def xfail(reason: str):
 
 def without_deep_traceback(check) -> None:
     """Run `check`; a RecursionError fails the test with a short message (pytest takes seconds to
-    format a traceback a thousand frames deep)."""
+    format a traceback a thousand frames deep). The garbage collector is kept from running while
+    the stack is that deep: a finalizer of another test's garbage run there (a socket, a thread)
+    overflows the stack itself, and pytest fails the test for those "unraisable" errors (seen once
+    in a fresh clone, 19 of them, on a worker that had run other tests first)."""
+    gc.collect()
+    gc.disable()
     try:
         check()
     except RecursionError as exc:
         escaped = f"RecursionError escaped: {exc}"
     else:
         return
+    finally:
+        gc.enable()
     pytest.fail(escaped, pytrace=False)
 
 
