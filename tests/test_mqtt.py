@@ -275,12 +275,16 @@ def test_snapshots_are_retained_sent_again_at_every_connect_and_the_last_before_
     broker.stop()
     wait_until(lambda: not link.connected, what="the link to notice the outage")
     link.publish_snapshot("guard", {"active": False, "occupied": False, "tracks": 0})
-    broker.start()
+    # Marked while the broker is down, so nothing can arrive first: the link and the subscriber
+    # reconnect the moment the listener opens, which may be before start() sees the broker's log
+    # say it runs; a mark taken after start() could then miss all of it.
     mark = subscriber.mark()
+    broker.start()
     wait_until(lambda: link.connected, what="the reconnect")
     # (The subscriber may first get the broker's retained copy again, as it re-subscribes.)
-    subscriber.wait_for(T.of("guard"), lambda m: json.loads(m.payload)["occupied"] is False, since=mark)
-    assert subscriber.wait_for(T.of("map"), since=mark).payload == png
+    subscriber.wait_for(T.of("guard"), lambda m: json.loads(m.payload)["occupied"] is False, since=mark,
+                        timeout=10.0)
+    assert subscriber.wait_for(T.of("map"), since=mark, timeout=10.0).payload == png
     late = Subscriber(broker)
     try:
         assert json.loads(late.wait_for(T.of("guard")).payload)["active"] is False
