@@ -112,6 +112,37 @@ def test_faint_spots_in_a_webcams_jpeg_frames_are_not_taken_for_late_lasers():
     assert len(lines) == 3 and all("not judged" in d or "wholly lit" in d for d in lines)
 
 
+@pytest.mark.parametrize("stuck", [None, "parallel"])
+def test_a_reddish_wall_on_a_lasers_path_is_not_a_laser_that_stays_on(stuck):
+    """The kitchen through JPEG and a display gamma: the parallel laser's path crosses a warm wall
+    whose red excess in the laser-off frame stands 0.17 of full scale over the rest of the path.
+    A plateau, not a spot: the laser that lights and goes off is ok. Stuck on, it still fails."""
+    settings = [*NO_BROKER, 'sim.scene="kitchen"', "sim.sensor.jpeg_quality=80", "sim.sensor.gamma=1.8",
+                "ranging.frame_gamma=1.8"]
+    if stuck:
+        settings.append(f'sim.laser_faults=[{{laser="{stuck}", kind="stuck"}}]')
+    result = examine(None, settings)
+    assert _by_status(result, "fail") == ([f"laser {stuck}"] if stuck else []), result.checks.text()
+    if stuck:
+        assert "does not go off" in next(x.detail for x in result.checks.lines if x.check == f"laser {stuck}")
+
+
+def test_a_noisy_webcam_aimed_where_no_spot_shows_says_so_and_blames_no_wiring():
+    """The webcam (JPEG, heavy noise, flicker under a rolling shutter) aimed at pan 30°, where no
+    laser's spot shows on its path: its differences hold peaks of 8-20 × their frame-wide noise
+    along sharp edges and in flicker bands, and a glow where a beam's light is thrown back. Before
+    a spot had to clear the noise beside it and show again in a second pair, these lines read
+    "the driver is active-low" and "the rig is not built as configured"."""
+    result = examine(str(REPO / "config" / "sim-webcam.toml"), [*NO_BROKER, "rangefinder.pan_deg=30", "sim.seed=5"])
+    lines = {x.check: x for x in result.checks.lines if x.check.startswith("laser ")}
+    assert set(lines) == {"laser center", "laser parallel", "laser sloped"}
+    for line in lines.values():
+        assert line.status == "fail"
+        assert line.detail.startswith(("no spot: it does not light", "no spot on its path, only a broad glow")), line
+        assert "aim the unit at a matte wall" in line.remedy
+    assert "broad glow" in lines["laser sloped"].detail
+
+
 def test_a_spots_light_is_weighed_in_frames_lit_for_part_of_their_exposure(office):
     """The renderer lights a laser for a share of a frame's exposure: that share is what the
     doctor's timing reads back, and the lag it implies is the one that left it."""

@@ -255,6 +255,7 @@ class RigChecks:
         capture, camera = self.capture, self.camera
         period = config.camera.frame_ns
         try:
+            dark = capture.take(())  # the dark half of the second pair a spot has to repeat in
             off = capture.take(())
             # Switched on just before a frame starts: the frame taken as lit then starts as soon
             # after the switch as the lasers' timing allows, the tightest a sweep meets.
@@ -273,8 +274,9 @@ class RigChecks:
         finally:
             assert self.lasers is not None
             self.lasers.off()
-        report = judge(name, on.frame.image, off.frame.image, rig)
-        later = judge(name, full.image, off.frame.image, rig)  # lit all through: the spot's whole light
+        second = (again.image, dark.frame.image)  # shares no frame with either pair below
+        report = judge(name, on.frame.image, off.frame.image, rig, second)
+        later = judge(name, full.image, off.frame.image, rig, second)  # lit all through: the spot's whole light
         if report.pixel is None and not report.inverted and not report.lit_when_off:
             if later.pixel is not None and later.from_path_px[name] <= config.ranging.path_tolerance_px:
                 report = later  # it lights, but late: the timing below says by how much
@@ -389,7 +391,8 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
                           "a shorted MOSFET or a pin driven by something else: power the lasers down and "
                           f"check its driver on GPIO{wiring[name].pin} before running the service (eye safety)")
         lo, hi = config.rig.range_limits_m
-        raise Problem(f"no spot: it does not light (strongest change {report.snr:.1f}× the noise)",
+        once = ", where the frames are that noisy, or once and not again: no spot" if report.fleeting else ""
+        raise Problem(f"no spot: it does not light (strongest change {report.snr:.1f}× the noise{once})",
                       f"check its supply, its MOSFET and the wire from GPIO{wiring[name].pin} ({key}.pin); or "
                       f"nothing lies {lo:g}–{hi:g} m in front of it at pan {aim[0]:+g}°, tilt {aim[1]:+g}°: "
                       "aim the unit at a matte wall ([rangefinder] pan_deg, tilt_deg)")
@@ -404,6 +407,13 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
         raise Problem(f"{where} lies on laser {nearest}'s path, {own:.1f} px from its own: switching {name} "
                       f"lights {nearest}", f"the wires of GPIO{wiring[name].pin} and GPIO{wiring[nearest].pin} are "
                       f"swapped: swap them, or swap the pins in {key}.pin and the other laser's pin")
+    if own > tolerance and report.broad and min(report.from_path_px.values()) > tolerance:
+        lo, hi = config.rig.range_limits_m
+        raise Problem(f"no spot on its path, only a broad glow at ({u:.0f}, {v:.0f}), SNR {report.snr:.0f}, "
+                      f"{own:.0f} px from it: its light reflected or scattered there (glass, a glossy surface), "
+                      "its spot out of sight",
+                      f"aim the unit at a matte wall {lo:g}–{hi:g} m away ([rangefinder] pan_deg, tilt_deg; now "
+                      f"pan {aim[0]:+g}°, tilt {aim[1]:+g}°) and run the doctor again")
     if own > tolerance:
         calibrated = config.rig.calibration or "a calibration"
         raise Problem(f"{where} is {own:.1f} px from where the rig says it can be (ranging keeps spots within "

@@ -10,7 +10,12 @@ path, as ranging looks: the point is to find it where it should not be). Where i
 - a spot *darker* in the laser-on frame: the laser lights while its pin is at the "off" level, so
   its driver is active-low and ``active_high`` says otherwise;
 - no spot, but one in the laser-off frame on its path: it does not go off (a shorted driver);
-- no spot at all: it does not light (wiring, driver, supply), or nothing in range to light.
+- no spot at all: it does not light (wiring, driver, supply), or nothing in range to light;
+- only a broad glow far from every path: its light reflected (glass, a glossy surface) or
+  scattered, its spot out of range or out of sight.
+
+A noisy picture's difference holds peaks as strong as a faint spot's: a spot has to clear the
+noise measured beside it (two laser-off frames' difference) and show again in a second pair.
 
 Pure: frames and the rig in, a :class:`SpotReport` out.
 """
@@ -19,12 +24,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from edge.rig import Rig
 from edge.vision import FAR_FACTOR, NEAR_FACTOR, SpotFinder
 
 MIN_SNR = 8.0  # a spot's (3 × 3 mean) peak over the difference image's noise
+# A spot shows again in a second pair of frames: within REPEAT_PX of where it was, at REPEAT_SNR.
+# (Its SNR there is its first one, give or take one: 8 becomes 7-9, and half of it is far below.)
+REPEAT_PX, REPEAT_SNR = 2, 4.0
+MAX_PEAKS, PEAK_APART = 5, 6  # peaks tried in turn, and how far apart (px) they are told apart
+LOCAL_PX = 15  # the square (px) over which the noise beside a peak is measured (see _local_noise)
 _SAMPLE = 4  # every 4th pixel each way is enough for the noise and the flicker gain
 
 
@@ -37,6 +48,8 @@ class SpotReport:
     depth_m: float | None  # where along its own path the spot lies
     inverted: bool  # a dark spot: lit while "off", dark while "on"
     lit_when_off: bool  # its spot shows in the laser-off frame
+    fleeting: bool = False  # no spot, but changes over MIN_SNR: none clear of the noise there, or none again
+    broad: bool = False  # the spot fills its window: a glow (a reflection), or a defocused near spot
 
     @property
     def nearest(self) -> str | None:
@@ -67,6 +80,18 @@ def _centroid(diff: np.ndarray, v: int, u: int, peak: float) -> tuple[float, flo
     return float((gu * weight).sum() / weight.sum()), float((gv * weight).sum() / weight.sum())
 
 
+def _broad(diff: np.ndarray, v: int, u: int, peak: float) -> bool:
+    """Whether the ring 4 px around (v, u) keeps, in its median, 0.4 of the peak: a spot of σ up to
+    2.8 px keeps under 0.37 there; this is a glow of its light reflected or scattered (or, bright,
+    a spot far out of focus in front of the camera)."""
+    h, w = diff.shape
+    if not (4 <= v < h - 4 and 4 <= u < w - 4):
+        return False
+    win = diff[v - 4:v + 5, u - 4:u + 5]
+    ring = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
+    return float(np.median(ring)) > 0.4 * peak
+
+
 def path_of(rig: Rig, laser: str, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
     """(pixels (n, 2), depths (n,)) of `laser`'s image path where ranging searches it."""
     lo, hi = rig.range_limits_m
@@ -85,8 +110,9 @@ def distance_to_path(path: np.ndarray, point: np.ndarray) -> tuple[float, int]:
     return float(d[k]), k + int(round(float(t[k])))
 
 
-def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig) -> SpotReport:
-    """Where `laser`'s spot is in the difference of `on` (it alone lit) and `off` (all off)."""
+def _difference(on: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, float]:
+    """The 3 × 3 mean of `on` − `off` in the laser's channel, centred on the picture's median, and
+    its noise (robust spread)."""
     a, b = _channel(on), _channel(off)
     sample = (slice(None, None, _SAMPLE), slice(None, None, _SAMPLE))
     # Room light changes a little from frame to frame (flicker): scale the off frame to the on one.
@@ -96,15 +122,78 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig) -> SpotReport:
     centre = float(np.median(diff[sample]))
     noise = max(1.4826 * float(np.median(np.abs(diff[sample] - centre))), 1e-6)
     diff -= np.float32(centre)
-    flat = int(np.argmax(diff))
-    v, u = divmod(flat, diff.shape[1])
-    peak = float(diff[v, u])
-    dark = float(-diff.min())
-    lit_when_off = SpotFinder(rig, lasers=[laser]).lit_in_off(off, laser)
-    if peak / noise < MIN_SNR:
-        return SpotReport(laser, None, max(peak, dark) / noise, {}, None,
-                          inverted=dark / noise >= MIN_SNR, lit_when_off=lit_when_off)
+    return diff, noise
+
+
+def _peaks(diff: np.ndarray, least: float) -> list[tuple[int, int, float]]:
+    """(v, u, value) of up to MAX_PEAKS strongest peaks of `diff` of at least `least`, each the
+    strongest within PEAK_APART px of itself."""
+    work = diff.copy()
+    h, w = work.shape
+    found = []
+    for _ in range(MAX_PEAKS):
+        v, u = divmod(int(np.argmax(work)), w)
+        value = float(work[v, u])
+        if value < least:
+            break
+        found.append((v, u, value))
+        work[max(v - PEAK_APART, 0):v + PEAK_APART + 1, max(u - PEAK_APART, 0):u + PEAK_APART + 1] = -np.inf
+    return found
+
+
+def _local_noise(null: np.ndarray) -> np.ndarray:
+    """Per pixel, the RMS of `null` (the difference of two laser-off frames, made as the others
+    are) over LOCAL_PX × LOCAL_PX around it: the noise a difference has there, where the picture's
+    own robust spread says too little: JPEG rings along a sharp edge by several times it, and a
+    rolling shutter under flickering light leaves bands, strongest where the room is bright."""
+    return np.sqrt(np.maximum(cv2.blur(null * null, (LOCAL_PX, LOCAL_PX), borderType=cv2.BORDER_REFLECT), 0.0))
+
+
+def _repeats(again: tuple[np.ndarray, float] | None, v: int, u: int, sign: float,
+             local: np.ndarray | None) -> bool:
+    """Whether the change at (v, u) shows again, with the same sign, in the difference `again`."""
+    if again is None:
+        return True
+    diff, noise = again
+    near = (slice(max(v - REPEAT_PX, 0), v + REPEAT_PX + 1), slice(max(u - REPEAT_PX, 0), u + REPEAT_PX + 1))
+    floor = noise if local is None else np.maximum(local[near], noise)
+    return bool(((sign * diff[near]) >= REPEAT_SNR * floor).any())
+
+
+def _clear(local: np.ndarray | None, v: int, u: int, value: float) -> bool:
+    """Whether a peak of `value` at (v, u) is MIN_SNR over the noise there."""
+    return local is None or value >= MIN_SNR * float(local[v, u])
+
+
+def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
+          again: tuple[np.ndarray, np.ndarray] | None = None) -> SpotReport:
+    """Where `laser`'s spot is in the difference of `on` (it alone lit) and `off` (all off).
+
+    A spot (or a dark spot) has to stand out of its surroundings, and where `again` (lit, dark),
+    another pair of the same, is given, show again where it is. A noisy camera's difference (a
+    webcam's JPEG at 352 × 288) holds peaks of 8–14 × its robust noise anywhere in the picture; a
+    laser's spot repeats, they do not. The strongest peaks are tried in turn, so a dim spot beside
+    a brighter fluke is found."""
+    diff, noise = _difference(on, off)
+    second = local = None
+    if again is not None:
+        second = _difference(*again)
+        local = _local_noise(_difference(off, again[1])[0])
+    lit = _peaks(diff, MIN_SNR * noise)
+    dim = _peaks(-diff, MIN_SNR * noise)
+    finder = SpotFinder(rig, lasers=[laser])
+    spot = next(((v, u, p) for v, u, p in lit
+                 if _clear(local, v, u, p) and _repeats(second, v, u, 1.0, local)), None)
+    if spot is None:
+        inverted = any(_clear(local, v, u, p) and _repeats(second, v, u, -1.0, local) for v, u, p in dim)
+        strongest = max(float(diff.max()), float(-diff.min())) / noise
+        return SpotReport(laser, None, strongest, {}, None, inverted=inverted,
+                          lit_when_off=finder.lit_in_off(off, laser), fleeting=bool(lit or dim) and not inverted)
+    v, u, peak = spot
     pixel = np.array(_centroid(diff, v, u, peak))
+    # It lit, so only its own spot left in the off frame says it does not (wholly) go off; a red
+    # thing elsewhere on its path says nothing of the laser.
+    lit_when_off = finder.lit_in_off(off, laser, near=(float(pixel[0]), float(pixel[1])))
     distances, depth = {}, None
     for name in rig.laser_names:
         path, depths = path_of(rig, name)
@@ -112,4 +201,4 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig) -> SpotReport:
         if name == laser:
             depth = float(depths[min(k, len(depths) - 1)])
     return SpotReport(laser, (float(pixel[0]), float(pixel[1])), peak / noise, distances, depth,
-                      inverted=False, lit_when_off=lit_when_off)
+                      inverted=False, lit_when_off=lit_when_off, broad=_broad(diff, v, u, peak))
