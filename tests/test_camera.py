@@ -199,6 +199,30 @@ def test_picamera2_fixed_settings(fake_picamera2):
     assert isinstance(cam, Picamera2Camera)
 
 
+def test_picamera2_holds_a_focus_motors_lens_where_it_is_told(fake_picamera2, monkeypatch):
+    """A Camera Module 3 autofocuses by default in most programs: its lens, and the focal length
+    with it, would move between zones. edge holds it (manual focus) at camera.lens_dioptres, and
+    refuses a position the lens cannot reach; a camera without a focus motor is left alone."""
+    plain = Picamera2Camera(CameraSettings(), (640, 480))
+    assert plain.lens_dioptres is None
+    assert "AfMode" not in fake_picamera2.last.config["controls"]
+    monkeypatch.setattr(fake_picamera2, "focus", {"AfMode": (0, 2, 0), "LensPosition": (0.0, 15.0, 1.0)},
+                        raising=False)
+    original = fake_picamera2.__init__
+
+    def with_motor(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        self.camera_controls |= type(self).focus
+
+    monkeypatch.setattr(fake_picamera2, "__init__", with_motor)
+    cam = Picamera2Camera(CameraSettings(lens_dioptres=2.5), (640, 480))
+    controls = fake_picamera2.last.config["controls"]
+    assert cam.lens_dioptres == 2.5
+    assert controls["AfMode"] == 0 and controls["LensPosition"] == 2.5  # 0: libcamera's Manual
+    with pytest.raises(HardwareError, match=r"camera.lens_dioptres: 20 is beyond this lens's 0-15 dioptres"):
+        Picamera2Camera(CameraSettings(lens_dioptres=20.0), (640, 480))
+
+
 def test_picamera2_frames_come_through_the_configured_tone_curve(fake_picamera2, monkeypatch, caplog):
     from edge.hw.camera import curve_points
     from edge.tone import tone_curve

@@ -143,6 +143,23 @@ def test_a_noisy_webcam_aimed_where_no_spot_shows_says_so_and_blames_no_wiring()
     assert "broad glow" in lines["laser sloped"].detail
 
 
+def test_the_camera_line_tells_where_a_focus_motor_holds_the_lens_and_fails_if_it_moved():
+    from edge.doctor.rig import _lens
+    from edge.hw.base import Frame
+
+    image = np.zeros((4, 4), np.uint8)
+
+    def frames(*positions):
+        return [Frame(image, i, 1000.0, 0, i, {"LensPosition": p}) for i, p in enumerate(positions)]
+
+    assert _lens([Frame(image, 0, 1000.0, 0, 0)], 1.0) == ""  # no focus motor: nothing to say
+    assert _lens(frames(1.0, 1.01), 1.0) == ", lens held at 1 dioptres (in focus at 1 m)"
+    assert _lens(frames(0.0, 0.0), 0.0).endswith("(in focus at infinity)")
+    with pytest.raises(Problem, match="the lens moved to 1.00–1.80 dioptres, not held at 1") as moved:
+        _lens(frames(1.0, 1.8), 1.0)
+    assert "AfMode = Manual" in moved.value.remedy
+
+
 def test_a_spots_light_is_weighed_in_frames_lit_for_part_of_their_exposure(office):
     """The renderer lights a laser for a share of a frame's exposure: that share is what the
     doctor's timing reads back, and the lag it implies is the one that left it."""

@@ -37,6 +37,7 @@ LIT_AFTER_FRAMES = 3  # a frame this many after the first lit one saw the laser 
 # A fainter spot's light in one frame is not known to the few percent its timing is judged by: in JPEG
 # frames (a webcam's at quality 60, the simulator's at 50) spots of SNR 16-21 read 82-121 % lit.
 TIMING_MIN_SNR = 30.0
+LENS_TOLERANCE = 0.05  # dioptres: a focus motor reports back where it is, to its step
 TONE_FRAMES = 8  # frames averaged at each exposure for the tone curve (flicker averages out)
 
 
@@ -240,7 +241,7 @@ class RigChecks:
         median = statistics.median(intervals)
         return (f"{config.camera.backend} {shape[1]}x{shape[0]}: {len(frames)} frames every {median:.1f} ms "
                 f"({1e3 / median:.1f} fps; {settings.frame_rate_hz:g} configured), exposure {got:.0f} µs fixed "
-                f"({settings.exposure_us:g} asked){gain}")
+                f"({settings.exposure_us:g} asked){gain}{_lens(frames, settings.lens_dioptres)}")
 
     def laser(self, name: str, index: int) -> str:
         config = self._typed()
@@ -373,6 +374,21 @@ class RigChecks:
         means = [np.mean([f.image for f in part], axis=0, dtype=np.float64) / top
                  for part in (frames[:half], frames[half:])]
         return means, float(np.mean([f.exposure_us for f in frames]))
+
+
+def _lens(frames: list[Frame], dioptres: float) -> str:
+    """The camera line's words on a focus motor's lens (empty for a camera without one): held
+    where camera.lens_dioptres says, in every frame, or a Problem."""
+    at = [float(f.metadata["LensPosition"]) for f in frames if "LensPosition" in f.metadata]
+    if not at:
+        return ""
+    if max(abs(a - dioptres) for a in at) > LENS_TOLERANCE:
+        raise Problem(f"the lens moved to {min(at):.2f}–{max(at):.2f} dioptres, not held at {dioptres:g} "
+                      "(camera.lens_dioptres): something runs autofocus, and the focal length moves with "
+                      "the lens", "the camera must take AfMode = Manual: update picamera2 (sudo apt "
+                      "full-upgrade), and stop any other program that uses the camera")
+    focus = "infinity" if dioptres == 0 else f"{1.0 / dioptres:.2g} m"
+    return f", lens held at {dioptres:g} dioptres (in focus at {focus})"
 
 
 def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, float]) -> str:

@@ -60,6 +60,11 @@ class CameraSettings:
     # must be the same, so that ranging undoes it exactly (the tuning file's own curve it could
     # not). 1 keeps the frames linear, as every figure of the accuracy bench is measured on.
     gamma: float = 1.0
+    # picamera2, a camera with a focus motor (Camera Module 3): where the lens is held, in
+    # dioptres (1 / the distance in focus, m; 0 = infinity). Never autofocus: the lens would move
+    # between zones, and the focal length with it (a calibration holds for one lens position).
+    # 1 dioptre keeps 0.5 m to a few metres sharp enough at f/1.8. Cameras without one ignore it.
+    lens_dioptres: float = 1.0
 
     def __post_init__(self) -> None:
         # Physical ranges: sensors' analogue gain tops out at 16-64x, no frame takes a second.
@@ -75,6 +80,8 @@ class CameraSettings:
         require(0 <= self.latency_ms <= 1000, "latency_ms", "must be 0-1000 ms")
         require(0 < self.timeout_s <= 60, "timeout_s", "must be more than 0 and at most 60 s")
         require_gamma(self.gamma, "gamma")
+        require(0.0 <= self.lens_dioptres <= 32.0, "lens_dioptres",
+                f"must be 0-32 dioptres (0: infinity; 1: 1 m), got {self.lens_dioptres:g}")
 
     @property
     def frame_ns(self) -> int:
@@ -123,6 +130,7 @@ class Picamera2Camera:
             "AwbEnable": False,
             "ColourGains": tuple(colour_gains),
         }
+        self.lens_dioptres = self._hold_lens(settings.lens_dioptres)
         try:
             # RGB888 is [B, G, R] in memory: OpenCV's BGR, as the rest of the project expects.
             kwargs: dict[str, Any] = {"main": {"size": tuple(size), "format": "RGB888"}, "controls": self.controls}
@@ -140,6 +148,21 @@ class Picamera2Camera:
         limits = getattr(self._cam, "camera_controls", {}).get("FrameDurationLimits")
         if limits:
             self.min_frame_ns = int(limits[0]) * 1000
+
+    def _hold_lens(self, dioptres: float) -> float | None:
+        """Where a focus motor's lens is held (None: the camera has none): manual focus, at
+        `dioptres`; CameraError, naming the key, beyond the lens's range."""
+        available = getattr(self._cam, "camera_controls", {})
+        if "AfMode" not in available or "LensPosition" not in available:
+            return None
+        low, high = (float(x) for x in available["LensPosition"][:2])
+        if not low <= dioptres <= high:
+            self._close_quietly()
+            raise CameraError(f"camera.lens_dioptres: {dioptres:g} is beyond this lens's "
+                              f"{low:g}-{high:g} dioptres")
+        self.controls["AfMode"] = _af_manual()
+        self.controls["LensPosition"] = float(dioptres)
+        return float(dioptres)
 
     def start(self) -> None:
         if self.closed:
@@ -262,6 +285,15 @@ def curve_points(gamma: float) -> list[int]:
     xs = sorted({0, round(TOE * 65535), *(round(65535 * (i / 32) ** 2) for i in range(1, 33))})
     ys = tone_curve(np.array(xs, dtype=np.float32) / 65535.0, gamma) * 65535.0
     return [v for x, y in zip(xs, ys.tolist()) for v in (x, int(round(y)))]
+
+
+def _af_manual() -> Any:
+    try:
+        from libcamera import controls
+
+        return controls.AfModeEnum.Manual
+    except Exception:  # libcamera's enum not importable: its value
+        return 0
 
 
 def _noise_reduction_off() -> Any:
