@@ -176,11 +176,16 @@ class SweepFile:
     # came through, value = light^(1/frame_gamma) (edge.tone); absent: not said (linear, or as the
     # replaying configuration's ranging.frame_gamma says).
     frame_gamma: float | None = None
+    # Also edge's own: where a focus motor held the lens (dioptres; absent: no motor, or not said).
+    # A calibration fitted from these frames holds for that position alone.
+    lens_dioptres: float | None = None
     zones: tuple[ZoneRecord, ...]
 
     def __post_init__(self) -> None:
         if self.frame_gamma is not None:
             require_gamma(self.frame_gamma, "frame_gamma")
+        if self.lens_dioptres is not None:
+            require(0.0 <= self.lens_dioptres <= 32.0, "lens_dioptres", "must be 0-32 dioptres")
         names = self.rig().laser_names
         seen: dict[int, int] = {}
         for position, zone in enumerate(self.zones):
@@ -215,6 +220,7 @@ class Recording:
     created: str | None = None
     device: str | None = None
     frame_gamma: float | None = None  # the frames' tone curve, where the recording says it
+    lens_dioptres: float | None = None  # where a focus motor held the lens, where the recording says it
 
     def load_image(self, zone: ZoneRecord, frame: FrameRecord) -> np.ndarray:
         """Decode one frame: uint8 or uint16, grey (H, W) or colour BGR (H, W, 3).
@@ -360,7 +366,7 @@ def read_recording(path: str | Path, check_images: bool = True) -> Recording:
             file = _frame_path(folder, frame.file, fail_here)
             if check_images:
                 _check_png_header(file, rig.camera, fail_here)
-    return Recording(folder, rig, doc.zones, doc.created, doc.device, doc.frame_gamma)
+    return Recording(folder, rig, doc.zones, doc.created, doc.device, doc.frame_gamma, doc.lens_dioptres)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -419,11 +425,12 @@ class RecordingWriter:
     """
 
     def __init__(self, path: str | Path, rig: Rig, device: str | None = None,
-                 created: str | None = None, frame_gamma: float = 1.0):
+                 created: str | None = None, frame_gamma: float = 1.0, lens_dioptres: float | None = None):
         self.path = Path(path)
         self.rig = rig
         self.device = device
         self.frame_gamma = frame_gamma  # the frames' tone curve: written where it is not linear
+        self.lens_dioptres = lens_dioptres  # where a focus motor held the lens: written where there is one
         self.created = created or timestamp()
         absolute = Path(os.path.abspath(self.path))
         self._partial = absolute.with_name(f"{absolute.name}.partial-{os.getpid()}")
@@ -606,6 +613,8 @@ class RecordingWriter:
         doc |= rig_to_json(self.rig)
         if self.frame_gamma != 1.0:
             doc["frame_gamma"] = self.frame_gamma
+        if self.lens_dioptres is not None:
+            doc["lens_dioptres"] = self.lens_dioptres
         doc["zones"] = self._zones
         with open(self._partial / SWEEP_JSON, "w", encoding="utf-8") as f:
             json.dump(doc, f, indent=1, allow_nan=False)

@@ -138,3 +138,34 @@ def test_edge_config_also_says_what_the_service_would_use(tmp_path):
     said = edge_config(f"service.state_dir={json.dumps(str(tmp_path))}")
     assert f"  calibration: {NOMINAL}\n" in said
     assert "  calibration of edge run: calibrated 2026-11-23T10:00:00Z" in said
+
+
+def test_a_calibration_holds_for_the_lens_position_it_was_made_at(tmp_path):
+    """A Camera Module 3's focus motor moves the focal length with the lens: a calibration made with
+    the lens held at 1 dioptre says so in its file, and once camera.lens_dioptres holds it elsewhere
+    the calibration's health is a fault that says to calibrate again (the doctor's calibration line
+    fails on it). Files of cameras without a motor, and older ones, carry no position."""
+    from edge.calibration.file import read_calibration
+
+    cal = replace(turned(default_rig()), lens_dioptres=1.0)
+    write_calibration(tmp_path / "c.json", cal)
+    assert json.loads((tmp_path / "c.json").read_text())["lens_dioptres"] == 1.0
+    assert read_calibration(tmp_path / "c.json").lens_dioptres == 1.0
+    write_calibration(tmp_path / "plain.json", turned(default_rig()))
+    assert "lens_dioptres" not in json.loads((tmp_path / "plain.json").read_text())
+    assert read_calibration(tmp_path / "plain.json").lens_dioptres is None
+
+    def believed(lens: float, backend: str = "picamera2"):
+        return believed_rig(load_config(None, [f"rig.calibration={json.dumps(str(tmp_path / 'c.json'))}",
+                                               f'camera.backend="{backend}"', f"camera.lens_dioptres={lens}"]))
+
+    assert believed(1.0).health.startswith("calibrated 2026-11-23T10:00:00Z")
+    moved = believed(2.5)
+    assert moved.health.startswith("fault: calibrated with the lens at 1 dioptres, and camera.lens_dioptres "
+                                   "holds it at 2.5 now")
+    assert directions(moved.rig) == directions(cal.apply(default_rig()))  # still nearer the truth than nominal
+    assert believed(2.5, backend="sim").health.startswith("calibrated")  # no focus motor to hold
+    doc = json.loads((tmp_path / "c.json").read_text()) | {"lens_dioptres": -1}
+    (tmp_path / "c.json").write_text(json.dumps(doc))
+    with pytest.raises(ConfigError, match=r"c.json: lens_dioptres: "):
+        believed(1.0)

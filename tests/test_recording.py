@@ -845,3 +845,18 @@ def test_property_metadata_round_trips(plans: tuple[dict[str, Any], ...], seed: 
                 assert {k: getattr(frame, k) for k in extra} == extra
                 np.testing.assert_array_equal(got.load_image(zone, frame),
                                               images[(zone.index, frame.file)])
+
+
+def test_a_recording_says_where_a_focus_motor_held_the_lens(tmp_path):
+    """Edge's own key, as frame_gamma: written only where a camera has a focus motor (a
+    calibration fitted from the frames holds for that lens position), and read back."""
+    from edge.recording import RecordingWriter, read_recording
+    from edge.rig import default_rig
+
+    image = np.zeros((480, 640, 3), np.uint8)
+    for lens, name in ((1.5, "motor"), (None, "fixed")):
+        with RecordingWriter(tmp_path / name, default_rig(), lens_dioptres=lens) as w:
+            w.add_zone(0, 0.0, 0.0, [(image, [], {}), (image, ["center"], {})])
+        doc = json.loads((tmp_path / name / "sweep.json").read_text())
+        assert doc.get("lens_dioptres") == lens
+        assert read_recording(tmp_path / name).lens_dioptres == lens

@@ -8,7 +8,8 @@ fitted from (`distances_m`), the `camera` and the `lasers` as in ``sweep.json``
 (camera frame, metres), and `spot_sigma_px`, one spot's scatter per axis (u, v) that the fit
 measured; since the fit tells clipped spots from the others, `spot_sigma_px` is that of a spot that
 does not clip the sensor, `clipped_spot_sigma_px` that of one that does, and `clipped_within_m` the
-farthest distance where most spots clipped (absent: one scatter for all); and, for people,
+farthest distance where most spots clipped (absent: one scatter for all); `lens_dioptres`, where a
+focus motor held the lens (absent: the camera has none), for which alone the fit holds; and, for people,
 `range_error_m`, the 1-σ range errors they imply at 1, 2 and 4 m per laser and combined
 (recomputed from the covariance when read: see :mod:`edge.calibration.uncertainty`).
 Older files without them still load; they just know nothing of their uncertainty. Reading is
@@ -58,6 +59,7 @@ class Calibration:
     spot_sigma_px: tuple[float, ...] = ()  # (σu, σv) of one unclipped spot as the fit saw it; () unknown
     clipped_spot_sigma_px: tuple[float, ...] = ()  # ... of one clipped spot; () as an unclipped one
     clipped_within_m: float = 0.0  # up to here the calibration's spots clipped (0: nowhere)
+    lens_dioptres: float | None = None  # where a focus motor held the lens (None: no motor, or not said)
 
     def spot_sigma_at(self, depth_m: float) -> tuple[float, ...]:
         """(σu, σv) of one spot at `depth_m` taken as the calibration's were: a clipped one's
@@ -158,6 +160,7 @@ class CalibrationFile:
     spot_sigma_px: Annotated[tuple[float, ...], _pair] = ()
     clipped_spot_sigma_px: Annotated[tuple[float, ...], _pair] = ()
     clipped_within_m: Annotated[float, _not_negative] = 0.0
+    lens_dioptres: Annotated[float, _not_negative] | None = None
 
     def __post_init__(self) -> None:
         rig_of(self.camera, self.lasers)  # Rig checks the laser names and the reference flag
@@ -167,7 +170,7 @@ class CalibrationFile:
         return Calibration(rig.lasers, rig.camera, self.distances_m,
                            {name: asdict(r) for name, r in self.residuals_px.items()}, self.created,
                            dict(self.ray_covariance), self.spot_sigma_px, self.clipped_spot_sigma_px,
-                           self.clipped_within_m)
+                           self.clipped_within_m, self.lens_dioptres)
 
 
 def read_calibration(path: str | Path) -> Calibration:
@@ -189,6 +192,8 @@ def write_calibration(path: str | Path, cal: Calibration) -> None:
             doc["clipped_spot_sigma_px"] = list(cal.clipped_spot_sigma_px)
             doc["clipped_within_m"] = cal.clipped_within_m
         doc["range_error_m"] = {n: e.to_json() for n, e in cal.range_errors().items()}
+    if cal.lens_dioptres is not None:
+        doc["lens_dioptres"] = cal.lens_dioptres
     try:
         atomic_write_bytes(path, (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
     except OSError as exc:

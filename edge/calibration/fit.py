@@ -957,4 +957,5 @@ def fit_calibration(recording: Recording, distances_m: Sequence[float], fit_foca
     if not fit_focal:
         _check_origins(rig, fitted)
     lasers = tuple(replace(fitted[ln.name], reference=ln.reference) for ln in rig.lasers)
-    return Calibration(lasers, camera, D, res, timestamp(), covariance, spot_sigma, clipped_sigma, clipped_within)
+    return Calibration(lasers, camera, D, res, timestamp(), covariance, spot_sigma, clipped_sigma, clipped_within,
+                       recording.lens_dioptres)

@@ -11,6 +11,9 @@ device ranges with its calibration whenever it has one:
   rig's lasers were renamed since), the service says so in ``state`` and ranges with the nominal
   rig rather than not at all.
 - Otherwise: the nominal rig.
+
+A calibration made with a focus motor's lens held at one position (a Camera Module 3) says so; held
+elsewhere now (``camera.lens_dioptres``), its health is a fault: calibrate again.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from edge.errors import CalibrationError, ConfigError
 from edge.rig import Rig
 
 STATE_FILE = "calibration.json"
+LENS_MOVED = 0.05  # dioptres: a focus motor's step; beyond it the lens was moved
 NOMINAL = "nominal rig (no calibration file)"
 
 
@@ -58,13 +62,24 @@ def believed_rig(config: Config, service: bool = False) -> BelievedRig:
     configured = bool(config.rig.calibration)
     if path is None or (not configured and not path.exists()):
         return BelievedRig(nominal, NOMINAL)
+    # (A webcam's or the simulator's lens is where it is: only the Pi camera holds a focus motor's.)
+    lens = config.camera.lens_dioptres if config.camera.backend == "picamera2" else None
     try:
-        return apply(nominal, read_calibration(path), path)
+        return apply(nominal, read_calibration(path), path, lens)
     except CalibrationError as exc:
         if configured:  # the configuration names a file it cannot use: bad input
             raise ConfigError(f"rig.calibration: {exc}") from None
         return BelievedRig(nominal, f"fault: {exc}; ranging with the nominal rig")
 
 
-def apply(nominal: Rig, cal: Calibration, path: Path) -> BelievedRig:
-    return BelievedRig(cal.apply(nominal), describe(cal, path), path, cal)
+def apply(nominal: Rig, cal: Calibration, path: Path, lens_dioptres: float | None = None) -> BelievedRig:
+    """`cal` applied to `nominal`; its health a fault where the calibration's frames had a focus
+    motor's lens held elsewhere than `lens_dioptres` (where it is held now): the focal length moved
+    with the lens. The calibration is still used (its rays are nearer the truth than the nominal
+    ones), and the fault says to calibrate again."""
+    health = describe(cal, path)
+    if (cal.lens_dioptres is not None and lens_dioptres is not None
+            and abs(cal.lens_dioptres - lens_dioptres) > LENS_MOVED):
+        health = (f"fault: calibrated with the lens at {cal.lens_dioptres:g} dioptres, and camera.lens_dioptres "
+                  f"holds it at {lens_dioptres:g} now: the focal length moved with it ({path})")
+    return BelievedRig(cal.apply(nominal), health, path, cal)

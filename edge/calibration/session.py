@@ -170,7 +170,9 @@ class TargetCalibration:
         self.last: ZoneResult | None = None  # the latest pair's range, for whoever holds the target
         self.recorded: ZoneResult | None = None  # the latest distance taken, as the rig in use ranged it
         # (The curve its frames came through, as the ranger is told it: a replay undoes the same.)
-        self._writer = RecordingWriter(self.folder, nominal, device=device, frame_gamma=ranger.config.frame_gamma)
+        # (And where a focus motor holds the lens: the calibration holds for that position alone.)
+        self._writer = RecordingWriter(self.folder, nominal, device=device, frame_gamma=ranger.config.frame_gamma,
+                                       lens_dioptres=getattr(capture.camera, "lens_dioptres", None))
         self._writer.__enter__()
         self._open = True
 
