@@ -375,3 +375,33 @@ def test_the_broker_line_over_tls(tmp_path):
         with pytest.raises(Problem) as plain:  # plain MQTT to a TLS port
             check_broker(tls("", enabled=False))
         assert "TLS" in plain.value.remedy or "tls" in plain.value.remedy
+
+
+def test_a_lasers_own_spot_is_taken_before_a_brighter_reflection():
+    """A glossy surface throws a beam's light back as a compact spot of its own, often brighter than
+    the spot on a dark wall: where the laser's own path shows a spot that clears the noise and
+    repeats, that one is the laser's."""
+    from edge.sim.record import scene_for, true_rig
+    from edge.sim.render import Renderer
+
+    config = load_config()
+    rig = config.rig.build()
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+    rng = np.random.default_rng(4)
+    off, dark, on, again = (renderer.render(0.0, 0.0, lit, 0.0, rng) for lit in ({}, {}, {"center": 1.0},
+                                                                                  {"center": 1.0}))
+    plain = judge("center", on, off, rig, (again, dark))
+    assert plain.from_path_px["center"] < 0.5
+    gv, gu = np.mgrid[0:480, 0:640]
+
+    def with_blob(image: np.ndarray, height: float) -> np.ndarray:
+        blob = height * np.exp(-((gu - 120.0) ** 2 + (gv - 400.0) ** 2) / (2 * 1.5**2))
+        out = image.astype(np.float64)
+        out[..., 2] += blob
+        return np.clip(out, 0, 255).astype(np.uint8)
+
+    brighter = judge("center", with_blob(on, 250.0), off, rig, (with_blob(again, 250.0), dark))
+    assert brighter.pixel == pytest.approx(plain.pixel, abs=0.05)  # its own spot, not the glint at (120, 400)
+    # Alone, the glint off every path is taken (a knocked laser's spot is found where it went).
+    assert judge("center", with_blob(off, 250.0), off, rig, (with_blob(dark, 250.0), dark)).pixel == \
+        pytest.approx((120.0, 400.0), abs=0.3)

@@ -33,9 +33,11 @@ from edge.vision import FAR_FACTOR, NEAR_FACTOR, SpotFinder
 MIN_SNR = 8.0  # a spot's (3 × 3 mean) peak over the difference image's noise
 # A spot shows again in a second pair of frames: within REPEAT_PX of where it was, at REPEAT_SNR.
 # (Its SNR there is its first one, give or take one: 8 becomes 7-9, and half of it is far below.)
-REPEAT_PX, REPEAT_SNR = 2, 4.0
+REPEAT_PX, REPEAT_SNR = 2, 3.5
+OWN_PATH_PX = 3.0  # a peak this near a laser's path is taken for its spot first
 MAX_PEAKS, PEAK_APART = 5, 6  # peaks tried in turn, and how far apart (px) they are told apart
 LOCAL_PX = 15  # the square (px) over which the noise beside a peak is measured (see _local_noise)
+LOCAL_SNR = 4.0  # a spot's peak over that noise (its RMS, not a robust spread: JPEG's is sparse)
 _SAMPLE = 4  # every 4th pixel each way is enough for the noise and the flicker gain
 
 
@@ -160,9 +162,9 @@ def _repeats(again: tuple[np.ndarray, float] | None, v: int, u: int, sign: float
     return bool(((sign * diff[near]) >= REPEAT_SNR * floor).any())
 
 
-def _clear(local: np.ndarray | None, v: int, u: int, value: float) -> bool:
-    """Whether a peak of `value` at (v, u) is MIN_SNR over the noise there."""
-    return local is None or value >= MIN_SNR * float(local[v, u])
+def _clear(local: np.ndarray | None, v: int, u: int, value: float, snr: float = LOCAL_SNR) -> bool:
+    """Whether a peak of `value` at (v, u) is `snr` over the noise there."""
+    return local is None or value >= snr * float(local[v, u])
 
 
 def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
@@ -182,10 +184,24 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
     lit = _peaks(diff, MIN_SNR * noise)
     dim = _peaks(-diff, MIN_SNR * noise)
     finder = SpotFinder(rig, lasers=[laser])
-    spot = next(((v, u, p) for v, u, p in lit
-                 if _clear(local, v, u, p) and _repeats(second, v, u, 1.0, local)), None)
+    own, _ = path_of(rig, laser)
+
+    def mine(v: int, u: int) -> bool:
+        return distance_to_path(own, np.array([u, v], float))[0] <= OWN_PATH_PX
+
+    # Its own spot before a brighter one elsewhere: a glossy surface throws the beam's light back
+    # as a compact spot of its own, brighter than the spot on a dark wall. (A laser knocked off
+    # its path has no spot there, and its spot elsewhere is taken.)
+    # Off its path a spot has all the picture to be found in, and more flukes to pass for one: it
+    # has to clear MIN_SNR over the noise beside it, not LOCAL_SNR.
+    spots = [(v, u, p) for v, u, p in lit if _clear(local, v, u, p) and _repeats(second, v, u, 1.0, local)]
+    spot = next(((v, u, p) for v, u, p in spots if mine(v, u)),
+                next(((v, u, p) for v, u, p in spots if _clear(local, v, u, p, MIN_SNR)), None))
     if spot is None:
-        inverted = any(_clear(local, v, u, p) and _repeats(second, v, u, -1.0, local) for v, u, p in dim)
+        # Lit while "off" puts its spot on its own path: a dark patch elsewhere (flicker bands
+        # under a rolling shutter, in step with the frames) is not its doing.
+        inverted = any(mine(v, u) and _clear(local, v, u, p) and _repeats(second, v, u, -1.0, local)
+                       for v, u, p in dim)
         strongest = max(float(diff.max()), float(-diff.min())) / noise
         return SpotReport(laser, None, strongest, {}, None, inverted=inverted,
                           lit_when_off=finder.lit_in_off(off, laser), fleeting=bool(lit or dim) and not inverted)
