@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from edge.accuracy.conditions import Condition
-from edge.accuracy.score import Figures, ZoneOutcome, targets
+from edge.accuracy.score import PLACEABLE_FRACTION, Figures, ZoneOutcome, targets
 from edge.config import Config, load_config
 from edge.ranging import FrameGroup, Ranger, ZoneResult
 from edge.recording import ZoneRecord
@@ -255,6 +255,10 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
         f"  within 2σ: {_pct(pooled.within_2sigma)} of {pooled.scored} ok zones with truth "
         f"(worst condition {_pct(min((f.within_2sigma for f in per if f.scored), default=math.nan))})",
         f"  observable zones not ok: {missed}",
+        *([f"  observable zones the oracle places to {PLACEABLE_FRACTION:.0%} of their range in the same frames: "
+           f"{pooled.placeable}, {pooled.covered_placeable} of them ok (coverage "
+           f"{_pct(_share(pooled.covered_placeable, pooled.placeable))}; the others JPEG or demosaicing left "
+           "unplaceable)"] if pooled.placeable else []),
         f"  observable by the renderer's SNR, before the camera's JPEG and demosaicing: {pooled.observable_model}, "
         f"{pooled.covered_model} of them ok (coverage {_pct(_share(pooled.covered_model, pooled.observable_model))})",
         *_by_frames(runs),

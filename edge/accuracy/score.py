@@ -40,6 +40,10 @@ from edge.accuracy.floor import EFFICIENT_RATIO, OBSERVABLE_SNR
 from edge.ranging import OK, ZoneResult
 
 WRONG_FRACTION = 0.10
+# An observable zone is placeable where the oracle, told the spots' true pixels and shapes, ranges
+# it this near (of the range) in the same frames: JPEG at low quality can keep a spot's energy in a
+# block and erase where in the block it was; coverage of placeable zones says what is left beside it.
+PLACEABLE_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,12 @@ class ZoneOutcome:
         return abs(e) / self.floor_m
 
     @property
+    def placeable(self) -> bool:
+        """Observable, and the oracle placed it to PLACEABLE_FRACTION of its range."""
+        return (self.observable and self.oracle_error_m is not None and self.truth_m is not None
+                and abs(self.oracle_error_m) <= PLACEABLE_FRACTION * abs(self.truth_m))
+
+    @property
     def oracle_ratio(self) -> float | None:
         """The oracle's |error| over the floor, where :attr:`ratio` is and the oracle ran."""
         if self.ratio is None or self.oracle_error_m is None or self.floor_m is None:
@@ -155,6 +165,8 @@ class Figures:
     missed: dict[str, int]  # observable zones not ok, by status
     observable_model: int = 0  # observable by the renderer's SNR (before JPEG and demosaicing)
     covered_model: int = 0  # of those, ok
+    placeable: int = 0  # observable zones the oracle placed to PLACEABLE_FRACTION (0: no oracle)
+    covered_placeable: int = 0  # of those, ok
     oracle_scored: int = 0  # covered zones the oracle ranged too
     ratio_beside_oracle: float = math.nan  # mean |error| ÷ floor over those zones
     oracle_ratio: float = math.nan  # the oracle's, over the same zones
@@ -196,6 +208,8 @@ class Figures:
             missed=dict(missed),
             observable_model=sum(z.observable_model for z in outcomes),
             covered_model=sum(z.observable_model and z.ok for z in outcomes),
+            placeable=sum(z.placeable for z in outcomes),
+            covered_placeable=sum(z.placeable and z.ok for z in outcomes),
             oracle_scored=len(paired),
             ratio_beside_oracle=_mean([r for r, _ in paired]),
             oracle_ratio=_mean([o for _, o in paired]),
