@@ -31,8 +31,9 @@ from edge.rig import Rig
 from edge.vision import FAR_FACTOR, NEAR_FACTOR, SpotFinder
 
 MIN_SNR = 8.0  # a spot's (3 × 3 mean) peak over the difference image's noise
-# A spot shows again in a second pair of frames: within REPEAT_PX of where it was, at REPEAT_SNR.
-# (Its SNR there is its first one, give or take one: 8 becomes 7-9, and half of it is far below.)
+# A spot shows again in a second pair of frames: within REPEAT_PX of where it was, at REPEAT_SNR
+# over the noise there. (Its SNR there is its first one, give or take one: a spot of 8 shows at
+# 7-9, well over 3.5; a fluke of 8 shows at 0 ± 1.)
 REPEAT_PX, REPEAT_SNR = 2, 3.5
 OWN_PATH_PX = 3.0  # a peak this near a laser's path is taken for its spot first
 MAX_PEAKS, PEAK_APART = 5, 6  # peaks tried in turn, and how far apart (px) they are told apart
