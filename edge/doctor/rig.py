@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import contextlib
 import statistics
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from edge.doctor.checklist import NotRun, Problem
 from edge.doctor.settings import Settings
 from edge.errors import EdgeError
 
 if TYPE_CHECKING:
-    from edge.capture import Capture
+    from edge.capture import Capture, Shot
     from edge.config import Config
     from edge.doctor.spots import SpotReport
     from edge.hw.base import Camera, Frame
@@ -37,6 +37,7 @@ LIT_AFTER_FRAMES = 3  # a frame this many after the first lit one saw the laser 
 # A fainter spot's light in one frame is not known to the few percent its timing is judged by: in JPEG
 # frames (a webcam's at quality 60, the simulator's at 50) spots of SNR 16-21 read 82-121 % lit.
 TIMING_MIN_SNR = 30.0
+TIMING_SWITCHES = 2  # switchings whose light is averaged for the timing (see RigChecks.laser)
 LENS_TOLERANCE = 0.05  # dioptres: a focus motor reports back where it is, to its step
 TONE_FRAMES = 8  # frames averaged at each exposure for the tone curve (flicker averages out)
 
@@ -60,6 +61,17 @@ def _camera_remedy(settings: Settings) -> str:
     if settings.camera_backend == "opencv":
         return "check the webcam's cable and camera.device (v4l2-ctl --list-devices); camera.timeout_s"
     return "the simulated camera's faults: remove [[sim.camera_faults]]"
+
+
+class _Switching(NamedTuple):
+    """The frames of one switching of a laser (RigChecks._switch)."""
+
+    dark: Shot  # laser-off, before
+    off: Shot  # laser-off, the frame before the switch
+    on: Shot  # the first frame taken as lit
+    full: Frame  # lit all through
+    again: Frame  # lit all through, the next one
+    after: Shot  # the first frame taken as dark after switching it off
 
 
 class RigChecks:
@@ -250,9 +262,43 @@ class RigChecks:
         if self.capture is None:
             raise NotRun(f"needs the lasers' pins ({self.lasers_problem}; see pin factory)")
         from edge.doctor.spots import judge
-        from edge.doctor.timing import judge_timing, light_shares
+        from edge.doctor.timing import Shares, judge_timing, light_shares
 
         rig = self.rig if self.rig is not None else config.rig.build()
+        first = self._switch(name, config)
+        second = (first.again.image, first.dark.frame.image)  # shares no frame with either pair below
+        off = first.off.frame.image
+        report = judge(name, first.on.frame.image, off, rig, second)
+        later = judge(name, first.full.image, off, rig, second)  # lit all through: the spot's whole light
+        if report.pixel is None and not report.inverted and not report.lit_when_off:
+            if later.pixel is not None and later.from_path_px[name] <= config.ranging.path_tolerance_px:
+                report = later  # it lights, but late: the timing below says by how much
+        line = _verdict(report, index, config, self._aim())
+        assert report.pixel is not None  # (_verdict raised otherwise)
+        if later.snr < TIMING_MIN_SNR:  # (lit all through: a late laser's first frame is fainter)
+            return (f"{line}; its timing not judged: the spot is too faint to weigh to a few percent (SNR "
+                    f"{later.snr:.0f} lit all through, {TIMING_MIN_SNR:g} needed: aim at a nearer or paler wall)")
+        # Its light weighed in TIMING_SWITCHES switchings, averaged: a spot just over the SNR
+        # needed, on a bright band of a textured wall behind a Bayer filter, read a healthy
+        # laser's dark frame at 0 ± 6 % in one, and 16 % (a false 'goes off later') one time in
+        # about a hundred lines.
+        cycles = [first] + [self._switch(name, config) for _ in range(TIMING_SWITCHES - 1)]
+        each = [light_shares(c.on.frame.image, c.full.image, c.again.image, c.after.frame.image, c.off.frame.image,
+                             report.pixel, config.ranging.frame_gamma) for c in cycles]
+        if any(s is None for s in each):
+            return f"{line}; its timing not judged (the spot is at the picture's edge)"
+        shares = Shares.mean([s for s in each if s is not None])
+        # When the spot's row began its exposure (a rolling shutter starts rows one after another).
+        frame, settle_ns = first.on.frame, int(round(config.lasers.settle_ms * 1e6))
+        row_ns = frame.t_start_ns + int(report.pixel[1] * frame.readout_ns / max(rig.camera.height - 1, 1))
+        slack_ms = (row_ns - (first.on.laser_switch_ns + settle_ns)) / 1e6
+        return f"{line}; {judge_timing(shares, slack_ms, frame.exposure_us / 1e3, config.lasers.settle_ms)}"
+
+    def _switch(self, name: str, config: Config) -> _Switching:
+        """Laser `name` switched on just before a frame starts, and off again, and the frames: two
+        dark ones before, the first taken as lit, two lit all through, the first taken as dark
+        after. The lasers are off when it returns, whatever happened."""
+        assert self.capture is not None and self.camera is not None and self.lasers is not None
         capture, camera = self.capture, self.camera
         period = config.camera.frame_ns
         try:
@@ -260,8 +306,7 @@ class RigChecks:
             off = capture.take(())
             # Switched on just before a frame starts: the frame taken as lit then starts as soon
             # after the switch as the lasers' timing allows, the tightest a sweep meets.
-            settle_ns = int(round(config.lasers.settle_ms * 1e6))
-            lead_ns = int(SWITCH_LEAD_MS * 1e6) + settle_ns
+            lead_ns = int(SWITCH_LEAD_MS * 1e6) + int(round(config.lasers.settle_ms * 1e6))
             start = off.frame.t_start_ns + period
             while start - lead_ns <= self.clock.now_ns():
                 start += period
@@ -273,28 +318,8 @@ class RigChecks:
         except EdgeError as exc:
             raise Problem(str(exc), _camera_remedy(self.settings)) from None
         finally:
-            assert self.lasers is not None
             self.lasers.off()
-        second = (again.image, dark.frame.image)  # shares no frame with either pair below
-        report = judge(name, on.frame.image, off.frame.image, rig, second)
-        later = judge(name, full.image, off.frame.image, rig, second)  # lit all through: the spot's whole light
-        if report.pixel is None and not report.inverted and not report.lit_when_off:
-            if later.pixel is not None and later.from_path_px[name] <= config.ranging.path_tolerance_px:
-                report = later  # it lights, but late: the timing below says by how much
-        line = _verdict(report, index, config, self._aim())
-        assert report.pixel is not None  # (_verdict raised otherwise)
-        if later.snr < TIMING_MIN_SNR:  # (lit all through: a late laser's first frame is fainter)
-            return (f"{line}; its timing not judged: the spot is too faint to weigh to a few percent (SNR "
-                    f"{later.snr:.0f} lit all through, {TIMING_MIN_SNR:g} needed: aim at a nearer or paler wall)")
-        frame = on.frame
-        shares = light_shares(frame.image, full.image, again.image, after.frame.image, off.frame.image,
-                              report.pixel, config.ranging.frame_gamma)
-        if shares is None:
-            return f"{line}; its timing not judged (the spot is at the picture's edge)"
-        # When the spot's row began its exposure (a rolling shutter starts rows one after another).
-        row_ns = frame.t_start_ns + int(report.pixel[1] * frame.readout_ns / max(rig.camera.height - 1, 1))
-        slack_ms = (row_ns - (on.laser_switch_ns + settle_ns)) / 1e6
-        return f"{line}; {judge_timing(shares, slack_ms, frame.exposure_us / 1e3, config.lasers.settle_ms)}"
+        return _Switching(dark, off, on, full, again, after)
 
     def tone_curve(self) -> str:
         """The camera's tone curve from the laser-off scene at two exposures (edge.doctor.tone),

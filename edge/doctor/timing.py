@@ -40,6 +40,13 @@ class Shares:
     left: float
     sigma: float
 
+    @staticmethod
+    def mean(each: list[Shares]) -> Shares:
+        """The shares of several switchings, averaged (their noise independent)."""
+        n = len(each)
+        return Shares(sum(s.lit for s in each) / n, sum(s.left for s in each) / n,
+                      math.sqrt(sum(s.sigma**2 for s in each)) / n)
+
 
 def _linear(frame: np.ndarray, gamma: float) -> tuple[np.ndarray, float]:
     """The laser channel of `frame` in values proportional to light (the tone curve `gamma` undone,
