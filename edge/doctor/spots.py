@@ -36,6 +36,7 @@ MIN_SNR = 8.0  # a spot's (3 × 3 mean) peak over the difference image's noise
 # 7-9, well over 3.5; a fluke of 8 shows at 0 ± 1.)
 REPEAT_PX, REPEAT_SNR = 2, 3.5
 OWN_PATH_PX = 3.0  # a peak this near a laser's path is taken for its spot first
+EDGE_PX = 4  # peaks this near the picture's edge are not looked at
 MAX_PEAKS, PEAK_APART = 5, 6  # peaks tried in turn, and how far apart (px) they are told apart
 LOCAL_PX = 15  # the square (px) over which the noise beside a peak is measured (see _local_noise)
 LOCAL_SNR = 4.0  # a spot's peak over that noise (its RMS, not a robust spread: JPEG's is sparse)
@@ -130,16 +131,22 @@ def _difference(on: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, float]:
 
 def _peaks(diff: np.ndarray, least: float) -> list[tuple[int, int, float]]:
     """(v, u, value) of up to MAX_PEAKS strongest peaks of `diff` of at least `least`, each the
-    strongest within PEAK_APART px of itself."""
+    strongest within PEAK_APART px of itself, none within EDGE_PX of the picture's edge."""
     work = diff.copy()
     h, w = work.shape
+    # Not at the picture's edge: a spot cut by it cannot be placed, and demosaicing and JPEG leave
+    # their own artefacts there (a 'spot' at u = 1.6, 390 px from every path).
+    e = EDGE_PX
+    work[:e], work[h - e:], work[:, :e], work[:, w - e:] = -np.inf, -np.inf, -np.inf, -np.inf
     found = []
     for _ in range(MAX_PEAKS):
         v, u = divmod(int(np.argmax(work)), w)
         value = float(work[v, u])
         if value < least:
             break
-        found.append((v, u, value))
+        # (A peak's shoulder, its top beyond the edge kept out of `work`, is no peak of its own.)
+        if float(diff[max(v - 1, 0):v + 2, max(u - 1, 0):u + 2].max()) <= value:
+            found.append((v, u, value))
         work[max(v - PEAK_APART, 0):v + PEAK_APART + 1, max(u - PEAK_APART, 0):u + PEAK_APART + 1] = -np.inf
     return found
 
