@@ -170,6 +170,14 @@ def _repeats(again: tuple[np.ndarray, float] | None, v: int, u: int, sign: float
     return bool(((sign * diff[near]) >= REPEAT_SNR * floor).any())
 
 
+def _noise_at(local: np.ndarray | None, noise: float, v: int, u: int) -> float:
+    """The noise a peak at (v, u) is measured against: the picture's, or the noise beside it where
+    that is larger. (JPEG can round a flat wall's difference to exactly 0, and a spot there read
+    SNR 13 943 against the picture's; its timing, judged for spots of SNR 30 and more, then
+    scattered by ± 15 %.)"""
+    return noise if local is None else max(noise, float(local[v, u]))
+
+
 def _clear(local: np.ndarray | None, v: int, u: int, value: float, snr: float = LOCAL_SNR) -> bool:
     """Whether a peak of `value` at (v, u) is `snr` over the noise there."""
     return local is None or value >= snr * float(local[v, u])
@@ -210,7 +218,8 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
         # under a rolling shutter, in step with the frames) is not its doing.
         inverted = any(mine(v, u) and _clear(local, v, u, p) and _repeats(second, v, u, -1.0, local)
                        for v, u, p in dim)
-        strongest = max(float(diff.max()), float(-diff.min())) / noise
+        strongest = max([p / _noise_at(local, noise, v, u) for v, u, p in lit + dim],
+                        default=max(float(diff.max()), float(-diff.min())) / noise)
         return SpotReport(laser, None, strongest, {}, None, inverted=inverted,
                           lit_when_off=finder.lit_in_off(off, laser), fleeting=bool(lit or dim) and not inverted)
     v, u, peak = spot
@@ -224,5 +233,5 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
         distances[name], k = distance_to_path(path, pixel)
         if name == laser:
             depth = float(depths[min(k, len(depths) - 1)])
-    return SpotReport(laser, (float(pixel[0]), float(pixel[1])), peak / noise, distances, depth,
+    return SpotReport(laser, (float(pixel[0]), float(pixel[1])), peak / _noise_at(local, noise, v, u), distances, depth,
                       inverted=False, lit_when_off=lit_when_off, broad=_broad(diff, v, u, peak))
