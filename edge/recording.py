@@ -37,6 +37,7 @@ import numpy as np
 
 from edge.errors import EdgeError, RecordingError
 from edge.fsutil import fsync_dir, output_problem, process_alive, read_small
+from edge.hw.camera import lens_dioptres_problem
 from edge.rig import CameraModel, Laser, Mount, Rig, Vec3
 from edge.schema import Check, FieldError, Label, build, describe, fail, read_json, require, show
 from edge.tone import require_gamma
@@ -178,14 +179,12 @@ class SweepFile:
     frame_gamma: float | None = None
     # Also edge's own: where a focus motor held the lens (dioptres; absent: no motor, or not said).
     # A calibration fitted from these frames holds for that position alone.
-    lens_dioptres: float | None = None
+    lens_dioptres: Annotated[float, lens_dioptres_problem] | None = None
     zones: tuple[ZoneRecord, ...]
 
     def __post_init__(self) -> None:
         if self.frame_gamma is not None:
             require_gamma(self.frame_gamma, "frame_gamma")
-        if self.lens_dioptres is not None:
-            require(0.0 <= self.lens_dioptres <= 32.0, "lens_dioptres", "must be 0-32 dioptres")
         names = self.rig().laser_names
         seen: dict[int, int] = {}
         for position, zone in enumerate(self.zones):

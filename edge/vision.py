@@ -523,11 +523,9 @@ class SpotFinder:
         sums = np.concatenate(([0.0], np.cumsum(profile)))
         k = np.arange(n)
 
-        def side(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        def side(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:  # (means where hi >= lo; masked below)
             lo, hi = np.clip(lo, 0, n - 1), np.clip(hi, 0, n - 1)
-            count = hi - lo + 1
-            mean = (sums[hi + 1] - sums[lo]) / np.maximum(count, 1)
-            return np.where(count > 0, mean, -np.inf)
+            return (sums[hi + 1] - sums[lo]) / np.maximum(hi - lo + 1, 1)
 
         before = np.where(k - near >= 0, side(k - far, k - near), -np.inf)
         after = np.where(k + near <= n - 1, side(k + near, k + far), -np.inf)

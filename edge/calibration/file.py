@@ -38,6 +38,7 @@ from edge.calibration.uncertainty import (
 )
 from edge.errors import CalibrationError
 from edge.fsutil import atomic_write_bytes
+from edge.hw.camera import lens_dioptres_problem
 from edge.recording import LaserKeys, format_is, load, rig_of, rig_to_json, timestamp
 from edge.rig import CameraModel, Laser, Rig
 from edge.schema import read_json
@@ -160,7 +161,7 @@ class CalibrationFile:
     spot_sigma_px: Annotated[tuple[float, ...], _pair] = ()
     clipped_spot_sigma_px: Annotated[tuple[float, ...], _pair] = ()
     clipped_within_m: Annotated[float, _not_negative] = 0.0
-    lens_dioptres: Annotated[float, _not_negative] | None = None
+    lens_dioptres: Annotated[float, lens_dioptres_problem] | None = None
 
     def __post_init__(self) -> None:
         rig_of(self.camera, self.lasers)  # Rig checks the laser names and the reference flag

@@ -200,7 +200,7 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
     lit = _peaks(diff, MIN_SNR * noise)
     dim = _peaks(-diff, MIN_SNR * noise)
     finder = SpotFinder(rig, lasers=[laser])
-    own, _ = path_of(rig, laser)
+    own, own_depths = path_of(rig, laser)
 
     def mine(v: int, u: int) -> bool:
         return distance_to_path(own, np.array([u, v], float))[0] <= OWN_PATH_PX
@@ -229,7 +229,7 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
     lit_when_off = finder.lit_in_off(off, laser, near=(float(pixel[0]), float(pixel[1])))
     distances, depth = {}, None
     for name in rig.laser_names:
-        path, depths = path_of(rig, name)
+        path, depths = (own, own_depths) if name == laser else path_of(rig, name)
         distances[name], k = distance_to_path(path, pixel)
         if name == laser:
             depth = float(depths[min(k, len(depths) - 1)])

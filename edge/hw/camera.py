@@ -38,6 +38,14 @@ PICAMERA2_MISSING = (
 PICAM_V2_BINNED = (1640, 1232)
 
 
+def lens_dioptres_problem(dioptres: float) -> str | None:
+    """What is wrong with a focus motor's lens position (dioptres), if anything: the one check of
+    camera.lens_dioptres and of the key recordings and calibration files keep."""
+    if 0.0 <= dioptres <= 32.0:
+        return None
+    return f"must be 0-32 dioptres (0: infinity; 1: 1 m), got {dioptres:g}"
+
+
 @dataclass(frozen=True)
 class CameraSettings:
     """How the camera is driven (``[camera]``): the same for the real camera and the simulated one.
@@ -82,8 +90,8 @@ class CameraSettings:
         require(0 <= self.latency_ms <= 1000, "latency_ms", "must be 0-1000 ms")
         require(0 < self.timeout_s <= 60, "timeout_s", "must be more than 0 and at most 60 s")
         require_gamma(self.gamma, "gamma")
-        require(0.0 <= self.lens_dioptres <= 32.0, "lens_dioptres",
-                f"must be 0-32 dioptres (0: infinity; 1: 1 m), got {self.lens_dioptres:g}")
+        lens = lens_dioptres_problem(self.lens_dioptres)
+        require(lens is None, "lens_dioptres", lens or "")
 
     @property
     def frame_ns(self) -> int:
