@@ -1,0 +1,75 @@
+"""`edge doctor`'s laser lines over conditions of the accuracy family, counted by verdict.
+
+Each condition's camera, sensor, JPEG, light and room, with its rig built as configured (no
+mounting errors: every line should be ok or, where the room hides the spot, "no spot"), aimed at
+two of the condition's poses. A line that blames the wiring or the build ("active-low", "not built
+as configured", "does not go off", "swapped") or the timing is a false alarm there; with a fault
+given (`--set 'sim.laser_faults=[{laser="center", kind="stuck"}]'`) the faulty laser's line should
+name it.
+
+    .venv/bin/python tools/doctor_family.py --first 128 --conditions 32            # after ./dev
+    .venv/bin/python tools/doctor_family.py --first 128 --conditions 16 --json out.json \\
+        --set 'sim.laser_faults=[{laser="center", kind="stuck"}]'
+
+It asserts nothing: it prints the counts (and writes every line as JSON with --json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+
+POSES = (4, 8)  # which of a condition's poses the unit is aimed at
+KINDS = ("does not go off", "active-low", "swapped", "from where the rig says", "broad glow", "no spot",
+         "holds", "comes about", "goes off later")
+
+
+def kind(status: str, detail: str) -> str:
+    if status == "ok":
+        return "ok"
+    return next((k for k in KINDS if k in detail), detail[:40])
+
+
+def one(args: tuple[int, int, tuple[str, ...]]) -> tuple[int, int, dict[str, list[str]]]:
+    index, pose_index, extra = args
+    from edge.accuracy.conditions import family
+    from edge.config import load_config
+    from edge.doctor import examine
+
+    base = load_config(None)
+    condition = family("tuning", 1, index)[0]
+    overrides = condition.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, 16,
+                                    base.camera.frame_rate_hz)
+    poses = json.loads(next(o for o in overrides if o.startswith("sweep.poses_deg")).split("=", 1)[1])
+    pan, tilt = poses[pose_index]
+    kept = [o for o in overrides if not o.startswith(("sweep.", "sim.rig_error"))]
+    result = examine(None, [*kept, "mqtt.enabled=false", *extra, f"rangefinder.pan_deg={pan}",
+                            f"rangefinder.tilt_deg={tilt}"])
+    return index, pose_index, {line.check: [line.status, kind(line.status, line.detail), line.detail]
+                               for line in result.checks.lines if line.check.startswith("laser ")}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--first", type=int, default=0, help="the first tuning condition (default 0)")
+    parser.add_argument("--conditions", type=int, default=32)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--set", action="append", default=[], help="a configuration override for every run")
+    parser.add_argument("--json", help="write every laser line here")
+    args = parser.parse_args()
+    jobs = [(i, p, tuple(args.set)) for i in range(args.first, args.first + args.conditions) for p in POSES]
+    with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        runs = list(pool.map(one, jobs))
+    counts = Counter((check, line[1]) for _, _, lines in runs for check, line in lines.items())
+    for (check, verdict), n in sorted(counts.items()):
+        print(f"{check:16} {verdict:26} {n}")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(runs, f, indent=0)
+
+
+if __name__ == "__main__":
+    main()
