@@ -481,7 +481,7 @@ def best_fusion(
                     group = [reference, *choice]
                     if any(_same_blob(x, y) for x, y in itertools.combinations(group, 2)):
                         continue
-                    if not all(_pair_plausible(reference, m) for m in choice):
+                    if not all(_pair_plausible(x, y) for x, y in itertools.combinations(group, 2)):
                         continue
                     for g in ((0.0,) if slopes else slopes_y):
                         fusion = fuse(rig, reference, choice, slopes, surface_sigma_per_m, g)

@@ -251,6 +251,26 @@ def test_of_two_lasers_that_each_fit_a_loose_reference_the_one_that_places_it_be
     assert f.range_m == pytest.approx(1.895, rel=0.01)
 
 
+def test_no_plane_is_fitted_through_two_other_lasers_that_lie_on_no_surface_together() -> None:
+    """Tuning-22 zone 13, a kitchen: a faint reference spot placed loosely (2.53 ± 0.16 m; truth
+    2.39 m), the parallel laser's spot 4 cm away on a surface 3.0 m deep, the sloped laser's 24 cm
+    away on one 1.38 m deep. Each is plausible beside the reference, whose depth is loose, but not
+    beside each other: 1.6 m of depth across 28 cm is steeper than any surface both lasers light.
+    A sloped plane through all three (χ² 2.5 on 1 degree of freedom) said 2.78 ± 0.05 m, 16 % off."""
+    rig = default_rig()
+    ref, par, slo = (
+        replace(m, pixel=rig.camera.project(m.point_m[None])[0]) for m in (
+            _meas("center", (0.035, 0.0, 2.529), 0.164, rig.laser("center")),
+            _meas("parallel", (0.035, -0.040, 3.006), 0.038, rig.laser("parallel")),
+            _meas("sloped", (0.035, 0.2426, 1.376), 0.011, rig.laser("sloped")),
+        )
+    )
+    slopes = level_slopes(rig.camera_to_base(53.0, -2.67))
+    f = best_fusion(rig, ref, {"parallel": [par], "sloped": [slo]}, 0.05, slopes)
+    assert [m.laser for m in f.used] == ["center"]
+    assert f.range_m == pytest.approx(2.529)
+
+
 def _render_groups(renderer: Renderer, pan: float = 0.0, pairs: int = 2, seed: int = 0, edit=None):
     groups = []
     for k in range(pairs):
