@@ -639,16 +639,23 @@ class Ranger:
         sightings = {id(m): (len(t.found), sum([name in g.lasers for g in groups]))
                      for name, ts in tracks.items() for t, m in zip(ts, cands[name])}
         refs = self._believable(cands.get(ref, []))
-        if not refs:
-            # No spot group by group, or faint blobs none of which is one to believe: pooled, the
-            # views may hold the spot well above them. (The other lasers are not pooled: their
-            # faint pooled blobs, noise among them, confirmed a weak reference blob where nothing
-            # was: tuning-33, 0.38 m.)
-            tracks[ref] = self._pooled(groups, ref)
-            cands[ref] = [self._measure(t) for t in tracks[ref]]
-            shown = sum(ref in g.lasers for g in groups)
-            sightings.update({id(m): (shown, shown) for m in cands[ref]})  # one sighting of every view
-            refs = self._believable(cands[ref])
+        if all(m.snr < EDGE_MIN_SNR and sightings[id(m)][0] < sightings[id(m)][1] for m in refs):
+            # No spot group by group, or faint blobs none of which is one to believe, or that
+            # shows in every view: pooled, the views may hold the spot well above them, and a
+            # blob of one view's frames alone (noise, a JPEG block's change) fades. (The other
+            # lasers are not pooled: their faint pooled blobs, noise among them, confirmed a
+            # weak reference blob where nothing was: tuning-33, 0.38 m.) The blobs found view by
+            # view stay where pooling finds nothing to believe.
+            pooled = self._pooled(groups, ref)
+            measured = [self._measure(t) for t in pooled]
+            # Pooling raises a spot that every view holds (by √views) and lowers one that a
+            # view alone holds (by as much): a faint blob of one view is kept only if pooling
+            # made it no weaker.
+            if not refs or any(m.snr >= max(r.snr for r in refs) for m in self._believable(measured)):
+                tracks[ref], cands[ref] = pooled, measured
+                shown = sum(ref in g.lasers for g in groups)
+                sightings.update({id(m): (shown, shown) for m in measured})  # one sighting of every view
+                refs = self._believable(measured)
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
         others = {n: ms for n, ms in cands.items() if n != ref}

@@ -3,6 +3,7 @@ the lights that are not lasers."""
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 
@@ -360,3 +361,63 @@ def test_a_finder_keeps_the_widths_its_spots_told_for_the_zones_that_follow() ->
         kept.append(len(finder._told))
     assert kept[-1] > 0 and kept == sorted(kept) and kept[-1] <= _TOLD_KEPT
     assert all(var < _WIDTH_TOLD and 0.3 < math.exp(t) < 6.0 for _, t, var in finder._told)
+
+
+@functools.lru_cache(maxsize=1)
+def _wall_spots() -> tuple[Renderer, np.ndarray]:
+    """The lasers' light alone (full scale, noiseless) on grey 16-bit frames of a wall at 2 m."""
+    renderer = _renderer(flat_target_scene(2.0), output_bits=16, colour=False)
+    on, off = _pair(renderer, noise=False)
+    return renderer, (on.astype(np.float64) - off) / 65535.0
+
+
+def _dark_middle_pair(peak: float, bright_middle: bool = False, seed: int = 0):
+    """A laser-on/off pair of grey 16-bit frames of a wall at 2 m: a dark surface (3 % of full
+    scale) where the lasers' paths run, brightly lit (30 %) everywhere else, or everywhere with
+    `bright_middle`; shot and read noise as a sensor's (σ² = read² + gain·level); the spots'
+    light scaled so that the centre spot's peak is `peak` (full scale)."""
+    renderer, light = _wall_spots()
+    light = light * (peak / light.max())
+    room = np.full(light.shape, 0.3)
+    if not bright_middle:
+        room[100:420, 290:450] = 0.03
+    rng = np.random.default_rng(seed)
+
+    def frame(signal: np.ndarray) -> np.ndarray:
+        noisy = signal + rng.normal(0.0, 1.0, signal.shape) * np.sqrt(1e-6 + 4e-4 * signal)
+        return (np.clip(noisy, 0.0, 1.0) * 65535.0).round().astype(np.uint16)
+
+    return renderer, frame(room + light), frame(room)
+
+
+def test_a_dim_spot_on_a_dark_surface_is_judged_by_the_noise_there() -> None:
+    # The difference's noise is 0.0051 over the dark surface and 0.0156 over the bright room, most
+    # of the picture. A spot of peak 0.045 stands 9 × the noise where it falls, 3 × the picture's.
+    renderer, on, off = _dark_middle_pair(0.045)
+    found = SpotFinder(renderer.rig).find([on], [off])["center"]
+    truth = renderer.spots(0.0, 0.0)["center"].pixel
+    assert len(found) == 1, [c.pixel for c in found]
+    assert np.linalg.norm(found[0].pixel - truth) < 0.5
+    assert 6.0 < found[0].snr < 14.0, found[0].snr
+    # The same spot on a bright surface is lost in the noise there; and the dark surface's low
+    # noise makes nothing of noise alone.
+    renderer, on, off = _dark_middle_pair(0.045, bright_middle=True)
+    assert not SpotFinder(renderer.rig).find([on], [off])["center"]
+    for seed in range(3):
+        renderer, _, off = _dark_middle_pair(0.045, seed=seed)
+        _, off_again, _ = _dark_middle_pair(0.0, seed=seed + 10)
+        assert not any(SpotFinder(renderer.rig).find([off_again], [off]).values())
+
+
+def test_the_sigma_of_a_dim_spot_on_a_dark_surface_matches_its_scatter() -> None:
+    """Its σ follows the noise where it falls (judged by the picture's, it was twice the scatter)."""
+    renderer, _, _ = _dark_middle_pair(0.08)
+    finder = SpotFinder(renderer.rig)
+    positions, sigmas = [], []
+    for seed in range(30):
+        _, on, off = _dark_middle_pair(0.08, seed=seed)
+        cand = finder.find([on], [off])["center"][0]
+        positions.append(cand.pixel)
+        sigmas.append(cand.sigma_px)
+    scatter = np.array(positions).std(axis=0).max()
+    assert 0.6 < scatter / np.mean(sigmas) < 1.6, (scatter, np.mean(sigmas))
