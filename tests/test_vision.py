@@ -272,19 +272,19 @@ def test_a_one_pixel_spot_is_localised_on_its_pixel() -> None:
     assert np.abs(cand.pixel - [u, v]).max() < 1e-6 and cand.sigma_px >= 0.0
 
 
-def test_box5_sums_five_columns_of_each_row_as_the_2d_slices_did() -> None:
-    """_box5's flat run gives bit for bit what adding shifted 2-D views gives, ends left at 0."""
-    from edge.vision import _box5
+def test_the_matched_filter_sums_3_columns_by_5_samples_with_its_ends_at_0() -> None:
+    from edge.vision import _spot_box
 
     rng = np.random.default_rng(3)
-    for n in (5, 6, 48, 634):
-        cols = (rng.standard_normal((5, n)) * 30.0).astype(np.float32)
-        expected = np.zeros_like(cols)
-        inner = expected[:, 2:-2]
-        np.add(cols[:, :-4], cols[:, 1:-3], out=inner)
-        for k in (2, 3, 4):
-            inner += cols[:, k : n - 4 + k]
-        assert np.array_equal(_box5(cols), expected)
+    for width, n in ((7, 5), (7, 6), (5, 48), (7, 634), (11, 300)):
+        strips = (rng.standard_normal((width, n)) * 30.0).astype(np.float32)
+        expected = np.zeros((width - 2, n))
+        for dj in (0, 1, 2):
+            for di in range(5):
+                expected[:, 2:-2] += strips[dj : width - 2 + dj, di : n - 4 + di]
+        box = _spot_box(strips)
+        assert box.shape == expected.shape and box.dtype == np.float32
+        assert np.allclose(box, expected, atol=1e-3), np.abs(box - expected).max()
 
 
 def _bayer_window(rng: np.random.Generator, centre: np.ndarray, sd: float, total: float, r: int = 6):
