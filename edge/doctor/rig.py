@@ -20,7 +20,7 @@ from edge.errors import EdgeError
 if TYPE_CHECKING:
     from edge.capture import Capture, Shot
     from edge.config import Config
-    from edge.doctor.spots import SpotReport
+    from edge.doctor.spots import SpotReport, StaysPut
     from edge.hw.base import Camera, Frame
     from edge.hw.camera import CameraSettings
     from edge.hw.lasers import Lasers
@@ -40,6 +40,7 @@ TIMING_MIN_SNR = 30.0
 TIMING_SWITCHES = 2  # switchings whose light is averaged for the timing (see RigChecks.laser)
 LENS_TOLERANCE = 0.05  # dioptres: a focus motor reports back where it is, to its step
 TONE_FRAMES = 8  # frames averaged at each exposure for the tone curve (flicker averages out)
+TURN_FRAMES = 4  # laser-off frames averaged at each of the two aims that tell a spot that stays put
 
 
 def _ptu_remedy(message: str) -> str:
@@ -94,6 +95,7 @@ class RigChecks:
         self.rig: Rig | None = None  # the rig ranging believes (calibrated, if it is)
         self._pins: Any = None  # the lasers' pin factory (the simulated camera watches it)
         self._sim: dict[str, Any] = {}  # what the simulated camera is opened with
+        self._turn: Any = False  # the laser-off frames of `_take_turn` (False: not taken yet)
 
     def _typed(self) -> Config:
         if self.config is None:
@@ -273,6 +275,19 @@ class RigChecks:
         if report.pixel is None and not report.inverted and not report.lit_when_off:
             if later.pixel is not None and later.from_path_px[name] <= config.ranging.path_tolerance_px:
                 report = later  # it lights, but late: the timing below says by how much
+        if report.pixel is None and not report.inverted and not report.lit_when_off:
+            put = self._turned(name, rig)
+            suspects = put.suspects(name) if put is not None and put.pixel is not None else []
+            if put is not None and put.pixel is not None and suspects:
+                pins = {w.name: w.pin for w in config.rig.wiring()}
+                where = (f"with every laser switched off, a spot on its path at ({put.pixel[0]:.1f}, "
+                         f"{put.pixel[1]:.1f}) stays put in the picture while the unit turns (SNR {put.snr:.0f})")
+                if len(suspects) == 1:
+                    raise Problem(f"does not go off: {where}", _stuck_remedy(pins[name]))
+                also = " or ".join(f"laser {n}" for n in suspects[1:])
+                raise Problem(f"it or {also} does not go off: {where}, on {also}'s path too",
+                              f"{_stuck_remedy(pins[name])}; and {also}'s, on "
+                              + ", ".join(f"GPIO{pins[n]}" for n in suspects[1:]))
         line = _verdict(report, index, config, self._aim())
         assert report.pixel is not None  # (_verdict raised otherwise)
         if later.snr < TIMING_MIN_SNR:  # (lit all through: a late laser's first frame is fainter)
@@ -293,6 +308,48 @@ class RigChecks:
         row_ns = frame.t_start_ns + int(report.pixel[1] * frame.readout_ns / max(rig.camera.height - 1, 1))
         slack_ms = (row_ns - (first.on.laser_switch_ns + settle_ns)) / 1e6
         return f"{line}; {judge_timing(shares, slack_ms, frame.exposure_us / 1e3, config.lasers.settle_ms)}"
+
+    def _turned(self, name: str, rig: Rig) -> StaysPut | None:
+        """Whether `name`'s spot stays put in the picture while the room moves (a laser that does
+        not go off, its spot too faint for the off frame alone to show), from `_turn`'s frames.
+        None where the head cannot turn, or its turning does not move the picture (an emulated
+        head beside a real camera)."""
+        from edge.doctor.spots import stays_put
+
+        if self._turn is False:
+            self._turn = self._take_turn(rig)
+        if self._turn is None or self._turn is False:
+            return None
+        here, turned, pose_here, pose_turned = self._turn
+        put = stays_put(name, here, turned, rig, pose_here, pose_turned)
+        return put if put.room_moved else None
+
+    def _take_turn(self, rig: Rig) -> tuple[Any, Any, Any, Any] | None:
+        """Every laser off, TURN_FRAMES frames where the unit aims and as many turned a little in
+        pan (`spots.turn_deg`), each set averaged, with the camera's rotations: taken once for
+        every laser's line (all lasers are off in them). None where the head cannot turn the
+        camera."""
+        from edge.doctor.spots import turn_deg
+
+        if self.unit is None or self.capture is None or self.lasers is None:
+            return None
+        if self.emulator is not None and self._typed().camera.backend != "sim":
+            return None  # the emulated head turns no real camera
+        pan, tilt = self._aim()
+        (_, most), _ = self.unit.limits_deg
+        step = turn_deg(rig)
+        try:
+            self.lasers.off()
+            here = _mean([self.capture.take(()).frame.image for _ in range(TURN_FRAMES)])
+            at = self.unit.move(pan + step if pan + step <= most else pan - step, tilt)
+            turned = _mean([self.capture.take(()).frame.image for _ in range(TURN_FRAMES)])
+        except EdgeError as exc:
+            raise Problem(str(exc), _ptu_remedy(str(exc))) from None
+        finally:
+            self.lasers.off()
+            with contextlib.suppress(EdgeError):
+                self.unit.move(pan, tilt)
+        return here, turned, rig.camera_to_base(pan, tilt).R, rig.camera_to_base(*at).R
 
     def _switch(self, name: str, config: Config) -> _Switching:
         """Laser `name` switched on just before a frame starts, and off again, and the frames: two
@@ -416,6 +473,18 @@ def _lens(frames: list[Frame], dioptres: float) -> str:
     return f", lens held at {dioptres:g} dioptres (in focus at {focus})"
 
 
+def _mean(images: list[Any]) -> Any:
+    """The mean of frames, in their own type (the doctor's spot tests read any bit depth)."""
+    import numpy as np
+
+    return (np.mean(images, axis=0) + 0.5).astype(images[0].dtype)
+
+
+def _stuck_remedy(pin: int | None) -> str:
+    return ("a shorted MOSFET or a pin driven by something else: power the lasers down and "
+            f"check its driver on GPIO{pin} before running the service (eye safety)")
+
+
 def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, float]) -> str:
     """The laser's line from where its spot was (see :mod:`edge.doctor.spots`)."""
     name = report.laser
@@ -429,8 +498,7 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
                           "(then `edge lasers off` keeps it dark too)")
         if report.lit_when_off:
             raise Problem("does not go off: its spot shows with every laser switched off",
-                          "a shorted MOSFET or a pin driven by something else: power the lasers down and "
-                          f"check its driver on GPIO{wiring[name].pin} before running the service (eye safety)")
+                          _stuck_remedy(wiring[name].pin))
         lo, hi = config.rig.range_limits_m
         once = ", where the frames are that noisy, or once and not again: no spot" if report.fleeting else ""
         raise Problem(f"no spot: it does not light (strongest change {report.snr:.1f}× the noise{once})",

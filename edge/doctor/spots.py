@@ -10,6 +10,7 @@ path, as ranging looks: the point is to find it where it should not be). Where i
 - a spot *darker* in the laser-on frame: the laser lights while its pin is at the "off" level, so
   its driver is active-low and ``active_high`` says otherwise;
 - no spot, but one in the laser-off frame on its path: it does not go off (a shorted driver);
+  too faint for that frame alone, it is told by turning the head (:func:`stays_put`);
 - no spot at all: it does not light (wiring, driver, supply), or nothing in range to light;
 - only a broad glow far from every path: its light reflected (glass, a glossy surface) or
   scattered, its spot out of range or out of sight.
@@ -17,7 +18,7 @@ path, as ranging looks: the point is to find it where it should not be). Where i
 A noisy picture's difference holds peaks as strong as a faint spot's: a spot has to clear the
 noise measured beside it (two laser-off frames' difference) and show again in a second pair.
 
-Pure: frames and the rig in, a :class:`SpotReport` out.
+Pure: frames and the rig in, a :class:`SpotReport` (or :class:`StaysPut`) out.
 """
 
 from __future__ import annotations
@@ -235,3 +236,149 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
             depth = float(depths[min(k, len(depths) - 1)])
     return SpotReport(laser, (float(pixel[0]), float(pixel[1])), peak / _noise_at(local, noise, v, u), distances, depth,
                       inverted=False, lit_when_off=lit_when_off, broad=_broad(diff, v, u, peak))
+
+
+# --- a laser that does not go off, told by turning the head ---------------------------------------
+#
+# A laser stuck on lights its spot in the laser-off frames too, so the difference of laser-on and
+# laser-off frames holds nothing and the laser reads as one that does not light. Its spot may be
+# too faint, or the room too red, for the off frame alone to show it (`SpotFinder.lit_in_off`).
+# Turned a little, the room moves across the picture and the spot does not: it rides with the
+# camera. Two laser-off frames, the second turned back onto the first (the rotation's homography:
+# the room cancels, far more than a wall's parallax), leave the spot twice: as itself where it is,
+# and as a dark copy where the turn carried it.
+
+TURN_SHIFT_PX = 16.0  # how far the room moves across the picture in the turn
+TURN_SNR = 6.0  # each of the spot and its dark copy over the noise beside it
+TURN_MATCH = 0.5  # and the copy at least half as strong as the spot (the same light, turned)
+TURN_RING = (21, 9)  # the square (px) the noise beside a peak is measured over, less its middle
+TURN_FLOOR = 0.2  # the noise beside a peak, taken as no less than this much of the picture's
+ROOM_MOVED = 0.7  # turned back, the room's difference is at most this much of the frames' unturned
+ROOM_EDGES = 100  # (sampled pixels where the frames differ unturned: fewer, and the room cannot tell)
+
+
+@dataclass(frozen=True)
+class StaysPut:
+    """A spot on a laser's path that stays put in the picture while the head turns (or none)."""
+
+    pixel: tuple[float, float] | None
+    snr: float  # of the strongest peak on the path (of the spot, if one stays put)
+    room_moved: bool = True  # the room moved across the picture as the turn says (else nothing is judged)
+    from_path_px: dict[str, float] | None = None  # the spot's distance from each laser's path
+
+    def suspects(self, laser: str) -> list[str]:
+        """Which lasers the spot found on `laser`'s path may be: `laser`, and any other whose path
+        passes it about as near (within a third of OWN_PATH_PX: far away two paths run a few pixels
+        apart); none where another's passes it clearly nearer (its spot: its own line says so)."""
+        d = self.from_path_px or {}
+        if self.pixel is None or laser not in d:
+            return []
+        if any(d[n] < d[laser] - OWN_PATH_PX / 3 for n in d if n != laser):
+            return []
+        return [laser, *(n for n in d if n != laser and d[n] <= d[laser] + OWN_PATH_PX / 3)]
+
+
+def turn_deg(rig: Rig) -> float:
+    """The pan turn (degrees) that moves the room TURN_SHIFT_PX across the picture."""
+    return float(np.degrees(np.arctan(TURN_SHIFT_PX / rig.camera.fx)))
+
+
+def _turned_back(rig: Rig, image: np.ndarray, here: np.ndarray, turned: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`image`, taken with the camera at rotation `turned` (camera to base), seen from `here`:
+    each pixel of `here`'s picture takes the value of the pixel that looked the same way from
+    `turned`; and which pixels of it were seen at all."""
+    cam = rig.camera
+    v, u = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
+    rays = cam.rays(np.stack([u, v], axis=-1)) @ (turned.T @ here).T  # here's rays, in turned's frame
+    seen = rays[..., 2] > 1e-3
+    rays[~seen] = (0.0, 0.0, 1.0)
+    pix = cam.project(rays)
+    seen &= cam.contains(pix, 1.0)
+    mapped = cv2.remap(image, pix[..., 0].astype(np.float32), pix[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_REPLICATE)
+    return mapped, seen
+
+
+def _ring_noise(diff: np.ndarray) -> np.ndarray:
+    """Per pixel, the RMS of `diff` over TURN_RING[0]² pixels around it less the TURN_RING[1]² at
+    its middle: the noise beside a spot, not the spot's own light (a defocused one's included)."""
+    square = diff * diff
+    (wide, narrow) = TURN_RING
+    outer = cv2.blur(square, (wide, wide), borderType=cv2.BORDER_REFLECT) * np.float32(wide**2)
+    inner = cv2.blur(square, (narrow, narrow), borderType=cv2.BORDER_REFLECT) * np.float32(narrow**2)
+    return np.sqrt(np.maximum(outer - inner, 0.0) / np.float32(wide**2 - narrow**2))
+
+
+def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig,
+              here: np.ndarray, turned: np.ndarray) -> StaysPut:
+    """Whether `laser`'s spot shows, every laser off, in two frames taken with the camera at
+    rotations `here` and `turned` (camera to base, 3 × 3): a spot on its path in the first that
+    stays put in the picture while the room moves, so that the second frame turned back onto the
+    first holds it where the turn carried it. Both must stand TURN_SNR over the noise beside
+    them, the copy no less than TURN_MATCH of the spot."""
+    a = _channel(off_here)
+    b, seen = _turned_back(rig, _channel(off_turned), here, turned)
+    sample = (slice(None, None, _SAMPLE), slice(None, None, _SAMPLE))
+    inside = seen[sample]
+    level = float(np.median(b[sample][inside])) if inside.any() else 0.0
+    gain = float(np.median(a[sample][inside])) / level if level > 1e-6 else 1.0
+    diff = _box3(a - np.float32(gain) * b)
+    diff[~seen] = 0.0
+    # Less its level around (TURN_RING[0] px): the lens's vignetting and the sensor's shading stay
+    # put with the camera and leave a slow swell where the room is turned back onto itself.
+    diff -= cv2.blur(diff, (TURN_RING[0], TURN_RING[0]), borderType=cv2.BORDER_REFLECT)
+    # The room must have moved as the turn says, or every bright thing on the path would stay put
+    # with it (a real camera beside an emulated head): where the room has edges, the frames
+    # turned back must cancel them far better than the frames as taken. A room with nothing to
+    # move tells nothing, and fools nothing either.
+    if not inside.any():
+        return StaysPut(None, 0.0, room_moved=False)
+    turned_back = np.abs(diff[sample][inside])
+    unturned = np.abs(_box3(a - _channel(off_turned))[sample][inside])
+    spread = 1.4826 * min(float(np.median(turned_back)), float(np.median(unturned)))
+    edges = np.maximum(turned_back, unturned) > 3.0 * spread
+    if np.count_nonzero(edges) >= ROOM_EDGES and float(turned_back[edges].mean()) > (
+            ROOM_MOVED * float(unturned[edges].mean())):
+        return StaysPut(None, 0.0, room_moved=False)
+    local = _ring_noise(diff)  # the room's residue, where the turn did not quite cancel it
+    noise = max(1.4826 * float(np.median(np.abs(diff[sample][inside]))), 1e-6) if inside.any() else 1e-6
+    # Judged by the noise beside each peak: a bright room's shot noise, elsewhere in the picture,
+    # raised the picture's to 4 × that beside a dim stuck spot on a dark wall (tuning-128). Not
+    # below TURN_FLOOR of the picture's (JPEG rounds a flat wall's difference to nothing); the
+    # dark copy where the turn carried the spot is what no fluke of the room's makes.
+    least = TURN_FLOOR * noise
+    own, _ = path_of(rig, laser)
+    mask = np.zeros(diff.shape, np.uint8)
+    cv2.polylines(mask, [np.round(own).astype(np.int32)], False, 1, thickness=2 * int(OWN_PATH_PX) + 1)
+    on_path = np.where((mask > 0) & seen, diff, -np.inf)
+    best = StaysPut(None, 0.0)
+    work = on_path.copy()
+    h, w = diff.shape
+    cam = rig.camera
+    for _ in range(MAX_PEAKS):
+        v, u = divmod(int(np.argmax(work)), w)
+        peak = float(work[v, u])
+        if not np.isfinite(peak) or peak <= 0.0:
+            break
+        work[max(v - PEAK_APART, 0):v + PEAK_APART + 1, max(u - PEAK_APART, 0):u + PEAK_APART + 1] = -np.inf
+        snr = peak / max(least, float(local[v, u]))
+        best = best if best.snr >= snr else StaysPut(None, snr)
+        if snr < TURN_SNR:
+            break
+        # Where the turned frame's spot, at this pixel of its own picture, lies in here's.
+        ray = cam.rays(np.array([u, v], float)) @ (here.T @ turned).T
+        if ray[2] <= 1e-3:
+            continue
+        cu, cv = cam.project(ray)
+        iu, iv = int(round(float(cu))), int(round(float(cv)))
+        if not (EDGE_PX <= iu < w - EDGE_PX and EDGE_PX <= iv < h - EDGE_PX):
+            continue
+        near = diff[iv - 2:iv + 3, iu - 2:iu + 3]
+        dv, du = divmod(int(np.argmin(near)), near.shape[1])
+        copy = -float(near[dv, du])
+        if copy >= TURN_MATCH * peak and copy >= TURN_SNR * max(least, float(local[iv - 2 + dv, iu - 2 + du])):
+            pixel = _centroid(diff, v, u, peak)
+            paths = {n: distance_to_path(own if n == laser else path_of(rig, n)[0], np.array(pixel))[0]
+                     for n in rig.laser_names}
+            return StaysPut(pixel, snr, from_path_px=paths)
+    return best
