@@ -280,10 +280,9 @@ class Rig:
         return tuple(laser.name for laser in self.lasers)
 
     def camera_to_base(self, pan_deg: float, tilt_deg: float) -> Pose:
-        """Transform from the camera frame to the base frame at this pan and tilt."""
-        R = head_rotation(pan_deg, tilt_deg)
-        mount = self.mount.camera_in_head
-        return Pose(R @ mount.R, R @ mount.t)
+        """Transform from the camera frame to the base frame at this pan and tilt (shared, and
+        read-only: a sweep comes back to the same poses, and every zone ranged asks for one)."""
+        return _camera_to_base(self.mount, float(pan_deg), float(tilt_deg))
 
     def laser_image_path(self, laser: Laser, n: int = 64) -> np.ndarray:
         """Pixels (n, 2) where `laser`'s spot can appear over the working range (its epipolar
@@ -291,6 +290,16 @@ class Rig:
         lo, hi = self.range_limits_m
         inv = np.linspace(1.0 / lo, 1.0 / hi, n)
         return self.camera.project(laser.point_at_depth(1.0 / inv))
+
+
+@functools.lru_cache(maxsize=512)
+def _camera_to_base(mount: Mount, pan_deg: float, tilt_deg: float) -> Pose:
+    R = head_rotation(pan_deg, tilt_deg)
+    inner = mount.camera_in_head
+    pose = Pose(R @ inner.R, R @ inner.t)
+    pose.R.flags.writeable = False
+    pose.t.flags.writeable = False
+    return pose
 
 
 def default_rig() -> Rig:
