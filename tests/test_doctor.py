@@ -425,12 +425,8 @@ def _family_aim(index: int, pose: int) -> list[str]:
 
     base = load_config(None)
     condition = family("tuning", 1, index)[0]
-    overrides = condition.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, 16,
-                                    base.camera.frame_rate_hz)
-    poses = json.loads(next(o for o in overrides if o.startswith("sweep.poses_deg")).split("=", 1)[1])
-    pan, tilt = poses[pose]
-    kept = [o for o in overrides if not o.startswith(("sweep.", "sim.rig_error"))]
-    return [*kept, *NO_BROKER, f"rangefinder.pan_deg={pan}", f"rangefinder.tilt_deg={tilt}"]
+    return [*condition.aimed(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms,
+                             base.camera.frame_rate_hz, pose), *NO_BROKER]
 
 
 @pytest.mark.parametrize("laser", [None, "center"])

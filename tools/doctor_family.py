@@ -40,14 +40,9 @@ def one(args: tuple[int, int, tuple[str, ...]]) -> tuple[int, int, dict[str, lis
     from edge.doctor import examine
 
     base = load_config(None)
-    condition = family("tuning", 1, index)[0]
-    overrides = condition.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, 16,
-                                    base.camera.frame_rate_hz)
-    poses = json.loads(next(o for o in overrides if o.startswith("sweep.poses_deg")).split("=", 1)[1])
-    pan, tilt = poses[pose_index]
-    kept = [o for o in overrides if not o.startswith(("sweep.", "sim.rig_error"))]
-    result = examine(None, [*kept, "mqtt.enabled=false", *extra, f"rangefinder.pan_deg={pan}",
-                            f"rangefinder.tilt_deg={tilt}"])
+    aimed = family("tuning", 1, index)[0].aimed(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms,
+                                                base.camera.frame_rate_hz, pose_index)
+    result = examine(None, [*aimed, "mqtt.enabled=false", *extra])
     return index, pose_index, {line.check: [line.status, kind(line.status, line.detail), line.detail]
                                for line in result.checks.lines if line.check.startswith("laser ")}
 

@@ -149,6 +149,16 @@ class Condition:
             f"sweep.poses_deg={poses}",
         )
 
+    def aimed(self, beam_e_per_ms_at_1m: float, white_e_per_ms: float, frame_rate_hz: float, pose: int
+              ) -> tuple[str, ...]:
+        """`overrides` for the condition seen from its pose number `pose` alone, its rig built as
+        configured (no mounting errors, no sweep): the range finder aimed there, and so
+        `edge doctor`'s laser checks."""
+        pan, tilt = self.poses(pose + 1)[pose]
+        kept = [o for o in self.overrides(beam_e_per_ms_at_1m, white_e_per_ms, 1, frame_rate_hz)
+                if not o.startswith(("sweep.", "sim.rig_error"))]
+        return (*kept, f"rangefinder.pan_deg={pan}", f"rangefinder.tilt_deg={tilt}")
+
     @property
     def frames(self) -> str:
         """The kind of frames the camera delivers, as the estimator meets them: the sensor (grey,
