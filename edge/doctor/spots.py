@@ -320,7 +320,9 @@ def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig
     b, seen = _turned_back(rig, _channel(off_turned), here, turned)
     sample = (slice(None, None, _SAMPLE), slice(None, None, _SAMPLE))
     inside = seen[sample]
-    level = float(np.median(b[sample][inside])) if inside.any() else 0.0
+    if not inside.any():
+        return StaysPut(None, 0.0, room_moved=False)  # (a turn that leaves nothing in common)
+    level = float(np.median(b[sample][inside]))
     gain = float(np.median(a[sample][inside])) / level if level > 1e-6 else 1.0
     diff = _box3(a - np.float32(gain) * b)
     diff[~seen] = 0.0
@@ -331,8 +333,6 @@ def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig
     # with it (a real camera beside an emulated head): where the room has edges, the frames
     # turned back must cancel them far better than the frames as taken. A room with nothing to
     # move tells nothing, and fools nothing either.
-    if not inside.any():
-        return StaysPut(None, 0.0, room_moved=False)
     turned_back = np.abs(diff[sample][inside])
     unturned = np.abs(_box3(a - _channel(off_turned))[sample][inside])
     spread = 1.4826 * min(float(np.median(turned_back)), float(np.median(unturned)))
@@ -341,7 +341,7 @@ def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig
             ROOM_MOVED * float(unturned[edges].mean())):
         return StaysPut(None, 0.0, room_moved=False)
     local = _ring_noise(diff)  # the room's residue, where the turn did not quite cancel it
-    noise = max(1.4826 * float(np.median(np.abs(diff[sample][inside]))), 1e-6) if inside.any() else 1e-6
+    noise = max(1.4826 * float(np.median(turned_back)), 1e-6)
     # Judged by the noise beside each peak: a bright room's shot noise, elsewhere in the picture,
     # raised the picture's to 4 × that beside a dim stuck spot on a dark wall (tuning-128). Not
     # below TURN_FLOOR of the picture's (JPEG rounds a flat wall's difference to nothing); the
@@ -350,9 +350,8 @@ def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig
     own, _ = path_of(rig, laser)
     mask = np.zeros(diff.shape, np.uint8)
     cv2.polylines(mask, [np.round(own).astype(np.int32)], False, 1, thickness=2 * int(OWN_PATH_PX) + 1)
-    on_path = np.where((mask > 0) & seen, diff, -np.inf)
+    work = np.where((mask > 0) & seen, diff, -np.inf)
     best = StaysPut(None, 0.0)
-    work = on_path.copy()
     h, w = diff.shape
     cam = rig.camera
     for _ in range(MAX_PEAKS):
@@ -364,7 +363,7 @@ def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig
         snr = peak / max(least, float(local[v, u]))
         best = best if best.snr >= snr else StaysPut(None, snr)
         if snr < TURN_SNR:
-            break
+            continue  # (a fainter peak may stand where the room is quieter)
         # Where the turned frame's spot, at this pixel of its own picture, lies in here's.
         ray = cam.rays(np.array([u, v], float)) @ (here.T @ turned).T
         if ray[2] <= 1e-3:
