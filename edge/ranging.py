@@ -640,9 +640,9 @@ class Ranger:
                      for name, ts in tracks.items() for t, m in zip(ts, cands[name])}
         refs = self._believable(cands.get(ref, []))
         if all(m.snr < EDGE_MIN_SNR and sightings[id(m)][0] < sightings[id(m)][1] for m in refs):
-            # No spot group by group, or faint blobs none of which is one to believe, or that
-            # shows in every view: pooled, the views may hold the spot well above them, and a
-            # blob of one view's frames alone (noise, a JPEG block's change) fades. (The other
+            # No spot group by group, or faint blobs none of which is one to believe, or none
+            # of which shows in every view: pooled, the views may hold the spot well above them,
+            # and a blob of one view's frames alone (noise, a JPEG block's change) fades. (The other
             # lasers are not pooled: their faint pooled blobs, noise among them, confirmed a
             # weak reference blob where nothing was: tuning-33, 0.38 m.) The blobs found view by
             # view stay where pooling finds nothing to believe.
