@@ -20,7 +20,7 @@ from edge.errors import EdgeError
 if TYPE_CHECKING:
     from edge.capture import Capture, Shot
     from edge.config import Config
-    from edge.doctor.spots import SpotReport, StaysPut
+    from edge.doctor.spots import SpotReport, Turn
     from edge.hw.base import Camera, Frame
     from edge.hw.camera import CameraSettings
     from edge.hw.lasers import Lasers
@@ -95,7 +95,8 @@ class RigChecks:
         self.rig: Rig | None = None  # the rig ranging believes (calibrated, if it is)
         self._pins: Any = None  # the lasers' pin factory (the simulated camera watches it)
         self._sim: dict[str, Any] = {}  # what the simulated camera is opened with
-        self._turn: Any = False  # the laser-off frames of `_take_turn` (False: not taken yet)
+        self._turn: Turn | None = None  # the head's turn, every laser off (`_take_turn`)
+        self._turn_taken = False
 
     def _typed(self) -> Config:
         if self.config is None:
@@ -276,18 +277,7 @@ class RigChecks:
             if later.pixel is not None and later.from_path_px[name] <= config.ranging.path_tolerance_px:
                 report = later  # it lights, but late: the timing below says by how much
         if report.pixel is None and not report.inverted and not report.lit_when_off:
-            put = self._turned(name, rig)
-            suspects = put.suspects(name) if put is not None and put.pixel is not None else []
-            if put is not None and put.pixel is not None and suspects:
-                pins = {w.name: w.pin for w in config.rig.wiring()}
-                where = (f"with every laser switched off, a spot on its path at ({put.pixel[0]:.1f}, "
-                         f"{put.pixel[1]:.1f}) stays put in the picture while the unit turns (SNR {put.snr:.0f})")
-                if len(suspects) == 1:
-                    raise Problem(f"does not go off: {where}", _stuck_remedy(pins[name]))
-                also = " or ".join(f"laser {n}" for n in suspects[1:])
-                raise Problem(f"it or {also} does not go off: {where}, on {also}'s path too",
-                              f"{_stuck_remedy(pins[name])}; and {also}'s, on "
-                              + ", ".join(f"GPIO{pins[n]}" for n in suspects[1:]))
+            self._stays_put(name, rig, config)  # (raises where the laser does not go off)
         line = _verdict(report, index, config, self._aim())
         assert report.pixel is not None  # (_verdict raised otherwise)
         if later.snr < TIMING_MIN_SNR:  # (lit all through: a late laser's first frame is fainter)
@@ -309,27 +299,36 @@ class RigChecks:
         slack_ms = (row_ns - (first.on.laser_switch_ns + settle_ns)) / 1e6
         return f"{line}; {judge_timing(shares, slack_ms, frame.exposure_us / 1e3, config.lasers.settle_ms)}"
 
-    def _turned(self, name: str, rig: Rig) -> StaysPut | None:
-        """Whether `name`'s spot stays put in the picture while the room moves (a laser that does
-        not go off, its spot too faint for the off frame alone to show), from `_turn`'s frames.
-        None where the head cannot turn, or its turning does not move the picture (an emulated
-        head beside a real camera)."""
+    def _stays_put(self, name: str, rig: Rig, config: Config) -> None:
+        """A Problem if `name`'s spot, every laser off, stays put in the picture while the room
+        moves with the head's turn (a laser that does not go off, its spot too faint for the off
+        frame alone to show). Nothing where the head cannot turn the picture, or no spot stays."""
         from edge.doctor.spots import stays_put
 
-        if self._turn is False:
-            self._turn = self._take_turn(rig)
-        if self._turn is None or self._turn is False:
-            return None
-        here, turned, pose_here, pose_turned = self._turn
-        put = stays_put(name, here, turned, rig, pose_here, pose_turned)
-        return put if put.room_moved else None
+        if not self._turn_taken:
+            self._turn, self._turn_taken = self._take_turn(rig), True
+        if self._turn is None:
+            return
+        put = stays_put(name, self._turn, rig)
+        suspects = put.suspects(name)
+        if not suspects or put.pixel is None:
+            return
+        pins = {w.name: w.pin for w in config.rig.wiring()}
+        where = (f"with every laser switched off, a spot on its path at ({put.pixel[0]:.1f}, "
+                 f"{put.pixel[1]:.1f}) stays put in the picture while the unit turns (SNR {put.snr:.0f})")
+        if len(suspects) == 1:
+            raise Problem(f"does not go off: {where}", _stuck_remedy(pins[name]))
+        also = " or ".join(f"laser {n}" for n in suspects[1:])
+        raise Problem(f"it or {also} does not go off: {where}, on {also}'s path too",
+                      f"{_stuck_remedy(pins[name])}; and {also}'s, on "
+                      + ", ".join(f"GPIO{pins[n]}" for n in suspects[1:]))
 
-    def _take_turn(self, rig: Rig) -> tuple[Any, Any, Any, Any] | None:
+    def _take_turn(self, rig: Rig) -> Turn | None:
         """Every laser off, TURN_FRAMES frames where the unit aims and as many turned a little in
-        pan (`spots.turn_deg`), each set averaged, with the camera's rotations: taken once for
-        every laser's line (all lasers are off in them). None where the head cannot turn the
-        camera."""
-        from edge.doctor.spots import turn_deg
+        pan (`spots.turn_deg`), each set averaged, turned back onto each other (`spots.turn`):
+        taken once for every laser's line (all lasers are off in them). None where the head
+        cannot turn the camera, or the picture did not move with it."""
+        from edge.doctor.spots import turn, turn_deg
 
         if self.unit is None or self.capture is None or self.lasers is None:
             return None
@@ -349,7 +348,7 @@ class RigChecks:
             self.lasers.off()
             with contextlib.suppress(EdgeError):
                 self.unit.move(pan, tilt)
-        return here, turned, rig.camera_to_base(pan, tilt).R, rig.camera_to_base(*at).R
+        return turn(here, turned, rig, rig.camera_to_base(pan, tilt).R, rig.camera_to_base(*at).R)
 
     def _switch(self, name: str, config: Config) -> _Switching:
         """Laser `name` switched on just before a frame starts, and off again, and the frames: two

@@ -18,7 +18,7 @@ path, as ranging looks: the point is to find it where it should not be). Where i
 A noisy picture's difference holds peaks as strong as a faint spot's: a spot has to clear the
 noise measured beside it (two laser-off frames' difference) and show again in a second pair.
 
-Pure: frames and the rig in, a :class:`SpotReport` (or :class:`StaysPut`) out.
+Pure: frames and the rig in, a :class:`SpotReport` (or a :class:`Turn`, and :class:`StaysPut`) out.
 """
 
 from __future__ import annotations
@@ -263,7 +263,6 @@ class StaysPut:
 
     pixel: tuple[float, float] | None
     snr: float  # of the strongest peak on the path (of the spot, if one stays put)
-    room_moved: bool = True  # the room moved across the picture as the turn says (else nothing is judged)
     from_path_px: dict[str, float] | None = None  # the spot's distance from each laser's path
 
     def suspects(self, laser: str) -> list[str]:
@@ -309,19 +308,29 @@ def _ring_noise(diff: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(outer - inner, 0.0) / np.float32(wide**2 - narrow**2))
 
 
-def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig,
-              here: np.ndarray, turned: np.ndarray) -> StaysPut:
-    """Whether `laser`'s spot shows, every laser off, in two frames taken with the camera at
-    rotations `here` and `turned` (camera to base, 3 × 3): a spot on its path in the first that
-    stays put in the picture while the room moves, so that the second frame turned back onto the
-    first holds it where the turn carried it. Both must stand TURN_SNR over the noise beside
-    them, the copy no less than TURN_MATCH of the spot."""
+@dataclass(frozen=True)
+class Turn:
+    """Two laser-off frames taken with the camera at rotations `here` and `turned` (camera to base,
+    3 × 3), the second turned back onto the first (`turn`): what every laser's `stays_put` reads."""
+
+    here: np.ndarray
+    turned: np.ndarray
+    diff: np.ndarray  # the first less the second turned back, 3 × 3 mean, its slow swell taken out
+    seen: np.ndarray  # the first's pixels the second saw too
+    local: np.ndarray  # the noise beside each pixel (_ring_noise)
+    least: float  # the least noise a peak is judged against
+
+
+def turn(off_here: np.ndarray, off_turned: np.ndarray, rig: Rig, here: np.ndarray, turned: np.ndarray
+         ) -> Turn | None:
+    """The frames of a turn, turned back (`Turn`); None where the room did not move as the turn
+    says (then every bright thing on a path would stay put), or nothing is seen from both."""
     a = _channel(off_here)
     b, seen = _turned_back(rig, _channel(off_turned), here, turned)
     sample = (slice(None, None, _SAMPLE), slice(None, None, _SAMPLE))
     inside = seen[sample]
     if not inside.any():
-        return StaysPut(None, 0.0, room_moved=False)  # (a turn that leaves nothing in common)
+        return None
     level = float(np.median(b[sample][inside]))
     gain = float(np.median(a[sample][inside])) / level if level > 1e-6 else 1.0
     diff = _box3(a - np.float32(gain) * b)
@@ -329,28 +338,35 @@ def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig
     # Less its level around (TURN_RING[0] px): the lens's vignetting and the sensor's shading stay
     # put with the camera and leave a slow swell where the room is turned back onto itself.
     diff -= cv2.blur(diff, (TURN_RING[0], TURN_RING[0]), borderType=cv2.BORDER_REFLECT)
-    # The room must have moved as the turn says, or every bright thing on the path would stay put
-    # with it (a real camera beside an emulated head): where the room has edges, the frames
-    # turned back must cancel them far better than the frames as taken. A room with nothing to
-    # move tells nothing, and fools nothing either.
+    # The room must have moved as the turn says (not so with a real camera beside an emulated
+    # head): where the room has edges, the frames turned back must cancel them far better than
+    # the frames as taken. A room with nothing to move tells nothing, and fools nothing either.
     turned_back = np.abs(diff[sample][inside])
     unturned = np.abs(_box3(a - _channel(off_turned))[sample][inside])
     spread = 1.4826 * min(float(np.median(turned_back)), float(np.median(unturned)))
     edges = np.maximum(turned_back, unturned) > 3.0 * spread
     if np.count_nonzero(edges) >= ROOM_EDGES and float(turned_back[edges].mean()) > (
             ROOM_MOVED * float(unturned[edges].mean())):
-        return StaysPut(None, 0.0, room_moved=False)
-    local = _ring_noise(diff)  # the room's residue, where the turn did not quite cancel it
-    noise = max(1.4826 * float(np.median(turned_back)), 1e-6)
+        return None
     # Judged by the noise beside each peak: a bright room's shot noise, elsewhere in the picture,
     # raised the picture's to 4 × that beside a dim stuck spot on a dark wall (tuning-128). Not
     # below TURN_FLOOR of the picture's (JPEG rounds a flat wall's difference to nothing); the
     # dark copy where the turn carried the spot is what no fluke of the room's makes.
-    least = TURN_FLOOR * noise
+    noise = max(1.4826 * float(np.median(turned_back)), 1e-6)
+    return Turn(here, turned, diff, seen, _ring_noise(diff), TURN_FLOOR * noise)
+
+
+def stays_put(laser: str, seen_turning: Turn, rig: Rig) -> StaysPut:
+    """Whether `laser`'s spot shows in the laser-off frames of a turn: a spot on its path in the
+    first that stays put in the picture while the room moves, so that the second frame turned
+    back onto the first holds it, dark, where the turn carried it. Both must stand TURN_SNR over
+    the noise beside them, the copy no less than TURN_MATCH of the spot."""
+    t = seen_turning
+    diff, local, least = t.diff, t.local, t.least
     own, _ = path_of(rig, laser)
     mask = np.zeros(diff.shape, np.uint8)
     cv2.polylines(mask, [np.round(own).astype(np.int32)], False, 1, thickness=2 * int(OWN_PATH_PX) + 1)
-    work = np.where((mask > 0) & seen, diff, -np.inf)
+    work = np.where((mask > 0) & t.seen, diff, -np.inf)
     best = StaysPut(None, 0.0)
     h, w = diff.shape
     cam = rig.camera
@@ -365,7 +381,7 @@ def stays_put(laser: str, off_here: np.ndarray, off_turned: np.ndarray, rig: Rig
         if snr < TURN_SNR:
             continue  # (a fainter peak may stand where the room is quieter)
         # Where the turned frame's spot, at this pixel of its own picture, lies in here's.
-        ray = cam.rays(np.array([u, v], float)) @ (here.T @ turned).T
+        ray = cam.rays(np.array([u, v], float)) @ (t.here.T @ t.turned).T
         if ray[2] <= 1e-3:
             continue
         cu, cv = cam.project(ray)
