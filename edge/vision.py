@@ -293,6 +293,9 @@ def _noise_by_level(levels: np.ndarray, deviation: np.ndarray, noise: float, lea
     return np.array(table, np.float32)
 
 
+_BOX_PIXELS = 15  # the matched filter's pixels (_spot_box): its white noise is √15 a pixel's
+
+
 def _spot_box(strips: np.ndarray) -> np.ndarray:
     """The matched filter of `strips` (width, path samples): each sum of 3 strip columns × 5 path
     samples (about a spot's size), for the columns 1 … width − 2, and 0 in the two samples at
@@ -692,12 +695,12 @@ class SpotFinder:
             mid = bg.size // 2
             work = bg.copy()
             centre = _kth(work, mid)
-            # The deviations in the same buffer: its order (reordered by the partition) changes no
-            # k-th smallest, and one array fewer is made.
-            np.abs(np.subtract(work, centre, out=work), out=work)
-            noise = 1.4826 * _kth(work, mid)
+            # Each sample's deviation, kept in order for the noise by level below; its median in
+            # the partitioned copy's buffer.
+            deviation = np.abs(np.subtract(bg, centre, out=work), out=work)
+            noise = 1.4826 * _kth(deviation.copy(), mid)
         else:
-            noise = 0.0
+            deviation, noise = bg, 0.0
         quantum_scale = self._delivered_scale or self.full_scale(on[0])
         quantum = 0.5 / (quantum_scale * math.sqrt(len(on)))
         noise = max(noise, quantum)  # quantisation
@@ -710,7 +713,6 @@ class SpotFinder:
         profile = np.maximum.reduce(strips, axis=0)  # (ndarray.max's reduction, without its Python wrapper)
         # The noise a spot stands above, by how bright the room is where it falls: the laser-off
         # frame along each path's centre line (no laser there; the levels only pick a bin).
-        deviation = np.abs(bg - centre)
         table = _noise_by_level(boff, np.minimum(deviation, 5.0 * noise, out=deviation), noise,
                                 max(quantum, NOISE_FLOOR_FRACTION * noise))
         floor = None
@@ -953,7 +955,7 @@ class SpotFinder:
         # (np.add.reduce and np.maximum.reduce: ndarray.sum's and .max's own reductions, without
         # their Python wrappers)
         pix_noise = np.add.reduce(np.minimum(pix, 6.0 * noise, out=pix), axis=(0, 2)) * (1.2533 / per)
-        box_floor = np.float32(noise * 15.0**0.5)
+        box_floor = np.float32(noise * _BOX_PIXELS**0.5)
         per = flt.shape[0] * flt.shape[2]
         box_level = np.add.reduce(flt, axis=(0, 2)) * (1.0 / per)
         dev = flt - box_level[None, :, None]
@@ -971,7 +973,7 @@ class SpotFinder:
             local_box = np.maximum(box_noise, box_floor).repeat(count)
         else:
             local_pix = np.sqrt(np.maximum(pix_noise.repeat(count), floor) * floor)
-            local_box = np.maximum(box_noise.repeat(count), floor * np.float32(15.0**0.5))
+            local_box = np.maximum(box_noise.repeat(count), floor * np.float32(_BOX_PIXELS**0.5))
         score = (np.maximum.reduce(box, axis=0) - box_level.repeat(count)) / local_box
         return local_pix, score, box
 
