@@ -77,6 +77,12 @@ def _meas(name: str, point, sigma: float, laser: Laser) -> LaserMeasurement:
     return LaserMeasurement(name, np.zeros(2), 0.1, p, float(p[2]), sigma, 50.0, 1, laser.d)
 
 
+def _on_camera(rig: Rig, *spots: tuple[str, tuple[float, float, float], float]) -> list[LaserMeasurement]:
+    """Measurements of (laser, point, σ) with the pixel the rig's camera sees each point at."""
+    return [replace(m, pixel=rig.camera.project(m.point_m[None])[0])
+            for m in (_meas(name, point, sigma, rig.laser(name)) for name, point, sigma in spots)]
+
+
 def test_fusion_of_a_facing_wall_averages_with_the_right_weights() -> None:
     rig = default_rig()
     ref = _meas("center", (0.035, 0.0, 2.01), 0.02, rig.laser("center"))
@@ -238,12 +244,10 @@ def test_of_two_lasers_that_each_fit_a_loose_reference_the_one_that_places_it_be
     slope), not both together. The least χ² chose the floor's (2.10 m, 11 % off); the parallel spot
     places the reference four times better, and right."""
     rig = default_rig()
-    ref, par, slo = (
-        replace(m, pixel=rig.camera.project(m.point_m[None])[0]) for m in (
-            _meas("center", (0.036, 0.001, 2.096), 0.207, rig.laser("center")),
-            _meas("parallel", (0.028, -0.058, 1.853), 0.033, rig.laser("parallel")),
-            _meas("sloped", (0.041, 0.277, 1.593), 0.058, rig.laser("sloped")),
-        )
+    ref, par, slo = _on_camera(rig,
+        ("center", (0.036, 0.001, 2.096), 0.207),
+        ("parallel", (0.028, -0.058, 1.853), 0.033),
+        ("sloped", (0.041, 0.277, 1.593), 0.058),
     )
     slopes = (0.5485, -1.8232)  # a wall's and a floor's, at that pose
     f = best_fusion(rig, ref, {"parallel": [par], "sloped": [slo]}, 0.05, slopes)
@@ -258,12 +262,10 @@ def test_no_plane_is_fitted_through_two_other_lasers_that_lie_on_no_surface_toge
     beside each other: 1.6 m of depth across 28 cm is steeper than any surface both lasers light.
     A sloped plane through all three (χ² 2.5 on 1 degree of freedom) said 2.78 ± 0.05 m, 16 % off."""
     rig = default_rig()
-    ref, par, slo = (
-        replace(m, pixel=rig.camera.project(m.point_m[None])[0]) for m in (
-            _meas("center", (0.035, 0.0, 2.529), 0.164, rig.laser("center")),
-            _meas("parallel", (0.035, -0.040, 3.006), 0.038, rig.laser("parallel")),
-            _meas("sloped", (0.035, 0.2426, 1.376), 0.011, rig.laser("sloped")),
-        )
+    ref, par, slo = _on_camera(rig,
+        ("center", (0.035, 0.0, 2.529), 0.164),
+        ("parallel", (0.035, -0.040, 3.006), 0.038),
+        ("sloped", (0.035, 0.2426, 1.376), 0.011),
     )
     slopes = level_slopes(rig.camera_to_base(53.0, -2.67))
     f = best_fusion(rig, ref, {"parallel": [par], "sloped": [slo]}, 0.05, slopes)
