@@ -24,6 +24,7 @@ from edge.ranging import (
     LaserMeasurement,
     Ranger,
     RangingConfig,
+    _Track,
     best_fusion,
     fuse,
     level_slopes,
@@ -567,6 +568,35 @@ def test_sightings_in_two_views_are_one_spot_if_their_noise_allows() -> None:
     assert loose.lasers["center"].views == 2  # one spot, both views
     sharp = zone(0.1)
     assert "center" not in sharp.lasers and sharp.status == AMBIGUOUS  # two spots: which?
+
+
+@pytest.mark.parametrize("sightings", [
+    # (view, σ px): JPEG placed the spot only to its 8 px block in one view, well in the other
+    # (tuning-81 zone 15)
+    [(0, 8 / 12**0.5), (1, 0.25)],
+    # two frame groups a view, placed unequally well
+    [(0, 0.6), (0, 0.2), (1, 0.3), (1, 1.5)],
+])
+def test_a_spot_seen_in_several_views_is_placed_as_well_as_its_sigma_says(sightings) -> None:
+    """A spot's σ over a zone's sightings is the scatter of the weighted mean that places it: pixel
+    noise each sighting's own, speckle shared by a view's sightings. (Before, the σ of a plain mean:
+    the block-placed sighting alone made it 4.2 × the scatter.)"""
+    speckle = 0.12
+    rng = np.random.default_rng(3)
+    views = sorted({view for view, _ in sightings})
+    errors, sigmas = [], []
+    for _ in range(4000):
+        shift = {view: rng.normal(0.0, speckle, 2) for view in views}
+        found = [Candidate("center", np.array([320.0, 240.0]) + shift[view] + rng.normal(0.0, sigma, 2), sigma,
+                           30.0, 1.0, 0.5, 0.0) for view, sigma in sightings]
+        track = _Track("center", found, {(0.05 * view, 0.0) for view in views},
+                       [(0.05 * view, 0.0) for view, _ in sightings])
+        pixel, sigma_px, _ = track.placed(speckle)
+        errors.append(pixel[0] - 320.0)
+        sigmas.append(sigma_px)
+    scatter = float(np.std(errors))
+    assert np.ptp(sigmas) < 1e-9  # (the σ follows from the sightings' σs, not their positions)
+    assert 0.93 < sigmas[0] / scatter < 1.07
 
 
 def _faint(renderer: Renderer, power: float, others: float = 0.3, groups: int = 4) -> list[FrameGroup]:
