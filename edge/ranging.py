@@ -54,6 +54,13 @@ TRACK_JOIN_MAX_PX = 3.0
 # laser's is 17 cm per metre of range away, the parallel's 4 cm. A faint reference seen in some
 # views is not confirmed by such a far one alone (tuning-75, tuning-111: 11 % and 17 % off).
 FAR_LASER_M = 0.1
+# A weak reference spot that no other laser's spot confirms is looked for where the others' spots
+# should be (Ranger._looked_for): a short stretch of each other path, around the depth a known
+# surface through the reference gives that beam, give or take this slope across their separation
+# (17°: a wall seen a little askew) and 3 σ of the reference's depth. There, in every view pooled,
+# a spot is found at this share of the usual thresholds: a few px of path hold few chances of noise.
+LOOK_SLOPE = 0.3
+LOOK_THRESHOLD = 0.8
 # Two spots fitted together (edge.deblend) are fitted in a window of this half-size (px).
 DEBLEND_WINDOW_PX = 6
 # Their σ is the fit's, from its residual as if white, grown for the residual's correlation (JPEG's
@@ -545,6 +552,28 @@ def _one_answer(fusions: Sequence[Fusion]) -> bool:
                for i, a in enumerate(fusions) for b in fusions[i + 1:])
 
 
+def _expected(laser: Laser, reference: LaserMeasurement, slopes_y: Sequence[float]) -> tuple[float, float] | None:
+    """The inverse depths (lo, hi; 1/m) at which `laser`'s spot lies if the reference's spot is on
+    a surface of one of the known slopes dz/dy (`level_slopes`): where its beam meets that surface
+    through the reference's point, give or take LOOK_SLOPE across their separation and 3 σ of the
+    reference's depth. None where the beam meets none of them ahead of the camera."""
+    (px, py, pz), (ox, oy, oz), (dx, dy, dz) = reference.point_m.tolist(), laser.origin_m, laser.direction
+    near, far = math.inf, 0.0
+    for g in slopes_y:
+        den = dz - g * dy
+        if abs(den) < 1e-9:
+            continue
+        t = (pz + g * (oy - py) - oz) / den
+        z = oz + t * dz
+        if t <= 0 or z <= 0:
+            continue
+        give = 3.0 * reference.sigma_m + LOOK_SLOPE * math.hypot(ox + t * dx - px, oy + t * dy - py)
+        near, far = min(near, z - give), max(far, z + give)
+    if far <= 0.0:
+        return None
+    return 1.0 / far, 1.0 / max(near, 0.05)
+
+
 def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
     """Do at least two of the other lasers have spots that lie on one surface?"""
     found = [ms for ms in others.values() if ms]
@@ -728,6 +757,13 @@ class Ranger:
             if self.config.fuse and others
             else fuse(rig, chosen, ())
         )
+        if len(fusion.used) == 1 and self.config.fuse and not _agreeing_others(others) and chosen.snr < (
+                self.config.lone_min_snr if any(others.values()) else self.config.alone_min_snr):
+            # Weak, and alone: about to be refused. Look where the others' spots should be.
+            looked = self._looked_for(groups, chosen, others, known)
+            if looked is not None:
+                fusion, others, pooled_in = looked
+                sightings.update(pooled_in)
         fusion = common_grown(scatter_grown(fusion), chosen, self.finder.common_px)
         if len(fusion.used) == 1 and any(others.values()):
             # No other laser agrees with the reference spot. A strong spot may still be right (an
@@ -854,6 +890,46 @@ class Ranger:
                 kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
             out[name] = kept[:3]
         return out
+
+    def _looked_for(self, groups: Sequence[FrameGroup], chosen: LaserMeasurement,
+                    others: Mapping[str, Sequence[LaserMeasurement]], known: Sequence[float]
+                    ) -> tuple[Fusion, dict[str, list[LaserMeasurement]], dict[int, tuple[int, int]]] | None:
+        """The fusion of a weak reference spot `chosen`, which none of the `others`' spots
+        confirms, with spots found where the others' should be if it is the reference's: on each
+        surface of a known slope through it (`known`: a wall, a floor), each other beam meets the
+        surface at a depth that `_expected` gives; a short stretch of that laser's path around it,
+        in every view pooled, is searched at LOOK_THRESHOLD of the usual thresholds. With the
+        others' lists grown by what was found, and each new spot's sightings (every group: pooled).
+        None where nothing found there agrees with the reference (best_fusion's χ²).
+
+        A stray light or noise on the reference's path has no partners at the depths it implies:
+        only a spot does. (The others' spots are pooled here only where the reference tells where:
+        pooled along their whole paths, their faint blobs, noise among them, confirmed a weak
+        reference blob where nothing was; tuning-33, 0.38 m.)"""
+        grown = {n: list(ms) for n, ms in others.items()}
+        pooled_in: dict[int, tuple[int, int]] = {}
+        for name, laser in self._lasers.items():
+            span = None if name == chosen.laser else _expected(laser, chosen, known)
+            mine = [g for g in groups if name in g.lasers]
+            if span is None or not mine:
+                continue
+            on = [f for g in mine for f in g.on]
+            off = [f for g in mine for f in g.off]
+            views = {g.view for g in mine}
+            found = self.finder.find(on, off, [name], near={name: span}, threshold=LOOK_THRESHOLD).get(name, [])
+            for c in found:
+                m = self._measure(_Track(name, [c], set(views)))
+                grown.setdefault(name, []).append(m)
+                pooled_in[id(m)] = (len(mine), len(mine))
+        if not pooled_in:
+            return None
+        fusion = best_fusion(self.rig, chosen, grown, self.config.surface_sigma_per_m, known)
+        lo, hi = self.rig.range_limits_m
+        if len(fusion.used) < 2 or not lo <= fusion.range_m <= hi:
+            # (A weak blob beyond the working range stays unconfirmed: the paths' near ends hold
+            # blobs alike at one depth, tuning-42 zone 12's at 0.25 m where a wall was 3.07 m off.)
+            return None
+        return fusion, grown, pooled_in
 
     def _pooled(self, groups: Sequence[FrameGroup], name: str) -> list[_Track]:
         """`name`'s spots in the zone's frame groups pooled, where no group alone showed one to believe.

@@ -19,7 +19,7 @@ import bisect
 import functools
 import math
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import cv2
@@ -658,6 +658,8 @@ class SpotFinder:
         off: Sequence[np.ndarray],
         lasers: Sequence[str] | None = None,
         max_candidates: int = 3,
+        near: Mapping[str, tuple[float, float]] | None = None,
+        threshold: float = 1.0,
     ) -> dict[str, list[Candidate]]:
         """Candidate spots per laser from laser-on and laser-off frames of one pose.
 
@@ -665,6 +667,11 @@ class SpotFinder:
         `lasers`: the lasers that were on (default: all of this finder's). Behind a Bayer filter,
         spots are placed twice: the second time with the width that spots at much the same depth
         told, in this view or earlier ones (`_shared_width`).
+
+        A search where a spot is expected: `near` gives lasers' stretches of path to look in alone
+        (inverse depths lo … hi, 1/m), and `threshold` scales both detection thresholds (min_snr
+        and MATCHED_SNR; 1: as everywhere), which a short stretch's few chances of noise allow
+        lower than a whole path's.
         """
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
         if self._auto and len(self._chroma_lag2) < AUTO_GROUPS and on[0].ndim == 3:
@@ -727,13 +734,16 @@ class SpotFinder:
         score = np.maximum(bright, dim)
         mid = score[1:-1]
         # (ndarray.nonzero: np.flatnonzero's indices without its two Python-level wrappers)
-        peaks = ((mid > 1.0) & (mid >= score[:-2]) & (mid > score[2:])).nonzero()[0] + 1
+        peaks = ((mid > threshold) & (mid >= score[:-2]) & (mid > score[2:])).nonzero()[0] + 1
         listed = peaks.tolist()
         seeds = {}
         for name in names:
             rows = self._rows[name]
             # Local maxima inside the path (its ends lie beyond the working range's margins).
-            mine = peaks[bisect.bisect_left(listed, rows.start + 1) : bisect.bisect_left(listed, rows.stop - 1)]
+            first, stop = rows.start + 1, rows.stop - 1
+            if near is not None and name in near:
+                first, stop = self._stretch_of(name, *near[name], first, stop)
+            mine = peaks[bisect.bisect_left(listed, first) : bisect.bisect_left(listed, stop)]
             seeds[name] = self._seeds(
                 self.bands[name], rows.start, mine, score, bright, dim, strips, box, profile, local_noise,
                 matched, on, off, gain, max_candidates,
@@ -831,6 +841,15 @@ class SpotFinder:
             return None
         rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
         return self._window(on, rows, cols) - self._window(off, rows, cols), (u0 - r, v0 - r)
+
+    def _stretch_of(self, laser: str, lo: float, hi: float, first: int, stop: int) -> tuple[int, int]:
+        """The path samples (of all strips, first … stop − 1, within `first` … `stop` − 1) of
+        `laser`'s path at inverse depths lo … hi; an empty range where none is."""
+        start = self._rows[laser].start
+        inside = ((self.bands[laser].inv_depth >= lo) & (self.bands[laser].inv_depth <= hi)).nonzero()[0]
+        if not inside.size:
+            return first, first
+        return max(first, start + int(inside[0])), min(stop, start + int(inside[-1]) + 1)
 
     def inv_depth_range(self) -> tuple[float, float]:
         """The inverse depths (1/m) every laser's path is searched over, nearest last (one range:

@@ -627,9 +627,39 @@ def test_spots_too_faint_for_any_one_view_are_found_in_the_views_pooled() -> Non
     assert result.lasers["center"].views == 2  # one sighting of all groups, in both views
     dark = ranger.range_zone(0, 0.0, 0.0, _faint(renderer, 0.0))
     assert dark.status == NO_SPOT  # pooled noise is no spot
-    # The others too faint to find: the reference's pooled spot is alone, and as weak as blobs are.
-    alone = ranger.range_zone(0, 0.0, 0.0, _faint(renderer, 0.02, others=0.02))
+    # The others dark: the reference's pooled spot is alone, and as weak as blobs are.
+    alone = ranger.range_zone(0, 0.0, 0.0, _faint(renderer, 0.02, others=0.0))
     assert alone.status == AMBIGUOUS and "no other laser's spot was found" in alone.detail
+
+
+def test_a_weak_lone_reference_is_confirmed_where_the_other_spots_should_be() -> None:
+    """The other lasers' spots too faint to find along their whole paths, group by group: the
+    weak reference spot is alone, and a blob as weak is not believed. Looked for where a wall
+    through it puts them, in every view pooled, they are found, and confirm it. A blob as weak on
+    the reference's path at another depth (a lamp's flicker at 1.2 m) has no partners there."""
+    renderer = _wall(2.0)
+    rig = renderer.rig
+    ranger = Ranger(rig)
+    groups = _faint(renderer, 0.02, others=0.02)
+    by_group = [ranger.finder.find(g.on, g.off) for g in groups]
+    assert sum(len(found["parallel"]) + len(found["sloped"]) for found in by_group) <= 1
+    result = ranger.range_zone(0, 0.0, 0.0, groups)
+    assert result.status == OK, result.detail
+    assert set(result.lasers) > {"center"}  # confirmed by another laser's spot
+    assert abs(result.range_m - 2.0) <= 2.0 * result.sigma_m and abs(result.range_m - 2.0) < 0.04
+    u, v = (float(c) for c in rig.camera.project(rig.laser("center").point_at_depth(1.2)))
+    rows, cols = np.mgrid[0 : rig.camera.height, 0 : rig.camera.width]
+    blob = 16.0 * np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / 2.0)
+
+    def lit(frame: np.ndarray) -> np.ndarray:
+        out = frame.astype(np.float32)
+        out[..., 2] += blob
+        return np.clip(out, 0, 255).astype(np.uint8)
+
+    stray = [replace(g, on=[lit(f) for f in g.on]) for g in _faint(renderer, 0.0, others=0.02)]
+    result = Ranger(rig).range_zone(0, 0.0, 0.0, stray)
+    assert "center" in result.lasers and result.lasers["center"].depth_m == pytest.approx(1.2, abs=0.05)
+    assert result.status == AMBIGUOUS and "no other laser" in result.detail
 
 
 @pytest.mark.slow  # one condition of the accuracy bench's tuning family, 24 zones
