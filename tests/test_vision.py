@@ -85,6 +85,28 @@ def test_noise_alone_gives_no_spot() -> None:
     assert all(not c for c in found.values())
 
 
+def test_a_stretch_of_path_where_a_spot_is_expected_is_searched_at_lower_thresholds() -> None:
+    """A spot too faint for a search of its laser's whole path (under the thresholds in every
+    one of 12 frame pairs) is found in some where a short stretch around its depth is searched at
+    0.8 of them; a stretch elsewhere on the path finds nothing, noise included."""
+    renderer = _renderer(flat_target_scene(2.0))
+    spot = renderer.spots(0.0, 0.0)["parallel"].pixel
+    whole, there, elsewhere = 0, 0, 0
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        on = renderer.render(0.0, 0.0, {"parallel": 0.025}, 0.0, rng)
+        off = renderer.render(0.0, 0.0, {}, 0.0, rng)
+        finder = SpotFinder(renderer.rig)
+        whole += len(finder.find([on], [off], ["parallel"])["parallel"])
+        found = finder.find([on], [off], ["parallel"], near={"parallel": (1 / 2.1, 1 / 1.9)}, threshold=0.8)
+        assert all(np.linalg.norm(c.pixel - spot) < 1.5 for c in found["parallel"])  # the spot, not noise
+        there += len(found["parallel"])
+        found = finder.find([on], [off], ["parallel"], near={"parallel": (1 / 1.2, 1 / 1.0)}, threshold=0.8)
+        elsewhere += len(found["parallel"])
+    assert whole == 0 and elsewhere == 0
+    assert there >= 3
+
+
 def test_a_frame_of_another_size_is_refused() -> None:
     # The strips are gathered without a bounds check per pixel: the frame's size is checked instead.
     renderer = _renderer(load_scene("office"))
