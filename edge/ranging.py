@@ -648,12 +648,17 @@ class _Track:
             by_view[view] = by_view.get(view, 0.0) + wi
         # (Lists, not generators: the same sums, with less overhead for a sighting or two.)
         spread = speckle_px**2 * sum([x * x for x in by_view.values()]) / total**2
-        noise = sum([wi * wi * c.sigma_px**2 for wi, c in zip(w, self.found)]) / total**2
+        # Where the spot falls on the pixel grid moves every sighting alike (Candidate.locked_px):
+        # that part is the weighted mean's of it, not averaged down.
+        locked = [min(c.locked_px, c.sigma_px) ** 2 for c in self.found]
+        spread += (sum([wi * math.sqrt(lk) for wi, lk in zip(w, locked)]) / total) ** 2
+        noise = sum([wi * wi * (c.sigma_px**2 - lk) for wi, c, lk in zip(w, self.found, locked)]) / total**2
         cov = None
         if any([c.cov_px is not None for c in self.found]):
             # Each axis on its own: speckle moves a spot alike in every direction.
             parts = [c.cov_px or (c.sigma_px**2, c.sigma_px**2, 0.0) for c in self.found]
-            uu, vv, uv = [sum([wi * wi * p[k] for wi, p in zip(w, parts)]) / total**2 for k in range(3)]
+            uu, vv, uv = [sum([wi * wi * (p[k] - (lk if k < 2 else 0.0)) for wi, p, lk in zip(w, parts, locked)])
+                          / total**2 for k in range(3)]
             cov = (uu + spread, vv + spread, uv)
         return self.pixel(shared), math.sqrt(noise + spread), cov
 
@@ -970,9 +975,12 @@ class Ranger:
                     for placed in pair:
                         kept = [o for o in found[placed.laser]
                                 if math.dist(o.pixel.tolist(), c.pixel.tolist()) >= DEBLEND_PX]
-                        sigma = math.hypot(DEBLEND_GROW * placed.sigma_px, DEBLEND_FLOOR_PX)
+                        # (Demosaiced frames: the fit's red values were interpolated, as the finder's.)
+                        grid, locked = self.finder.grid_px(placed.size_px)
+                        sigma = math.sqrt((DEBLEND_GROW * placed.sigma_px) ** 2 + DEBLEND_FLOOR_PX**2 + grid**2)
                         found[placed.laser] = [*kept, Candidate(placed.laser, placed.pixel, sigma, placed.snr,
-                                                                placed.size_px, placed.inv_depth, 0.0, placed.snr)]
+                                                                placed.size_px, placed.inv_depth, 0.0, placed.snr,
+                                                                locked_px=locked)]
                     break
         return found
 

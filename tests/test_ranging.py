@@ -571,26 +571,32 @@ def test_sightings_in_two_views_are_one_spot_if_their_noise_allows() -> None:
 
 
 @pytest.mark.parametrize("sightings", [
-    # (view, σ px): JPEG placed the spot only to its 8 px block in one view, well in the other
-    # (tuning-81 zone 15)
-    [(0, 8 / 12**0.5), (1, 0.25)],
+    # (view, σ px, of which locked to the pixel grid): JPEG placed the spot only to its 8 px block
+    # in one view, well in the other (tuning-81 zone 15)
+    [(0, 8 / 12**0.5, 0.0), (1, 0.25, 0.0)],
     # two frame groups a view, placed unequally well
-    [(0, 0.6), (0, 0.2), (1, 0.3), (1, 1.5)],
+    [(0, 0.6, 0.0), (0, 0.2, 0.0), (1, 0.3, 0.0), (1, 1.5, 0.0)],
+    # a small spot behind a Bayer filter: demosaicing snaps it toward a red pixel in either view
+    [(0, 0.5, 0.25), (1, 0.55, 0.25)],
+    [(0, 0.5, 0.3), (1, 0.25, 0.0)],  # (and a deblended sighting that says nothing of it)
 ])
 def test_a_spot_seen_in_several_views_is_placed_as_well_as_its_sigma_says(sightings) -> None:
     """A spot's σ over a zone's sightings is the scatter of the weighted mean that places it: pixel
-    noise each sighting's own, speckle shared by a view's sightings. (Before, the σ of a plain mean:
-    the block-placed sighting alone made it 4.2 × the scatter.)"""
+    noise each sighting's own, speckle shared by a view's sightings, and the pull toward the pixel
+    grid (`locked_px`) shared by all. (Before, the σ of a plain mean: the block-placed sighting alone
+    made it 4.2 × the scatter; and the grid's pull was averaged over views as if it were noise.)"""
     speckle = 0.12
     rng = np.random.default_rng(3)
-    views = sorted({view for view, _ in sightings})
+    views = sorted({view for view, _, _ in sightings})
     errors, sigmas = [], []
     for _ in range(4000):
         shift = {view: rng.normal(0.0, speckle, 2) for view in views}
-        found = [Candidate("center", np.array([320.0, 240.0]) + shift[view] + rng.normal(0.0, sigma, 2), sigma,
-                           30.0, 1.0, 0.5, 0.0) for view, sigma in sightings]
+        grid = rng.normal(0.0, 1.0, 2)
+        found = [Candidate("center", np.array([320.0, 240.0]) + shift[view] + locked * grid
+                           + rng.normal(0.0, math.sqrt(sigma**2 - locked**2), 2), sigma, 30.0, 1.0, 0.5, 0.0,
+                           locked_px=locked) for view, sigma, locked in sightings]
         track = _Track("center", found, {(0.05 * view, 0.0) for view in views},
-                       [(0.05 * view, 0.0) for view, _ in sightings])
+                       [(0.05 * view, 0.0) for view, _, _ in sightings])
         pixel, sigma_px, _ = track.placed(speckle)
         errors.append(pixel[0] - 320.0)
         sigmas.append(sigma_px)
