@@ -930,7 +930,12 @@ class Ranger:
             return None
         fusion = best_fusion(self.rig, chosen, grown, self.config.surface_sigma_per_m, known)
         lo, hi = self.rig.range_limits_m
-        if len(fusion.used) < 2 or not lo <= fusion.range_m <= hi:
+        # A reference too loose to range alone is searched around far more widely (3 σ of its
+        # depth), where one faint blob meets it by chance: both other lasers must agree with it
+        # (one, 1.2 px beside the parallel's spot, made a 6.4 % reference 3.7 % and 8 % off:
+        # tuning-213 zone 12).
+        need = 2 if chosen.sigma_m <= self.config.max_sigma_fraction * chosen.depth_m else 3
+        if len(fusion.used) < need or not lo <= fusion.range_m <= hi:
             # (A weak blob beyond the working range stays unconfirmed: the paths' near ends hold
             # blobs alike at one depth, tuning-42 zone 12's at 0.25 m where a wall was 3.07 m off.)
             return None
