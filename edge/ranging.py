@@ -334,6 +334,12 @@ def fuse(
     dof = len(ms) - A.shape[1]
     g = float(params[1]) if use_g else 0.0
     h = float(params[1 + use_g]) if use_h else 0.0
+    if abs(g) > _MAX_FITTED_SLOPE:
+        # Seen 70° or more from square on: more likely one laser's spot pulled off and another's
+        # on another surface than one surface lit so obliquely by all three. (Tuning 0-255: the
+        # one zone ranged so was 8 % off, claiming 1.7 %: tuning-246 zone 6, a reference spot
+        # 0.8 px off by demosaicing, the parallel's on the wall, the sloped's on a table.)
+        chi2 = math.inf
     laser = rig.laser(reference.laser)
 
     def on_beam(p: np.ndarray) -> np.ndarray:
@@ -428,6 +434,10 @@ _ACROSS_SLOPE = 1.0
 # lasers' plane: |slope| ≤ 3 is 72° from facing the camera (a floor seen with the unit tilted less
 # than 18° down is left to the sloped model, or to the reference alone).
 _MAX_KNOWN_SLOPE = 3.0
+
+
+# A plane fitted through the spots (no known slope) may be seen at most this obliquely: tan 70°.
+_MAX_FITTED_SLOPE = math.tan(math.radians(70.0))
 
 
 def level_slopes(to_base: Pose) -> tuple[float, ...]:

@@ -274,6 +274,25 @@ def test_no_plane_is_fitted_through_two_other_lasers_that_lie_on_no_surface_toge
     assert f.range_m == pytest.approx(2.529)
 
 
+def test_no_plane_is_fitted_that_the_lasers_would_see_70_degrees_from_square_on() -> None:
+    """Tuning-246 zone 6, an office: the reference spot 0.8 px off by demosaicing (1.60 ± 0.06 m;
+    truth 1.74 m), the parallel laser's on the same wall (1.73 m), the sloped laser's on a table
+    below (1.01 m). A plane through all three slopes 74° (χ² 0.3 on 1 degree of freedom) and said
+    1.60 ± 0.03 m, 8 % off; no known slope holds the reference and the parallel's spot together."""
+    rig = default_rig()
+    tan10 = math.tan(math.radians(10.0))
+    ref, par, slo = _on_camera(rig,
+        ("center", (0.035, 0.0, 1.598), 0.057),
+        ("parallel", (0.035, -0.040, 1.734), 0.037),
+        ("sloped", (0.035, 1.006 * tan10, 1.006), 0.022),
+    )
+    assert fuse(rig, ref, [par, slo]).consistent is False  # the plane through all three: too oblique
+    slopes = level_slopes(rig.camera_to_base(101.9, -6.4))
+    f = best_fusion(rig, ref, {"parallel": [par], "sloped": [slo]}, 0.05, slopes)
+    assert [m.laser for m in f.used] == ["center"]
+    assert f.range_m == pytest.approx(1.598)
+
+
 def _render_groups(renderer: Renderer, pan: float = 0.0, pairs: int = 2, seed: int = 0, edit=None):
     groups = []
     for k in range(pairs):
