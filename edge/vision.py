@@ -495,7 +495,7 @@ class SpotFinder:
         self._radius = 4
         self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
         self._jpeg: bool | None = None  # are the frames JPEG's? (from the first laser-off frame)
-        self._demosaiced = False  # were the last frames found in demosaiced? (grid_px)
+        self._demosaiced = False  # were the frames of the last `find` demosaiced? (grid_px)
         # The full scale of the camera's own values where they were linearised before the finder
         # saw them (`delivered`): their quantisation, not the linear values', floors the noise.
         self._delivered_scale: float | None = None
@@ -870,8 +870,9 @@ class SpotFinder:
         return self._window(on, rows, cols) - self._window(off, rows, cols), (u0 - r, v0 - r)
 
     def _stretch_of(self, laser: str, lo: float, hi: float, first: int, stop: int) -> tuple[int, int]:
-        """The path samples (of all strips, first … stop − 1, within `first` … `stop` − 1) of
-        `laser`'s path at inverse depths lo … hi; an empty range where none is."""
+        """The samples of `laser`'s path at inverse depths lo … hi, as a range first … stop − 1
+        of the strips' sample indices, kept within the given one; empty (first, first) where no
+        sample of the path is."""
         start = self._rows[laser].start
         inside = ((self.bands[laser].inv_depth >= lo) & (self.bands[laser].inv_depth <= hi)).nonzero()[0]
         if not inside.size:
