@@ -629,7 +629,12 @@ class _Track:
         a bright spot's error and is the same for every sighting."""
         if len(self.found) == 1:
             return self.found[0].pixel
-        w = [1.0 / (max(c.sigma_px, 1e-4) ** 2 + speckle_px**2) for c in self.found]
+        return self._mean(self._weights(speckle_px))
+
+    def _weights(self, speckle_px: float) -> list[float]:
+        return [1.0 / (max(c.sigma_px, 1e-4) ** 2 + speckle_px**2) for c in self.found]
+
+    def _mean(self, w: list[float]) -> np.ndarray:
         total = sum(w)
         return np.array([
             sum(wi * float(c.pixel[0]) for wi, c in zip(w, self.found)) / total,
@@ -651,7 +656,7 @@ class _Track:
             cov = None if c.cov_px is None else (c.cov_px[0] + spread, c.cov_px[1] + spread, c.cov_px[2])
             return c.pixel, math.sqrt(c.sigma_px**2 + spread), cov
         shared = speckle_px if views > 1 else 0.0  # (one view: speckle moves every sighting alike)
-        w = [1.0 / (max(c.sigma_px, 1e-4) ** 2 + shared**2) for c in self.found]
+        w = self._weights(shared)
         total = sum(w)
         by_view: dict[tuple[float, float], float] = {}
         for wi, view in zip(w, self.seen):
@@ -660,17 +665,17 @@ class _Track:
         spread = speckle_px**2 * sum([x * x for x in by_view.values()]) / total**2
         # Where the spot falls on the pixel grid moves every sighting alike (Candidate.locked_px):
         # that part is the weighted mean's of it, not averaged down.
-        locked = [min(c.locked_px, c.sigma_px) ** 2 for c in self.found]
-        spread += (sum([wi * math.sqrt(lk) for wi, lk in zip(w, locked)]) / total) ** 2
-        noise = sum([wi * wi * (c.sigma_px**2 - lk) for wi, c, lk in zip(w, self.found, locked)]) / total**2
+        locked = [min(c.locked_px, c.sigma_px) for c in self.found]
+        spread += (sum([wi * lk for wi, lk in zip(w, locked)]) / total) ** 2
+        noise = sum([wi * wi * (c.sigma_px**2 - lk * lk) for wi, c, lk in zip(w, self.found, locked)]) / total**2
         cov = None
         if any([c.cov_px is not None for c in self.found]):
             # Each axis on its own: speckle moves a spot alike in every direction.
             parts = [c.cov_px or (c.sigma_px**2, c.sigma_px**2, 0.0) for c in self.found]
-            uu, vv, uv = [sum([wi * wi * (p[k] - (lk if k < 2 else 0.0)) for wi, p, lk in zip(w, parts, locked)])
+            uu, vv, uv = [sum([wi * wi * (p[k] - (lk * lk if k < 2 else 0.0)) for wi, p, lk in zip(w, parts, locked)])
                           / total**2 for k in range(3)]
             cov = (uu + spread, vv + spread, uv)
-        return self.pixel(shared), math.sqrt(noise + spread), cov
+        return self._mean(w), math.sqrt(noise + spread), cov
 
 
 class Ranger:
@@ -772,8 +777,9 @@ class Ranger:
             if self.config.fuse and others
             else fuse(rig, chosen, ())
         )
-        if len(fusion.used) == 1 and self.config.fuse and not _agreeing_others(others) and chosen.snr < (
-                self.config.lone_min_snr if any(others.values()) else self.config.alone_min_snr):
+        if len(fusion.used) == 1 and self.config.fuse and chosen.snr < (
+                self.config.lone_min_snr if any(others.values()) else self.config.alone_min_snr
+        ) and not _agreeing_others(others):
             # Weak, and alone: about to be refused. Look where the others' spots should be.
             looked = self._looked_for(groups, chosen, others, known)
             if looked is not None:
