@@ -46,6 +46,9 @@ LOOSE_WINNER_PX = 1.0
 # the others with at least this share of its light, or the beam is on an edge (Ranger._comes_and_goes).
 EDGE_MIN_SNR = 10.0
 EDGE_LIGHT_RATIO = 0.3
+# Another laser's spot this near (px) may have merged with a spot and pulled it (the centre and
+# parallel spots are 4 px apart at 5 m).
+MERGE_PX = 6.0
 # Sightings in different frame groups are one spot if they are this many σ of their placing apart
 # (and at least 1.5 px, at most TRACK_JOIN_MAX_PX).
 TRACK_JOIN_SIGMAS = 2.5
@@ -547,6 +550,31 @@ def common_grown(fusion: Fusion, reference: LaserMeasurement, common_px: float) 
     return replace(fusion, sigma_m=math.hypot(fusion.sigma_m, shared))
 
 
+def _moved_to(spot: LaserMeasurement, ref_tracks: Sequence[_Track], ref_cands: Sequence[LaserMeasurement],
+              tracks: Mapping[str, Sequence[_Track]]) -> float | None:
+    """How far (px) the reference's bright `spot`, missing from some of the zone's views, sits
+    from a bright spot of the reference in just those views; None if there is none. The unit is
+    nudged between views, which moves no spot of a beam fixed to the camera unless the surface it
+    meets changes: on a depth edge the beam lights a near surface in one view and a far one in the
+    next, and neither is the zone's range (tuning-317 zone 3: 1.92 m in one view, 2.41 m in the
+    other; the other lasers confirmed the far one, 22 % off). Not where another laser's spot is
+    beside the other blob in its view: a spot merged with a neighbour's is placed between them."""
+    if spot.snr < EDGE_MIN_SNR:
+        return None
+    mine = next((t for t, m in zip(ref_tracks, ref_cands) if m is spot), None)
+    if mine is None:
+        return None
+    for t, m in zip(ref_tracks, ref_cands):
+        if m is spot or m.snr < EDGE_MIN_SNR or t.views & mine.views:
+            continue
+        px = t.pixel()
+        if any(o is not t and o.views & t.views and math.dist(o.pixel().tolist(), px.tolist()) < MERGE_PX
+               for ts in tracks.values() for o in ts if o.laser != spot.laser):
+            continue
+        return math.dist(px.tolist(), spot.pixel.tolist())
+    return None
+
+
 def _rests_on_a_far_one(fusion: Fusion) -> bool:
     """Is the reference confirmed by one other laser alone, whose spot is FAR_LASER_M or more
     from it (or by none)?"""
@@ -817,6 +845,12 @@ class Ranger:
             return self._result(
                 index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                 detail=f"the {ref} spot shows in some of the zone's views and not in others: the beam is on an edge",
+            )
+        moved = _moved_to(chosen, tracks.get(ref, ()), cands.get(ref, ()), tracks) if seen < shown else None
+        if moved is not None:
+            return self._result(
+                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                detail=f"the {ref} spot moved {moved:.1f} px between the zone's views: the beam is on an edge",
             )
         if len(fusion.used) == 1 and chosen.snr < self.config.min_snr:
             # Found by the matched filter alone, and no other laser on its surface: a dim spot

@@ -463,6 +463,42 @@ def test_a_beam_on_an_edge_is_ambiguous_not_a_range() -> None:
     assert finder.light_at(gone.on, gone.off, spot) < 0.1 * max(lit)
 
 
+def _lit_at(powers: dict[str, float], view: float, seed, renderers: dict[str, Renderer]) -> FrameGroup:
+    """One view's frame pair, each laser of `powers` on, its spot where its renderer's wall is (a
+    depth edge that the beams fall on either side of); the room that of the first renderer."""
+    rng = np.random.default_rng(seed)
+    first = next(iter(renderers.values()))
+    off = first.render(view, 0.0, {}, 0.0, rng)
+    on = off.astype(np.int32)
+    for name, power in powers.items():
+        renderer = renderers[name]
+        dark = renderer.render(view, 0.0, {}, 0.0, rng).astype(np.int32)
+        on += renderer.render(view, 0.0, {name: power}, 0.0, rng).astype(np.int32) - dark
+    return FrameGroup([np.clip(on, 0, 255).astype(np.uint8)], [off], first.rig.laser_names, (view, 0.0))
+
+
+def _lit(renderers: dict[str, Renderer], view: float, seed: int) -> FrameGroup:
+    return _lit_at(dict.fromkeys(renderers, 1.0), view, seed, renderers)
+
+
+def test_a_reference_that_moves_between_the_views_is_on_an_edge() -> None:
+    """The nudge between the zone's views takes the centre and parallel beams from a near surface
+    to a far one; the sloped beam is on the far one in both (tuning-317 zone 3: the centre spot
+    moved 2 px, and the two lasers on the far surface outvoted the one on the near: 22 % off).
+    Which surface is the zone's? Neither: not `ok`. Where the beams stay put, the zone is ranged."""
+    near, far = _wall(1.5), _wall(1.8)
+    rig = near.rig
+    ranger = Ranger(rig)
+    at_pose = _lit({"center": near, "parallel": near, "sloped": far}, 0.0, 1)
+    nudged = _lit({"center": far, "parallel": far, "sloped": far}, 0.0514, 2)
+    result = ranger.range_zone(0, 0.0, 0.0, [at_pose, nudged])
+    assert result.status == AMBIGUOUS and result.range_m is None, (result.range_m, result.detail)
+    assert "moved" in result.detail and "on an edge" in result.detail
+    steady = _lit({"center": near, "parallel": near, "sloped": far}, 0.0514, 2)
+    result = Ranger(rig).range_zone(0, 0.0, 0.0, [at_pose, steady])
+    assert result.status == OK and abs(result.range_m - 1.5) <= 2 * result.sigma_m, result.detail
+
+
 def test_faint_blobs_in_one_view_alone_do_not_confirm_each_other() -> None:
     """No laser lit; in one of the zone's two views, faint blobs where the `center` and `parallel`
     spots of one surface would be (as JPEG makes of a textured block that changed in that frame).
