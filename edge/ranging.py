@@ -57,6 +57,10 @@ TRACK_JOIN_MAX_PX = 3.0
 # laser's is 17 cm per metre of range away, the parallel's 4 cm. A faint reference seen in some
 # views is not confirmed by such a far one alone (tuning-75, tuning-111: 11 % and 17 % off).
 FAR_LASER_M = 0.1
+# A fusion of a reference too loose to range alone with one such far spot must be this share of
+# max_sigma_fraction or surer (of tuning 0-319's 20 such fusions, the 3 over 10 % off claimed
+# 4.5-4.6 %; 15 of the 17 others 1.6-4.2 %).
+FAR_PARTNER_SHARE = 0.8
 # A weak reference spot that no other laser's spot confirms is looked for where the others' spots
 # should be (Ranger._looked_for): a short stretch of each other path, around the depth a known
 # surface through the reference gives that beam, give or take this slope across their separation
@@ -829,6 +833,20 @@ class Ranger:
             return self._result(
                 index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                 detail=f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found",
+            )
+        loose = self.config.max_sigma_fraction
+        if (len(fusion.used) == 2 and _rests_on_a_far_one(fusion) and chosen.sigma_m > loose * chosen.depth_m
+                and fusion.sigma_m > FAR_PARTNER_SHARE * loose * fusion.range_m):
+            # Too loose to range alone, the reference takes its range from the one other laser that
+            # agrees with it, and from the surface model between them: a spot that far away may be
+            # on another surface, which a loose reference cannot tell. Such a fusion must be sure
+            # enough to leave room for that (tuning-286 zone 0: the sloped laser's spot 0.44 m
+            # below, on a wall behind, made a ±8 % reference ±4.5 % and 14 % off).
+            return self._result(
+                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                detail=f"the {ref} spot is placed too loosely to range alone (± {chosen.sigma_m:.2f} m), "
+                       f"and only the {fusion.used[1].laser} laser's spot, {_apart(*fusion.used):.2f} m away, "
+                       f"agrees with it: {fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m",
             )
         seen, shown = sightings[id(chosen)]
         if seen < shown and chosen.snr < EDGE_MIN_SNR and (_rests_on_a_far_one(fusion) or all(

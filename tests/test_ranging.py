@@ -499,6 +499,24 @@ def test_a_reference_that_moves_between_the_views_is_on_an_edge() -> None:
     assert result.status == OK and abs(result.range_m - 1.5) <= 2 * result.sigma_m, result.detail
 
 
+def test_a_loose_reference_that_only_a_far_spot_confirms_must_be_ranged_surely(monkeypatch) -> None:
+    """The reference on a wall at 3 m placed too loosely to range alone; the sloped laser's spot,
+    the only other one, on a wall 30 cm behind. Fused through a wall's model, the two say 3.12 m
+    ± 4.6 %: the far spot's surface is not the reference's, which so loose a reference cannot tell
+    (tuning-286 zone 0, the same: 14 % off). Not `ok` unless the fusion leaves room for that."""
+    import edge.ranging
+
+    walls = {"center": _wall(3.0), "sloped": _wall(3.3)}
+    groups = [_lit_at({"center": 0.06, "sloped": 0.1}, 0.0514 * (k % 2), [4, k], walls) for k in range(4)]
+    result = Ranger(walls["center"].rig).range_zone(0, 0.0, 0.0, groups)
+    assert result.status == AMBIGUOUS and result.range_m is None
+    assert "too loosely to range alone" in result.detail and "only the sloped laser's spot" in result.detail
+    monkeypatch.setattr(edge.ranging, "FAR_PARTNER_SHARE", 1.0)  # room for nothing more
+    lax = Ranger(walls["center"].rig).range_zone(0, 0.0, 0.0, groups)
+    assert lax.status == OK and set(lax.lasers) == {"center", "sloped"}
+    assert lax.lasers["center"].sigma_m > 0.05 * 3.0 and lax.sigma_m > 0.04 * lax.range_m
+
+
 def test_faint_blobs_in_one_view_alone_do_not_confirm_each_other() -> None:
     """No laser lit; in one of the zone's two views, faint blobs where the `center` and `parallel`
     spots of one surface would be (as JPEG makes of a textured block that changed in that frame).
