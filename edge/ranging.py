@@ -655,6 +655,13 @@ class _Track:
     found: list[Candidate]
     views: set[tuple[float, float]]
     seen: list[tuple[float, float]] = field(default_factory=list)  # each sighting's view, where told
+    # The frame groups it was found in (their indices in the zone), where told: two blobs of one
+    # group that join one track are one sighting, not two.
+    groups: set[int] = field(default_factory=set)
+
+    def shows_in(self) -> int:
+        """In how many of the zone's frame groups the spot was found."""
+        return len(self.groups) if self.groups else len(self.found)
 
     def pixel(self, speckle_px: float = 0.0) -> np.ndarray:
         """Weighted mean position; each sighting's weight counts its speckle too, which dominates
@@ -749,7 +756,7 @@ class Ranger:
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         # How many of the frame groups each spot showed in, against how many it could have.
         # (A list, not a generator, to sum: the same count, with less overhead for a group or two.)
-        sightings = {id(m): (len(t.found), sum([name in g.lasers for g in groups]))
+        sightings = {id(m): (t.shows_in(), sum([name in g.lasers for g in groups]))
                      for name, ts in tracks.items() for t, m in zip(ts, cands[name])}
         refs = self._believable(cands.get(ref, []))
         if all(m.snr < EDGE_MIN_SNR and sightings[id(m)][0] < sightings[id(m)][1] for m in refs):
@@ -934,7 +941,7 @@ class Ranger:
         names = self._lasers  # the rig's laser names, in order (rig.laser_names builds a tuple each time)
         tracks: dict[str, list[_Track]] = {name: [] for name in names}
         expected: dict[str, int] = {name: 0 for name in names}
-        for group in groups:
+        for k, group in enumerate(groups):
             found = self._deblend(group, self.finder.find(group.on, group.off, group.lasers))
             for name, cands in found.items():
                 expected[name] += 1
@@ -950,15 +957,16 @@ class Ranger:
                             track.found.append(cand)
                             track.views.add(group.view)
                             track.seen.append(group.view)
+                            track.groups.add(k)
                             break
                     else:
-                        tracks[name].append(_Track(name, [cand], {group.view}, [group.view]))
+                        tracks[name].append(_Track(name, [cand], {group.view}, [group.view], {k}))
         # A laser's spot shows in (nearly) every group where the laser was on; a blob that shows
         # once in several groups is flicker, a blinking light or noise.
         out = {}
         for name, ts in tracks.items():
             need = max(1, math.ceil(expected[name] / 2))
-            kept = [t for t in ts if len(t.found) >= need]
+            kept = [t for t in ts if t.shows_in() >= need]
             if len(kept) > 1:
                 kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
             out[name] = kept[:3]

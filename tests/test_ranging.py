@@ -643,6 +643,33 @@ def test_sightings_in_two_views_are_one_spot_if_their_noise_allows() -> None:
     assert "center" not in sharp.lasers and sharp.status == AMBIGUOUS  # two spots: which?
 
 
+def test_a_blob_found_twice_in_one_group_is_seen_once() -> None:
+    """A faint blob that the finder places twice in one frame group (two candidates 0.9 px apart:
+    one widened over JPEG's leftovers) is one sighting: found in one of the zone's two groups, as
+    is the faint blob that confirms it, it is not a range (tuning-51 zone 9: such a pair joined one
+    track, counted as seen in both groups, and ranged 0.52 m for 1.81 m)."""
+    rig = default_rig()
+    ranger = Ranger(rig)
+    frame = np.zeros((rig.camera.height, rig.camera.width), np.uint8)
+    groups = [FrameGroup([frame.copy()], [frame.copy()], rig.laser_names, (0.0514 * k, 0.0)) for k in range(2)]
+    centre = rig.camera.project(rig.laser("center").point_at_depth(2.0))
+    parallel = rig.camera.project(rig.laser("parallel").point_at_depth(2.0))
+
+    def spot(name: str, pixel) -> Candidate:
+        return Candidate(name, np.asarray(pixel, float), 0.7, 6.5, 1.0, 0.5, 0.0, 6.5)
+
+    def find(on, off, lasers=None):
+        if on[0] is groups[0].on[0]:
+            return {"center": [], "parallel": [], "sloped": []}
+        return {"center": [spot("center", centre), spot("center", centre + (0.9, 0.0))],
+                "parallel": [spot("parallel", parallel)], "sloped": []}
+
+    ranger.finder.find = find  # the blobs as the finder placed them
+    result = ranger.range_zone(0, 0.0, 0.0, groups)
+    assert result.status == AMBIGUOUS and result.range_m is None, (result.range_m, result.detail)
+    assert "in 1 of the zone's 2 views" in result.detail
+
+
 @pytest.mark.parametrize("sightings", [
     # (view, σ px, of which locked to the pixel grid): JPEG placed the spot only to its 8 px block
     # in one view, well in the other (tuning-81 zone 15)
