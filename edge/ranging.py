@@ -554,7 +554,7 @@ def common_grown(fusion: Fusion, reference: LaserMeasurement, common_px: float) 
     return replace(fusion, sigma_m=math.hypot(fusion.sigma_m, shared))
 
 
-def _moved_to(spot: LaserMeasurement, ref_tracks: Sequence[_Track], ref_cands: Sequence[LaserMeasurement],
+def _moved_to(spot: LaserMeasurement, refs: Sequence[tuple[_Track, LaserMeasurement]],
               tracks: Mapping[str, Sequence[_Track]]) -> float | None:
     """How far (px) the reference's bright `spot`, missing from some of the zone's views, sits
     from a bright spot of the reference in just those views; None if there is none. The unit is
@@ -562,13 +562,12 @@ def _moved_to(spot: LaserMeasurement, ref_tracks: Sequence[_Track], ref_cands: S
     meets changes: on a depth edge the beam lights a near surface in one view and a far one in the
     next, and neither is the zone's range (tuning-317 zone 3: 1.92 m in one view, 2.41 m in the
     other; the other lasers confirmed the far one, 22 % off). Not where another laser's spot is
-    beside the other blob in its view: a spot merged with a neighbour's is placed between them."""
-    if spot.snr < EDGE_MIN_SNR:
+    beside the other blob in its view: a spot merged with a neighbour's is placed between them.
+    `refs`: the reference's tracks, each with its measurement; `tracks`: every laser's."""
+    mine = next((t for t, m in refs if m is spot), None)
+    if spot.snr < EDGE_MIN_SNR or mine is None:
         return None
-    mine = next((t for t, m in zip(ref_tracks, ref_cands) if m is spot), None)
-    if mine is None:
-        return None
-    for t, m in zip(ref_tracks, ref_cands):
+    for t, m in refs:
         if m is spot or m.snr < EDGE_MIN_SNR or t.views & mine.views:
             continue
         px = t.pixel()
@@ -841,9 +840,8 @@ class Ranger:
                 index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                 detail=f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found",
             )
-        loose = self.config.max_sigma_fraction
-        if (len(fusion.used) == 2 and _rests_on_a_far_one(fusion) and chosen.sigma_m > loose * chosen.depth_m
-                and fusion.sigma_m > FAR_PARTNER_SHARE * loose * fusion.range_m):
+        if (len(fusion.used) == 2 and _rests_on_a_far_one(fusion) and self._too_loose_alone(chosen)
+                and fusion.sigma_m > FAR_PARTNER_SHARE * self.config.max_sigma_fraction * fusion.range_m):
             # Too loose to range alone, the reference takes its range from the one other laser that
             # agrees with it, and from the surface model between them: a spot that far away may be
             # on another surface, which a loose reference cannot tell. Such a fusion must be sure
@@ -871,7 +869,7 @@ class Ranger:
                 index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                 detail=f"the {ref} spot shows in some of the zone's views and not in others: the beam is on an edge",
             )
-        moved = _moved_to(chosen, tracks.get(ref, ()), cands.get(ref, ()), tracks) if seen < shown else None
+        moved = _moved_to(chosen, list(zip(tracks.get(ref, ()), cands.get(ref, ()))), tracks) if seen < shown else None
         if moved is not None:
             return self._result(
                 index, pan_deg, tilt_deg, AMBIGUOUS, cands,
@@ -901,6 +899,10 @@ class Ranger:
             index, pan_deg, tilt_deg, OK, fusion.range_m, fusion.sigma_m, fusion.point_m, base,
             fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),
         )
+
+    def _too_loose_alone(self, spot: LaserMeasurement) -> bool:
+        """Is `spot` placed too loosely to range on its own (σ over `max_sigma_fraction` of its depth)?"""
+        return spot.sigma_m > self.config.max_sigma_fraction * spot.depth_m
 
     def _believable(self, refs: list[LaserMeasurement]) -> list[LaserMeasurement]:
         """The reference laser's spots that may be its spot."""
@@ -1010,7 +1012,7 @@ class Ranger:
         # depth), where one faint blob meets it by chance: both other lasers must agree with it
         # (one, 1.2 px beside the parallel's spot, made a 6.4 % reference 3.7 % and 8 % off:
         # tuning-213 zone 12).
-        need = 2 if chosen.sigma_m <= self.config.max_sigma_fraction * chosen.depth_m else 3
+        need = 3 if self._too_loose_alone(chosen) else 2
         if len(fusion.used) < need or not lo <= fusion.range_m <= hi:
             # (A weak blob beyond the working range stays unconfirmed: the paths' near ends hold
             # blobs alike at one depth, tuning-42 zone 12's at 0.25 m where a wall was 3.07 m off.)
