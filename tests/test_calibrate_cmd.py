@@ -34,8 +34,8 @@ WALL_M, WALL_FROM_S = 3.7, 32.2
 # 8 s of real time at the pace below, more where the computer cannot render that fast).
 LATE_S = 24.0
 PACE = 3.0  # the rig at up to 3 × real time: the board's 30 s walk in about 10 s
-# A third of the default frame rate: a third of the frames to render, and still dozens at each stand.
-FRAME_RATE_HZ = 10.0
+# Half the default frame rate: half the frames to render, and still dozens at each stand.
+FRAME_RATE_HZ = 15.0
 
 
 def rig_s(m) -> float:
