@@ -90,6 +90,11 @@ NOISE_FLOOR_FRACTION = 0.5
 # Red's noise differs this much between the four pixels of a 2 × 2 block only behind a Bayer filter
 # (demosaicing interpolates red at three of them, which averages their noise).
 BAYER_CONTRAST = 1.25
+# Or, where the red pixels' noise is no higher than the greens' (a gradient-led demosaicing, VNG,
+# builds red at a green pixel from that pixel's own green, noise and all), the blue pixels' is this
+# much lower: their red is the mean of four red pixels. (Bilinear and edge-aware: 0.55–0.7; VNG:
+# 0.6–0.85; no filter, JPEG's 4:2:0 chroma included: 0.9–1.)
+BAYER_LOW_CONTRAST = 0.75
 # Fitting a spot's red pixels behind a Bayer filter: what the interpolation between them adds to the
 # demosaiced spot's variance (px², bilinear's tent over the red pixels' 2 px pitch), the narrowest
 # width held likely, and how far (in log width) the prior lets the red pixels move it.
@@ -973,6 +978,8 @@ class SpotFinder:
             low, mid1, mid2, high = sorted(power)
             if low > 0 and high > BAYER_CONTRAST * 0.5 * (mid1 + mid2):
                 bayer = power.index(high)
+            elif 0 < low < BAYER_LOW_CONTRAST * 0.5 * (mid1 + mid2):
+                bayer = power.index(low) ^ 3  # (the red pixel is the blue one's diagonal neighbour)
         # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
         sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
         return _Texture(area, sites, bayer, demosaiced)
