@@ -177,7 +177,8 @@ def _centre(coef: np.ndarray) -> tuple[float, float]:
 
 
 def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.ndarray, du: float, dv: float,
-               size: float, width: tuple[float, float] | None = None
+               size: float, width: tuple[float, float] | None = None,
+               others: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                ) -> tuple[float, float, np.ndarray, float, float, float] | None:
     """A round Gaussian fitted by weighted least squares (Levenberg–Marquardt) to the pixels `sites`
     of `above` (their noise variances `var`), started at (du, dv) with width `size`: its centre, the
@@ -188,13 +189,31 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
     A spot as small as the filter's period lights one or two red pixels: their values fix the
     centre only with its width, which they cannot tell. The width is then held near what the
     demosaiced spot shows (`size`, less the interpolation's spread) by a prior, whose uncertainty
-    the centre's covariance carries; a spot that lights enough red pixels overrules it."""
+    the centre's covariance carries; a spot that lights enough red pixels overrules it.
+
+    `others`: the same spot in another colour's own pixels, (above, sites, var) of that plane, with
+    an amplitude of its own (a red laser's light reaches a green filter at a tenth of red's): the
+    green pixels lie between the red ones, where a small spot's core falls when the red ones see
+    only its wings, and they tell its width."""
     y, x = np.nonzero(sites)
     if y.size < 8:
         return None
-    xs, ys = offs[x].astype(np.float64), offs[y].astype(np.float64)
     val = above[y, x].astype(np.float64)
     w = 1.0 / var[y, x]
+    second = np.zeros(y.size, bool)  # (the pixels of `others`, after the red ones)
+    amp2 = 0.0
+    if others is not None:
+        above2, sites2, var2 = others
+        y2, x2 = np.nonzero(sites2)
+        if y2.size:
+            val2 = above2[y2, x2].astype(np.float64)
+            amp2 = max(float(val2.max()), 1e-9)
+            y, x = np.concatenate([y, y2]), np.concatenate([x, x2])
+            val = np.concatenate([val, val2])
+            w = np.concatenate([w, 1.0 / var2[y2, x2]])
+            second = np.concatenate([second, np.ones(y2.size, bool)])
+    xs, ys = offs[x].astype(np.float64), offs[y].astype(np.float64)
+    first = ~second
     if width is None:
         t0 = 0.5 * math.log(max(size * size - _DEMOSAIC_SPREAD_PX2, _MIN_SITE_WIDTH_PX**2))
         prior = 1.0 / _SITE_WIDTH_PRIOR**2
@@ -206,13 +225,16 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
         s2 = w2 + _PIXEL_VAR
         r2 = (xs - p[1]) ** 2 + (ys - p[2]) ** 2
         g = np.exp(-0.5 * r2 / s2)
-        m = p[0] * g
-        jac = np.stack([g, m * (xs - p[1]) / s2, m * (ys - p[2]) / s2, m * r2 * w2 / (s2 * s2)], axis=1)
+        m = np.where(second, p[4], p[0]) * g
+        jac = np.stack([g * first, m * (xs - p[1]) / s2, m * (ys - p[2]) / s2, m * r2 * w2 / (s2 * s2), g * second],
+                       axis=1)
         res = val - m
         return jac, res, float((w * res * res).sum()) + prior * (p[3] - t0) ** 2
 
-    p = np.array([max(float(val.max()), 1e-9), du, dv, t0])
+    p = np.array([max(float(val[first].max()), 1e-9), du, dv, t0, amp2])
     jac, res, cost = model(p)
+    free = 5 if second.any() else 4  # (without `others`, the fifth column is all zero: left out)
+    jac = jac[:, :free]
     damping = 1e-3
     for _ in range(20):
         jw = jac * w[:, None]
@@ -226,10 +248,11 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
             return None
         step[1:3] = np.clip(step[1:3], -0.5, 0.5)
         step[3] = float(np.clip(step[3], -0.3, 0.3))
-        trial = p + step
+        trial = p.copy()
+        trial[:free] += step
         tj, tr, tc = model(trial)
         if tc <= cost:
-            p, jac, res, cost = trial, tj, tr, tc
+            p, jac, res, cost = trial, tj[:, :free], tr, tc
             damping = max(damping / 3.0, 1e-7)
             if abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3:
                 break
@@ -237,7 +260,7 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
             damping *= 4.0
             if damping > 1e6:
                 break
-    amp, u, v, t = (float(c) for c in p)
+    amp, u, v, t = (float(c) for c in p[:4])
     if amp <= 0 or not 0.3 < math.exp(t) < 6.0 or abs(u - du) > 1.0 or abs(v - dv) > 1.0:
         return None
     info = (jac * w[:, None]).T @ jac
@@ -246,7 +269,7 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
         full = np.linalg.inv(info)
     except np.linalg.LinAlgError:
         return None
-    chi2 = float((w * res * res).sum()) / max(y.size - 4, 1)
+    chi2 = float((w * res * res).sum()) / max(y.size - free, 1)
     return u, v, full[1:3, 1:3], chi2, t, float(full[3, 3])
 
 
@@ -1061,6 +1084,28 @@ class SpotFinder:
                 break
         return seeds
 
+    def _green_sites(self, on, off, rows, cols, scales: tuple[float, float], sites: np.ndarray, noise: float,
+                     shot: float, mine: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Behind a Bayer filter, a spot's window in the green plane at the green pixels `sites`,
+        which keep their own value through the demosaicing: (difference above the window border's
+        median, the usable green pixels, their noise variances), for `_fit_sites`; None for grey
+        frames, and for JPEG's, whose blocks keep no pixel's own value (their 4:2:0 chroma can pass
+        for a Bayer filter's pattern: `_texture`). The noise is red's: the room's light and the
+        sensor are much the same in both."""
+        if on[0].ndim != 3 or self._jpeg:
+            return None
+        scale, off_scale = scales
+        lit = sum([image[rows, cols, 1].astype(np.float32) for image in on]) * scale
+        dark = sum([image[rows, cols, 1].astype(np.float32) for image in off]) * off_scale
+        win = lit - dark
+        border = win.take(_border_index(win.shape[0]))
+        border.sort()
+        above = win - border.item(border.size // 2)
+        usable = sites & (lit < _SATURATED)
+        if mine is not None:
+            usable &= mine
+        return above, usable, noise**2 + np.maximum(above, 0.0) * shot
+
     def _apart(self, a, b, peak, on, off, gain) -> bool:
         """Are the peaks at pixels `a` and `b` two spots? Only if the difference image dips below
         half the weaker peak somewhere between them (a big saturated spot has several maxima)."""
@@ -1175,10 +1220,14 @@ class SpotFinder:
         site_width = None  # (log px, variance) where a fit of a Bayer filter's red pixels placed the spot
         if texture.bayer is not None:
             rr, rc = divmod(texture.bayer, 2)
-            red = (((v0 - rw + np.arange(2 * rw + 1)) % 2 == rr)[:, None]
-                   & ((u0 - rw + np.arange(2 * rw + 1)) % 2 == rc)[None, :])
+            row_red = (v0 - rw + np.arange(2 * rw + 1)) % 2 == rr
+            col_red = (u0 - rw + np.arange(2 * rw + 1)) % 2 == rc
+            red = row_red[:, None] & col_red[None, :]
             var_all = noise**2 + np.maximum(above, 0.0) * shot  # each pixel's noise variance
-            fit = _fit_sites(above, red if usable is None else red & usable, var_all, offs, du, dv, size, width)
+            green = self._green_sites(on, off, rows, cols, (scale, off_scale), row_red[:, None] != col_red[None, :],
+                                      noise, shot, mine)
+            fit = _fit_sites(above, red if usable is None else red & usable, var_all, offs, du, dv, size, width,
+                             green)
             # A fit that leaves far more than noise, or knows the centre to worse than a pixel, has
             # not found the spot's shape: the centroid then.
             # (Nor does one whose covariance is not positive: an ill-conditioned fit.)

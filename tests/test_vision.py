@@ -291,6 +291,44 @@ def test_spots_behind_a_vng_demosaicing_are_placed_by_their_red_pixels(monkeypat
     assert rms < 0.93 * rms_before
 
 
+def test_a_small_spot_behind_a_bayer_filter_is_placed_by_its_green_pixels_too(monkeypatch) -> None:
+    """A spot of σ 0.45 px falls mostly between red pixels (2 px apart), which see its wings: from
+    them alone its width came out half as wide again as it is, and the spot was pulled towards the
+    brighter red column by a few tenths of a pixel, all three lasers alike (tuning-170: 5-10 % short
+    at 2-3 m, one zone 10 % off within its σ). A red laser reaches the green pixels at a tenth of
+    red, and those lie where the core falls: fitted with an amplitude of their own, they place the
+    spot twice as well."""
+    config = load_config()
+    sim = replace(config.sim, beam=replace(config.sim.beam, speckle=0.5),
+                  sensor=replace(config.sim.sensor, bayer="bilinear"),
+                  optics=replace(config.sim.optics, psf_sigma_px=0.45))
+    renderer = Renderer(load_scene("office"), config.rig.build(), sim)
+    views = []
+    for k, pan in enumerate(np.arange(-180.0, 180.0, 30.0)):
+        views.append((_pair(renderer, pan=float(pan), seed=k), renderer.spots(float(pan), 0.0)))
+
+    def placed() -> float:
+        """The spots' RMS error (px); nearly every spot is placed by its own pixels' colours."""
+        finder = SpotFinder(renderer.rig)
+        errors, by_sites = [], []
+        for (on, off), truth in views:
+            for name, cands in finder.find([on], [off]).items():
+                spot = truth.get(name)
+                if spot is None or spot.pixel is None or not cands:
+                    continue
+                c = min(cands, key=lambda c: float(np.linalg.norm(c.pixel - spot.pixel)))
+                error = float(np.linalg.norm(c.pixel - spot.pixel))
+                if error < 3.0:  # the spot, not another blob
+                    by_sites.append(c.site_width is not None)
+                    errors.append(error)
+        assert len(errors) >= 25 and np.mean(by_sites) >= 0.8
+        return float(np.sqrt(np.mean(np.square(errors))))
+
+    rms = placed()
+    monkeypatch.setattr(SpotFinder, "_green_sites", lambda *args: None)  # the red pixels alone
+    assert rms < 0.7 * placed()
+
+
 def test_a_big_spot_behind_a_bayer_filter_is_localised_after_the_window_grows() -> None:
     # A defocused spot (σ 3 px) grows the localisation window three times; the Bayer fit must use
     # the last window's pixels (it once took the next window's size, and raised).
