@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
+from edge import vision
 from edge.config import load_config
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
 from edge.sim.scene import load_scene
-from edge import vision
 from edge.vision import SpotFinder
 
 
