@@ -50,6 +50,13 @@ CHROMA_LAG2 = 0.4
 DEMOSAIC_PX = 0.25
 DEMOSAIC_SNAP_PX = 0.55
 DEMOSAIC_SNAP_SIZE_PX = 0.6
+# A spot placed by its pixels' own values behind a Bayer filter, red's and green's (raw frames;
+# `_fit_sites`), keeps this share of DEMOSAIC_PX, and all of the snap: no interpolation moves those
+# values, but a small spot's wings on them still pull it. On tuning 0-95's raw Bayer frames, such
+# spots' errors along the rows were 0.35-0.7 of their σ (RMS) with all of the term, 0.9-1.2
+# without it, and 0.56-0.88 with this (97-99 % within 2σ, brightest to faintest); the whole
+# term's share at 0.4 or 0.6 made a zone 11 % off `ok` (tuning-292 zone 3), this did not.
+SITE_GRID_SHARE = 0.4
 # `auto` decides from this many frame groups (the median of their chroma correlations), then keeps it.
 AUTO_GROUPS = 8
 # JPEG frames: steps across the 8 × 8 blocks' boundaries this many times those inside blocks (1.27-16
@@ -1285,6 +1292,9 @@ class SpotFinder:
             var_v = grow * (noise2 * max(nyy - 2.0 * dv * ny + dv * dv * n0, 0.0)
                             + shot * max(myy - 2.0 * dv * my + dv * dv * mass, 0.0))
         demosaic, locked = self._grid_px(size) if texture.demosaiced else (0.0, 0.0)
+        if site_width is not None and not self._jpeg:
+            # Placed by the pixels that keep their own value, which no interpolation moves.
+            demosaic -= (1.0 - SITE_GRID_SHARE) * DEMOSAIC_PX
         var_u += demosaic**2
         var_v += demosaic**2
         # Where along the path, and how far from it, from the strip row the seed came from.
