@@ -416,7 +416,7 @@ class Candidate:
     # The position's covariance (var u, var v, cov uv; px²), where its axes are placed unequally
     # well: only the part along the laser's path moves the depth. None: sigma_px² on each axis.
     cov_px: tuple[float, float, float] | None = None
-    # Behind a Bayer filter, the spot's width as its red pixels' fit found it: (log px, its variance).
+    # Behind a Bayer filter, the spot's width as its own-colour pixels' fit found it: (log px, its variance).
     site_width: tuple[float, float] | None = None
     # The part of sigma_px that comes from where the spot falls on the pixel grid (demosaicing's
     # pull toward red pixels): a view nudged by a fraction of a pixel keeps most of it, so it does
@@ -1224,7 +1224,7 @@ class SpotFinder:
             usable = mine
         misfit = 1.0
         cov = None
-        site_width = None  # (log px, variance) where a fit of a Bayer filter's red pixels placed the spot
+        site_width = None  # (log px, variance) where a fit of a Bayer filter's own-colour pixels placed the spot
         if texture.bayer is not None:
             rr, rc = divmod(texture.bayer, 2)
             row_red = (v0 - rw + np.arange(2 * rw + 1)) % 2 == rr

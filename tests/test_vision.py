@@ -257,59 +257,17 @@ def test_sigma_covers_the_shift_of_an_edge_aware_demosaicing() -> None:
     assert np.mean(within) >= 0.8
 
 
-def test_spots_behind_a_vng_demosaicing_are_placed_by_their_red_pixels(monkeypatch) -> None:
-    """VNG builds red at a green pixel from that pixel's own green, noise and all: the red pixels'
-    noise is no higher than the others', which hid the Bayer filter, and every spot was placed by
-    the demosaiced centroid (2 × the oracle's error on the tuning family's raw VNG frames). The blue
-    pixels, whose red is the mean of four red pixels, are the quietest: they tell where red is."""
-    renderer = _renderer(load_scene("office"), speckle=0.5, bayer="vng")
+def _views(renderer: Renderer) -> list:
+    """Twelve views of `renderer`'s scene, 30° apart: each view's pair and the spots' truths."""
     views = []
     for k, pan in enumerate(np.arange(-180.0, 180.0, 30.0)):
         views.append((_pair(renderer, pan=float(pan), seed=k), renderer.spots(float(pan), 0.0)))
-
-    def placed() -> tuple[float, float]:
-        """The share of spots placed by their red pixels, and the spots' RMS error (px)."""
-        finder = SpotFinder(renderer.rig)
-        by_sites, errors = [], []
-        for (on, off), truth in views:
-            for name, cands in finder.find([on], [off]).items():
-                spot = truth.get(name)
-                if spot is None or spot.pixel is None or not cands:
-                    continue
-                c = min(cands, key=lambda c: float(np.linalg.norm(c.pixel - spot.pixel)))
-                error = float(np.linalg.norm(c.pixel - spot.pixel))
-                if error < 3.0:  # the spot, not another blob
-                    by_sites.append(c.site_width is not None)
-                    errors.append(error)
-        assert len(errors) >= 25
-        return float(np.mean(by_sites)), float(np.sqrt(np.mean(np.square(errors))))
-
-    share, rms = placed()
-    monkeypatch.setattr(vision, "BAYER_LOW_CONTRAST", 0.0)  # only a louder red pixel tells the filter
-    share_before, rms_before = placed()
-    assert share_before == 0.0 and share >= 0.3
-    assert rms < 0.93 * rms_before
+    return views
 
 
-@functools.lru_cache(maxsize=1)
-def _small_bayer_spots() -> tuple[Renderer, list]:
-    """Views of the office behind a bilinear-demosaiced Bayer filter, with spots of σ 0.45 px
-    (smaller than the filter's 2 px period) and speckle: each view's pair and the spots' truths."""
-    config = load_config()
-    sim = replace(config.sim, beam=replace(config.sim.beam, speckle=0.5),
-                  sensor=replace(config.sim.sensor, bayer="bilinear"),
-                  optics=replace(config.sim.optics, psf_sigma_px=0.45))
-    renderer = Renderer(load_scene("office"), config.rig.build(), sim)
-    views = []
-    for k, pan in enumerate(np.arange(-180.0, 180.0, 30.0)):
-        views.append((_pair(renderer, pan=float(pan), seed=k), renderer.spots(float(pan), 0.0)))
-    return renderer, views
-
-
-def _placed_small_bayer_spots() -> list[tuple[np.ndarray, float, bool]]:
-    """Each spot of `_small_bayer_spots` found near its truth: its error (px, u and v), its σ, and
-    whether its pixels' own values placed it (`Candidate.site_width`)."""
-    renderer, views = _small_bayer_spots()
+def _placed(renderer: Renderer, views: list) -> list[tuple[np.ndarray, float, bool]]:
+    """Each spot of `views` found near its truth by a new finder: its error (px, u and v), its σ,
+    and whether its pixels' own values placed it behind a Bayer filter (`Candidate.site_width`)."""
     finder = SpotFinder(renderer.rig)
     placed = []
     for (on, off), truth in views:
@@ -325,6 +283,38 @@ def _placed_small_bayer_spots() -> list[tuple[np.ndarray, float, bool]]:
     return placed
 
 
+def _share_and_rms(placed: list[tuple[np.ndarray, float, bool]]) -> tuple[float, float]:
+    """The share of `_placed` spots placed by their pixels' own values, and the spots' RMS error (px)."""
+    return (float(np.mean([by_sites for _, _, by_sites in placed])),
+            float(np.sqrt(np.mean([float(e @ e) for e, _, _ in placed]))))
+
+
+def test_spots_behind_a_vng_demosaicing_are_placed_by_their_red_pixels(monkeypatch) -> None:
+    """VNG builds red at a green pixel from that pixel's own green, noise and all: the red pixels'
+    noise is no higher than the others', which hid the Bayer filter, and every spot was placed by
+    the demosaiced centroid (2 × the oracle's error on the tuning family's raw VNG frames). The blue
+    pixels, whose red is the mean of four red pixels, are the quietest: they tell where red is."""
+    renderer = _renderer(load_scene("office"), speckle=0.5, bayer="vng")
+    views = _views(renderer)
+    share, rms = _share_and_rms(_placed(renderer, views))
+    monkeypatch.setattr(vision, "BAYER_LOW_CONTRAST", 0.0)  # only a louder red pixel tells the filter
+    share_before, rms_before = _share_and_rms(_placed(renderer, views))
+    assert share_before == 0.0 and share >= 0.3
+    assert rms < 0.93 * rms_before
+
+
+@functools.lru_cache(maxsize=1)
+def _small_bayer_spots() -> tuple[Renderer, list]:
+    """`_views` of the office behind a bilinear-demosaiced Bayer filter, with spots of σ 0.45 px
+    (smaller than the filter's 2 px period) and speckle."""
+    config = load_config()
+    sim = replace(config.sim, beam=replace(config.sim.beam, speckle=0.5),
+                  sensor=replace(config.sim.sensor, bayer="bilinear"),
+                  optics=replace(config.sim.optics, psf_sigma_px=0.45))
+    renderer = Renderer(load_scene("office"), config.rig.build(), sim)
+    return renderer, _views(renderer)
+
+
 def test_a_small_spot_behind_a_bayer_filter_is_placed_by_its_green_pixels_too(monkeypatch) -> None:
     """A spot of σ 0.45 px falls mostly between red pixels (2 px apart), which see its wings: from
     them alone its width came out half as wide again as it is, and the spot was pulled towards the
@@ -333,14 +323,10 @@ def test_a_small_spot_behind_a_bayer_filter_is_placed_by_its_green_pixels_too(mo
     red, and those lie where the core falls: fitted with an amplitude of their own, they place the
     spot twice as well."""
 
-    def rms() -> float:
-        placed = _placed_small_bayer_spots()
-        assert np.mean([by_sites for _, _, by_sites in placed]) >= 0.8
-        return float(np.sqrt(np.mean([float(e @ e) for e, _, _ in placed])))
-
-    with_green = rms()
+    share, rms = _share_and_rms(_placed(*_small_bayer_spots()))
     monkeypatch.setattr(SpotFinder, "_green_sites", lambda *args: None)  # the red pixels alone
-    assert with_green < 0.7 * rms()
+    assert share >= 0.8
+    assert rms < 0.7 * _share_and_rms(_placed(*_small_bayer_spots()))[1]
 
 
 def test_a_spot_placed_by_its_own_pixels_values_is_not_held_to_the_demosaicing_s_shift(monkeypatch) -> None:
@@ -351,7 +337,7 @@ def test_a_spot_placed_by_its_own_pixels_values_is_not_held_to_the_demosaicing_s
 
     def z() -> np.ndarray:
         """Each spot's error along the rows (the depth's axis) over its σ with the speckle's."""
-        return np.array([e[0] / math.hypot(sigma, 0.12) for e, sigma, by_sites in _placed_small_bayer_spots()
+        return np.array([e[0] / math.hypot(sigma, 0.12) for e, sigma, by_sites in _placed(*_small_bayer_spots())
                          if by_sites])
 
     tighter = z()
