@@ -227,21 +227,31 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
     else:
         t0, prior = width[0], 1.0 / width[1] ** 2
 
-    def model(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    free = 5 if second.any() else 4  # (without `others`, the fifth column would be all zero: left out)
+    amps = first.astype(np.float64), second.astype(np.float64)  # (each amplitude's pixels, as 1 and 0)
+
+    # (Plain floats and one array filled column by column: numpy's calls, not the arithmetic on a
+    # few dozen pixels, are what a step costs; the values are the same to the digit.)
+    def model(p: list[float]) -> tuple[np.ndarray, np.ndarray, float]:
         w2 = math.exp(2.0 * p[3])
         s2 = w2 + _PIXEL_VAR
-        r2 = (xs - p[1]) ** 2 + (ys - p[2]) ** 2
+        dx, dy = xs - p[1], ys - p[2]
+        r2 = dx * dx + dy * dy
         g = np.exp(-0.5 * r2 / s2)
-        m = np.where(second, p[4], p[0]) * g
-        jac = np.stack([g * first, m * (xs - p[1]) / s2, m * (ys - p[2]) / s2, m * r2 * w2 / (s2 * s2), g * second],
-                       axis=1)
+        m = (amps[0] * p[0] + amps[1] * p[4]) * g
+        jac = np.empty((g.size, free))
+        np.multiply(g, amps[0], out=jac[:, 0])
+        jac[:, 1] = m * dx / s2
+        jac[:, 2] = m * dy / s2
+        jac[:, 3] = m * r2 * w2 / (s2 * s2)
+        if free == 5:
+            np.multiply(g, amps[1], out=jac[:, 4])
         res = val - m
         return jac, res, float((w * res * res).sum()) + prior * (p[3] - t0) ** 2
 
-    p = np.array([max(float(val[first].max()), 1e-9), du, dv, t0, amp2])
+    p = [max(float(val[first].max()), 1e-9), du, dv, t0, amp2]
     jac, res, cost = model(p)
-    free = 5 if second.any() else 4  # (without `others`, the fifth column is all zero: left out)
-    jac = jac[:, :free]
+    diagonal = np.arange(free) * (free + 1)  # (flat indices of a (free, free) matrix's diagonal)
     damping = 1e-3
     for _ in range(20):
         jw = jac * w[:, None]
@@ -249,17 +259,19 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
         info[3, 3] += prior
         grad = jw.T @ res
         grad[3] -= prior * (p[3] - t0)
+        damped = info.copy()
+        damped.flat[diagonal] += damping * info.flat[diagonal]
         try:
-            step = np.linalg.solve(info + damping * np.diag(np.diag(info)), grad)
+            step = np.linalg.solve(damped, grad).tolist()
         except np.linalg.LinAlgError:
             return None
-        step[1:3] = np.clip(step[1:3], -0.5, 0.5)
-        step[3] = float(np.clip(step[3], -0.3, 0.3))
-        trial = p.copy()
-        trial[:free] += step
+        step[1] = min(max(step[1], -0.5), 0.5)
+        step[2] = min(max(step[2], -0.5), 0.5)
+        step[3] = min(max(step[3], -0.3), 0.3)
+        trial = [a + b for a, b in zip(p, step)] + p[free:]
         tj, tr, tc = model(trial)
         if tc <= cost:
-            p, jac, res, cost = trial, tj[:, :free], tr, tc
+            p, jac, res, cost = trial, tj, tr, tc
             damping = max(damping / 3.0, 1e-7)
             if abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3:
                 break
@@ -267,7 +279,7 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
             damping *= 4.0
             if damping > 1e6:
                 break
-    amp, u, v, t = (float(c) for c in p[:4])
+    amp, u, v, t = p[:4]
     if amp <= 0 or not 0.3 < math.exp(t) < 6.0 or abs(u - du) > 1.0 or abs(v - dv) > 1.0:
         return None
     info = (jac * w[:, None]).T @ jac
