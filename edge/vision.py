@@ -99,8 +99,10 @@ NOISE_FLOOR_FRACTION = 0.5
 BAYER_CONTRAST = 1.25
 # Or, where the red pixels' noise is no higher than the greens' (a gradient-led demosaicing, VNG,
 # builds red at a green pixel from that pixel's own green, noise and all), the blue pixels' is this
-# much lower: their red is the mean of four red pixels. (Bilinear and edge-aware: 0.55–0.7; VNG:
-# 0.6–0.85; no filter, JPEG's 4:2:0 chroma included: 0.9–1.)
+# much lower: their red is the mean of four red pixels. (On the tuning family's raw frames, each
+# condition's median: bilinear and edge-aware 0.53–0.75, VNG 0.62–0.85; JPEG at quality 80–90 over a
+# filter, whose blocks keep little of its pattern, 0.88–0.96. JPEG's 4:2:0 chroma can still pass for
+# a filter, as it can by the louder red pixel: tuning-31, no filter, 0.68 and 1.46.)
 BAYER_LOW_CONTRAST = 0.75
 # Fitting a spot's red pixels behind a Bayer filter: what the interpolation between them adds to the
 # demosaiced spot's variance (px², bilinear's tent over the red pixels' 2 px pitch), the narrowest
