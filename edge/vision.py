@@ -222,7 +222,6 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
             w = np.concatenate([w, 1.0 / var2[y2, x2]])
             second = np.concatenate([second, np.ones(y2.size, bool)])
     xs, ys = offs[x].astype(np.float64), offs[y].astype(np.float64)
-    first = ~second
     if width is None:
         t0 = 0.5 * math.log(max(size * size - _DEMOSAIC_SPREAD_PX2, _MIN_SITE_WIDTH_PX**2))
         prior = 1.0 / _SITE_WIDTH_PRIOR**2
@@ -230,7 +229,7 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
         t0, prior = width[0], 1.0 / width[1] ** 2
 
     free = 5 if second.any() else 4  # (without `others`, the fifth column would be all zero: left out)
-    amps = first.astype(np.float64), second.astype(np.float64)  # (each amplitude's pixels, as 1 and 0)
+    amps = (~second).astype(np.float64), second.astype(np.float64)  # (each amplitude's pixels, as 1 and 0)
 
     # (Plain floats and one array filled column by column: numpy's calls, not the arithmetic on a
     # few dozen pixels, are what a step costs; the values are the same to the digit.)
@@ -251,7 +250,7 @@ def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.n
         res = val - m
         return jac, res, float((w * res * res).sum()) + prior * (p[3] - t0) ** 2
 
-    p = [max(float(val[first].max()), 1e-9), du, dv, t0, amp2]
+    p = [max(float(val[~second].max()), 1e-9), du, dv, t0, amp2]
     jac, res, cost = model(p)
     diagonal = np.arange(free) * (free + 1)  # (flat indices of a (free, free) matrix's diagonal)
     damping = 1e-3
@@ -393,6 +392,15 @@ def _border_index(size: int) -> np.ndarray:
     ring = np.ones((size, size), bool)
     ring[1:-1, 1:-1] = False
     return np.flatnonzero(ring)
+
+
+def _border_level(win: np.ndarray, border: np.ndarray) -> float:
+    """The median of a square window's outermost ring, `border` (`_border_index`; the upper of
+    the middle two): the room's level about a spot. (The ring, a copy, sorted in place costs half
+    sorted() of its values as floats, and less than np.partition, on a few dozen values.)"""
+    ring = win.take(border)
+    ring.sort()
+    return ring.item(ring.size // 2)
 
 
 @dataclass(frozen=True)
@@ -876,9 +884,11 @@ class SpotFinder:
         return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX), cov_px=(var_u, var_v, 0.0))
 
     @staticmethod
-    def _grid_px(size: float) -> tuple[float, float]:
+    def _grid_px(size: float, own_values: bool = False) -> tuple[float, float]:
         """What demosaicing adds to the σ of a spot of RMS radius `size` (px), and the part of it
-        that is locked to the pixel grid (see Candidate.locked_px).
+        that is locked to the pixel grid (see Candidate.locked_px); `own_values`: for a spot that
+        the pixels keeping their own values placed (`_fit_sites`, lossless frames), which no
+        interpolation moves: SITE_GRID_SHARE of the DEMOSAIC_PX base, and all of the snap.
 
         Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation shifts a
         small spot by up to a few tenths of a pixel, depending on the method and where the spot
@@ -888,7 +898,10 @@ class SpotFinder:
         behind a Bayer filter: 0.24 px common at a spot size of 0.75 px, 0.15 at 0.9, 0.08 at
         1.1, none at 1.4; this gives 0.23, 0.15, 0.08, 0)."""
         snap = min(max((2.0 * DEMOSAIC_SNAP_SIZE_PX - size) / DEMOSAIC_SNAP_SIZE_PX, 0.0), 1.0)
-        return DEMOSAIC_PX + snap * (DEMOSAIC_SNAP_PX - DEMOSAIC_PX), snap * (DEMOSAIC_SNAP_PX - DEMOSAIC_PX)
+        shift = DEMOSAIC_PX + snap * (DEMOSAIC_SNAP_PX - DEMOSAIC_PX)
+        if own_values:
+            shift -= (1.0 - SITE_GRID_SHARE) * DEMOSAIC_PX
+        return shift, snap * (DEMOSAIC_SNAP_PX - DEMOSAIC_PX)
 
     def grid_px(self, size: float) -> tuple[float, float]:
         """`_grid_px` of a spot in the frames of the last `find` (0, 0 where they were not
@@ -1119,9 +1132,7 @@ class SpotFinder:
         lit = sum([image[rows, cols, 1].astype(np.float32) for image in on]) * scale
         dark = sum([image[rows, cols, 1].astype(np.float32) for image in off]) * off_scale
         win = lit - dark
-        border = win.take(_border_index(win.shape[0]))
-        border.sort()
-        above = win - border.item(border.size // 2)
+        above = win - _border_level(win, _border_index(win.shape[0]))
         usable = sites & (lit < _SATURATED)
         if mine is not None:
             usable &= mine
@@ -1192,11 +1203,7 @@ class SpotFinder:
                 lit = self._scaled(on, rows, cols, scale)
                 win = lit - self._scaled(off, rows, cols, off_scale)
             kit = _kit(r)
-            border = win.take(kit.border)
-            # The median: the border (a copy) sorted in place, which costs half sorted() of its
-            # values as floats, and less than np.partition, on a few dozen values.
-            border.sort()
-            level = border.item(border.size // 2)
+            level = _border_level(win, kit.border)
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
             signal = win - (level + 2.0 * noise)
@@ -1305,10 +1312,8 @@ class SpotFinder:
                             + shot * max(mxx - 2.0 * du * mx + du * du * mass, 0.0))
             var_v = grow * (noise2 * max(nyy - 2.0 * dv * ny + dv * dv * n0, 0.0)
                             + shot * max(myy - 2.0 * dv * my + dv * dv * mass, 0.0))
-        demosaic, locked = self._grid_px(size) if texture.demosaiced else (0.0, 0.0)
-        if site_width is not None and not self._jpeg:
-            # Placed by the pixels that keep their own value, which no interpolation moves.
-            demosaic -= (1.0 - SITE_GRID_SHARE) * DEMOSAIC_PX
+        demosaic, locked = (self._grid_px(size, own_values=site_width is not None and not self._jpeg)
+                            if texture.demosaiced else (0.0, 0.0))
         var_u += demosaic**2
         var_v += demosaic**2
         # Where along the path, and how far from it, from the strip row the seed came from.
