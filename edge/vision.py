@@ -459,6 +459,25 @@ class _Texture:
 
 
 @dataclass(frozen=True)
+class FrameKind:
+    """What kind of frames a camera delivers, and what the finder makes of them
+    (:meth:`SpotFinder.frame_kind`)."""
+
+    jpeg: bool  # JPEG's: spots snapped to a block's centre line are widened, JPEG_COMMON_PX shared
+    blockiness: float  # `jpeg_blockiness` of the laser-off frame it was told by (1: never JPEG)
+    colour: bool
+    channel: str  # what spots are read from: "red" or "luma" of colour frames, "grey"
+    # `auto`'s evidence from this pair: its chroma noise's correlation 2 px along a row (over
+    # CHROMA_LAG2: chroma at half resolution); None where none was measured (another channel set,
+    # or `auto` already decided) or the chroma shows no noise to tell by.
+    chroma_lag2: float | None
+    demosaiced: bool  # red interpolated between a colour filter's pixels: spots carry DEMOSAIC_PX
+    bayer_red: tuple[int, int] | None  # (row, column) parity of a Bayer filter's red pixels; None: none seen
+    noise: float  # pixel noise (robust σ) of the two frames' difference, full-scale units; 0: none
+    area: float  # how far that noise is spread over neighbouring pixels (1: white; a centroid's variance × it)
+
+
+@dataclass(frozen=True)
 class _Band:
     laser: str
     v: np.ndarray  # (L, W) int pixel rows of the strip
@@ -1336,3 +1355,44 @@ class SpotFinder:
             site_width=site_width,
             locked_px=locked,
         )
+
+    def frame_kind(self, first: np.ndarray, second: np.ndarray) -> FrameKind:
+        """What kind of frames these are and what :meth:`find` makes of them, from two frames of
+        one kind at one pose (two laser-off frames: their difference is pure noise); for
+        `edge doctor`, where nobody can see it otherwise.
+
+        `find`'s own steps, `second` taken as its laser-off frame and `first` as its laser-on:
+        JPEG or not as its first laser-off frame tells it (or `delivered` told it), the channel
+        `auto` would read after this pair (from the groups it measured so far and this one), the
+        difference's noise and texture at the background samples. It changes none of the
+        finder's decisions: `find` decides as if this had never been called."""
+        colour = first.ndim == 3
+        blockiness = jpeg_blockiness(second)
+        jpeg = self._jpeg if self._jpeg is not None else blockiness > JPEG_BLOCKINESS
+        weights, rho = self._weights, None
+        if self._auto and len(self._chroma_lag2) < AUTO_GROUPS and colour:
+            rho = self._chroma_correlation(first, second)
+            told = [*self._chroma_lag2, *([] if rho is None else [rho])]
+            if told:
+                weights = CHANNEL_WEIGHTS["luma" if float(np.median(told)) > CHROMA_LAG2 else "red"]
+        # `_gather` and `_texture` read the channel from the finder: this pair's, and back after.
+        kept, self._weights = self._weights, weights
+        try:
+            values, off_vals = self._gather([first]), self._gather([second])
+            bon, boff = values[self._bg_slice], off_vals[self._bg_slice]
+            denom = float(boff.dot(boff))
+            off_vals *= float(bon.dot(boff)) / denom if denom > 0 else 1.0  # the flicker gain, as in find
+            diff = np.subtract(values, off_vals, out=values)
+            bg = diff[self._bg_slice]
+            centre = noise = 0.0
+            if bg.size:
+                centre = _kth(bg.copy(), bg.size // 2)
+                noise = 1.4826 * _kth(np.abs(bg - centre), bg.size // 2)
+            # (The texture as find measures it, with the noise floored at the values' step.)
+            quantum = 0.5 / (self._delivered_scale or self.full_scale(first))
+            texture = self._texture(diff, centre, max(noise, quantum), colour)
+        finally:
+            self._weights = kept
+        channel = "grey" if not colour else "luma" if weights == CHANNEL_WEIGHTS["luma"] else "red"
+        bayer_red = None if texture.bayer is None else divmod(texture.bayer, 2)
+        return FrameKind(jpeg, blockiness, colour, channel, rho, texture.demosaiced, bayer_red, noise, texture.area)

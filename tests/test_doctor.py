@@ -24,7 +24,7 @@ from edge.doctor.spots import judge
 REPO = Path(__file__).resolve().parents[1]
 ACL = (REPO / "config" / "mosquitto-acl.conf").read_text()
 LINES = ["python", "packages", "pin factory", "groups & devices", "state folder", "clock", "calibration",
-         "pan-tilt unit", "camera", "laser center", "laser parallel", "laser sloped", "tone curve", "broker"]
+         "pan-tilt unit", "camera", "laser center", "laser parallel", "laser sloped", "frames", "tone curve", "broker"]
 # No broker (its line is tried on its own below); a silent unit is given up on sooner.
 NO_BROKER = ["mqtt.enabled=false", "ptu.timeout_s=0.2"]
 
@@ -62,7 +62,7 @@ def test_each_simulated_fault_fails_its_own_line_with_a_remedy(fault, line, word
     failed = next(x for x in result.checks.lines if x.check == line)
     assert words in failed.detail and failed.remedy
     # A stalled camera leaves the lasers unseen: not run (and said why), not failed.
-    unseen = ["laser center", "laser parallel", "laser sloped", "tone curve"] if line == "camera" else []
+    unseen = ["laser center", "laser parallel", "laser sloped", "frames", "tone curve"] if line == "camera" else []
     assert _by_status(result, "not run") == unseen
 
 
@@ -283,7 +283,7 @@ def test_without_numpy_it_runs_what_needs_none_and_names_what_it_could_not(tmp_p
     assert status["packages"]["remedy"]
     for name in ("python", "pin factory", "state folder", "pan-tilt unit"):
         assert status[name]["status"] == "ok", status[name]
-    for name in ("calibration", "camera", "laser center", "laser parallel", "laser sloped", "broker"):
+    for name in ("calibration", "camera", "laser center", "laser parallel", "laser sloped", "frames", "broker"):
         assert status[name]["status"] == "not run" and "numpy" in status[name]["detail"], status[name]
 
 

@@ -9,8 +9,9 @@ each thing in turn and says, per line, ``ok`` and what it found, or what is wron
 - the rig (:mod:`edge.doctor.rig`): the calibration, the pan-tilt unit (answers, firmware, limits,
   resolution, reaches two positions), the camera (frames at the configured rate, with the exposure
   and gain fixed), each laser switched alone (its spot where the rig says, and none when off:
-  :mod:`edge.doctor.spots`), the camera's tone curve against the one ranging undoes
-  (:mod:`edge.doctor.tone`);
+  :mod:`edge.doctor.spots`), its frames (what kind, and what ranging makes of them: JPEG or not,
+  the channel read, a Bayer filter's red pixels, the noise: :mod:`edge.doctor.frames`), the
+  camera's tone curve against the one ranging undoes (:mod:`edge.doctor.tone`);
 - the broker (:mod:`edge.doctor.broker`): credentials, TLS, publishing to the device's own topics.
 
 On the simulator the same checks run against the virtual rig, whose fault switches
@@ -83,6 +84,9 @@ def examine(path: str | None = None, overrides: list[str] | tuple[str, ...] = ()
         checks.run("camera", rig.camera_check)
         for index, wire in enumerate(settings.wiring):
             checks.run(f"laser {wire.name}", lambda name=wire.name, i=index: rig.laser(name, i))  # type: ignore[misc]
+        # (After the lasers, whose frames it would otherwise shift in the simulator's noise; before
+        # the tone curve, which leaves the camera at other settings.)
+        checks.run("frames", rig.frames_check)
         checks.run("tone curve", rig.tone_curve)
     checks.run("broker", lambda: _broker(config, missing))
     return Examination(checks, settings, time.monotonic() - started)

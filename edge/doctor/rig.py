@@ -41,6 +41,7 @@ TIMING_SWITCHES = 2  # switchings whose light is averaged for the timing (see Ri
 LENS_TOLERANCE = 0.05  # dioptres: a focus motor reports back where it is, to its step
 TONE_FRAMES = 8  # frames averaged at each exposure for the tone curve (flicker averages out)
 TURN_FRAMES = 4  # laser-off frames averaged at each of the two aims that tell a spot that stays put
+KIND_FRAMES = 4  # laser-off frames taken one after another for the frames line: 6 pairs of pure noise
 
 
 def _ptu_remedy(message: str) -> str:
@@ -257,6 +258,25 @@ class RigChecks:
         return (f"{config.camera.backend} {shape[1]}x{shape[0]}: {len(frames)} frames every {median:.1f} ms "
                 f"({1e3 / median:.1f} fps; {settings.frame_rate_hz:g} configured), exposure {got:.0f} µs fixed "
                 f"({settings.exposure_us:g} asked){gain}{_lens(frames, settings.lens_dioptres)}")
+
+    def frames_check(self) -> str:
+        """What kind of frames the camera delivers and what ranging makes of them
+        (:mod:`edge.doctor.frames`), from KIND_FRAMES laser-off frames where the unit aims."""
+        config = self._typed()
+        if self.camera_problem is not None or self.camera is None:
+            raise NotRun("needs frames from the camera (see camera)")
+        if self.capture is None or self.lasers is None:
+            raise NotRun(f"needs the lasers' pins, to take frames with every laser off ({self.lasers_problem}; "
+                         "see pin factory)")
+        from edge.doctor.frames import judge
+
+        try:
+            images = [self.capture.take(()).frame.image for _ in range(KIND_FRAMES)]
+        except EdgeError as exc:
+            raise Problem(str(exc), _camera_remedy(self.settings)) from None
+        finally:
+            self.lasers.off()
+        return judge(images, self.rig if self.rig is not None else config.rig.build(), config)
 
     def laser(self, name: str, index: int) -> str:
         config = self._typed()
