@@ -347,6 +347,62 @@ def test_a_spot_placed_by_its_own_pixels_values_is_not_held_to_the_demosaicing_s
     assert np.sqrt(np.mean(tighter**2)) > 1.2 * np.sqrt(np.mean(before**2))
 
 
+@functools.lru_cache(maxsize=2)
+def _small_jpeg_spots(bayer: str) -> tuple[Renderer, list]:
+    """`_views` of a dim office with dark walls (tuning-371's) in JPEG frames at quality 94 with
+    full-resolution chroma (4:4:4), behind a bilinear-demosaiced Bayer filter or none, with bright
+    spots of σ 0.45 px. (The room's faint noise is what JPEG rounds away.)"""
+    config = load_config()
+    sim = config.sim
+    sim = replace(sim, beam=replace(sim.beam, speckle=0.5, e_per_ms_at_1m=3.0 * sim.beam.e_per_ms_at_1m),
+                  ambient=replace(sim.ambient, white_e_per_ms=0.3 * sim.ambient.white_e_per_ms),
+                  surfaces=replace(sim.surfaces, albedo_scale=0.15),
+                  sensor=replace(sim.sensor, bayer=bayer, jpeg_quality=94, jpeg_chroma="4:4:4"),
+                  optics=replace(sim.optics, psf_sigma_px=0.45))
+    renderer = Renderer(load_scene("office"), config.rig.build(), sim)
+    return renderer, _views(renderer)
+
+
+def _placed_auto(renderer: Renderer, views: list) -> list[tuple[np.ndarray, float, bool]]:
+    """`_placed` by a finder that chooses its channel (`auto`), as ranging's does."""
+    finder = SpotFinder(renderer.rig, channel="auto")
+    placed = []
+    for (on, off), truth in views:
+        for name, cands in finder.find([on], [off]).items():
+            spot = truth.get(name)
+            if spot is None or spot.pixel is None or not cands:
+                continue
+            c = min(cands, key=lambda c: float(np.linalg.norm(c.pixel - spot.pixel)))
+            if np.linalg.norm(c.pixel - spot.pixel) < 3.0:
+                placed.append((c.pixel - spot.pixel, c.sigma_px, c.site_width is not None))
+    assert len(placed) >= 25
+    return placed
+
+
+def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red_bends(monkeypatch) -> None:
+    """JPEG at high quality keeps too little of a dim room's noise for the Bayer filter to show
+    there, and its chroma passed for 4:2:0's, so luma was read: a spot of σ 0.45 px was placed by the
+    demosaiced centroid, locked onto the nearest red pixel a few tenths of a pixel off, and claimed a
+    tenth of a pixel (tuning-371: two zones 11 % off, `ok` at 4.5-4.8 % σ). Demosaicing bends red
+    only at the red pixels, which bright spots show: the finder learns the filter from the first
+    few, reads red, and places the later spots by their red pixels, with a σ that holds their errors.
+    Without a filter spots show no such bends: the looks change nothing."""
+
+    def within(placed: list[tuple[np.ndarray, float, bool]]) -> float:
+        return float(np.mean([float(np.abs(e).max()) <= 2.0 * sigma for e, sigma, _ in placed]))
+
+    renderer, views = _small_jpeg_spots("bilinear")
+    looked = _placed_auto(renderer, views)
+    plain = _placed_auto(*_small_jpeg_spots("none"))
+    monkeypatch.setattr(vision, "SITE_LOOKS", ())  # the spots never looked at
+    before = _placed_auto(renderer, views)
+    assert _share_and_rms(before)[0] == 0.0 and _share_and_rms(looked)[0] >= 0.5
+    assert within(looked) >= 0.8 and within(before) <= 0.6
+    assert _share_and_rms(looked)[1] <= _share_and_rms(before)[1]
+    again = _placed_auto(*_small_jpeg_spots("none"))
+    assert [(e.tolist(), s) for e, s, _ in plain] == [(e.tolist(), s) for e, s, _ in again]
+
+
 def test_a_big_spot_behind_a_bayer_filter_is_localised_after_the_window_grows() -> None:
     # A defocused spot (σ 3 px) grows the localisation window three times; the Bayer fit must use
     # the last window's pixels (it once took the next window's size, and raised).
