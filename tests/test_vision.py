@@ -265,10 +265,11 @@ def _views(renderer: Renderer) -> list:
     return views
 
 
-def _placed(renderer: Renderer, views: list) -> list[tuple[np.ndarray, float, bool]]:
-    """Each spot of `views` found near its truth by a new finder: its error (px, u and v), its σ,
-    and whether its pixels' own values placed it behind a Bayer filter (`Candidate.site_width`)."""
-    finder = SpotFinder(renderer.rig)
+def _placed(renderer: Renderer, views: list, channel: str = "red") -> list[tuple[np.ndarray, float, bool]]:
+    """Each spot of `views` found near its truth by a new finder reading `channel`: its error (px,
+    u and v), its σ, and whether its pixels' own values placed it behind a Bayer filter
+    (`Candidate.site_width`)."""
+    finder = SpotFinder(renderer.rig, channel=channel)
     placed = []
     for (on, off), truth in views:
         for name, cands in finder.find([on], [off]).items():
@@ -363,22 +364,6 @@ def _small_jpeg_spots(bayer: str) -> tuple[Renderer, list]:
     return renderer, _views(renderer)
 
 
-def _placed_auto(renderer: Renderer, views: list) -> list[tuple[np.ndarray, float, bool]]:
-    """`_placed` by a finder that chooses its channel (`auto`), as ranging's does."""
-    finder = SpotFinder(renderer.rig, channel="auto")
-    placed = []
-    for (on, off), truth in views:
-        for name, cands in finder.find([on], [off]).items():
-            spot = truth.get(name)
-            if spot is None or spot.pixel is None or not cands:
-                continue
-            c = min(cands, key=lambda c: float(np.linalg.norm(c.pixel - spot.pixel)))
-            if np.linalg.norm(c.pixel - spot.pixel) < 3.0:
-                placed.append((c.pixel - spot.pixel, c.sigma_px, c.site_width is not None))
-    assert len(placed) >= 25
-    return placed
-
-
 def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red_bends(monkeypatch) -> None:
     """JPEG at high quality keeps too little of a dim room's noise for the Bayer filter to show
     there, and its chroma passed for 4:2:0's, so luma was read: a spot of σ 0.45 px was placed by the
@@ -392,14 +377,14 @@ def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red
         return float(np.mean([float(np.abs(e).max()) <= 2.0 * sigma for e, sigma, _ in placed]))
 
     renderer, views = _small_jpeg_spots("bilinear")
-    looked = _placed_auto(renderer, views)
-    plain = _placed_auto(*_small_jpeg_spots("none"))
+    looked = _placed(renderer, views, "auto")
+    plain = _placed(*_small_jpeg_spots("none"), "auto")
     monkeypatch.setattr(vision, "SITE_LOOKS", ())  # the spots never looked at
-    before = _placed_auto(renderer, views)
+    before = _placed(renderer, views, "auto")
     assert _share_and_rms(before)[0] == 0.0 and _share_and_rms(looked)[0] >= 0.5
     assert within(looked) >= 0.8 and within(before) <= 0.6
     assert _share_and_rms(looked)[1] <= _share_and_rms(before)[1]
-    again = _placed_auto(*_small_jpeg_spots("none"))
+    again = _placed(*_small_jpeg_spots("none"), "auto")
     assert [(e.tolist(), s) for e, s, _ in plain] == [(e.tolist(), s) for e, s, _ in again]
 
 
