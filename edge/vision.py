@@ -781,6 +781,49 @@ class SpotFinder:
             acc += self._plane(image, rows, cols)
         return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
 
+    def _choosing_channel(self, frame: np.ndarray) -> bool:
+        """Is `auto` still measuring colour frames' chroma to choose its channel? (Not once spots
+        told a Bayer filter: red then.)"""
+        return self._auto and len(self._chroma_lag2) < AUTO_GROUPS and frame.ndim == 3 and self._site_parity is None
+
+    @staticmethod
+    def _auto_weights(told: Sequence[float]) -> tuple[float, float, float]:
+        """`auto`'s channel from the chroma correlations `told` so far: luma where their median
+        says the chroma is at half resolution, else red."""
+        return CHANNEL_WEIGHTS["luma" if float(np.median(told)) > CHROMA_LAG2 else "red"]
+
+    def _difference(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray]
+                    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """The read channel's laser-on minus laser-off difference at every strip and background
+        pixel (`_gather`'s order): (the difference, the laser-off values as scaled, the scale, the
+        laser-off background's mean level before it). Room light may differ between the frames
+        (flicker): the off frames are scaled to the on frames by least squares on pixels where no
+        laser can land."""
+        on_vals = self._gather(on)
+        off_vals = self._gather(off)
+        bon, boff = on_vals[self._bg_slice], off_vals[self._bg_slice]
+        # (ndarray.dot: the same BLAS dot as @, with less overhead; so below)
+        denom = float(boff.dot(boff))
+        gain = float(bon.dot(boff)) / denom if denom > 0 else 1.0
+        # (np.add.reduce: ndarray.sum's own reduction, without its Python wrapper)
+        off_level = float(np.add.reduce(boff)) / boff.size if boff.size else 0.0  # (before boff is scaled below)
+        # on − gain·off, in place: two fewer arrays of every strip and background pixel
+        off_vals *= gain
+        return np.subtract(on_vals, off_vals, out=on_vals), off_vals, gain, off_level
+
+    def _spread(self, diff: np.ndarray) -> tuple[float, np.ndarray, float]:
+        """The background samples of `_difference`: their median, each one's absolute deviation
+        from it (in their order) and the pixel noise, robustly (MAD; 0 where there are none)."""
+        bg = diff[self._bg_slice]
+        if not bg.size:
+            return 0.0, bg, 0.0
+        mid = bg.size // 2
+        work = bg.copy()
+        centre = _kth(work, mid)
+        # The deviations in the partitioned copy's buffer; their median from a copy of them.
+        deviation = np.abs(np.subtract(bg, centre, out=work), out=work)
+        return centre, deviation, 1.4826 * _kth(deviation.copy(), mid)
+
     def find(
         self,
         on: Sequence[np.ndarray],
@@ -803,40 +846,15 @@ class SpotFinder:
         lower than a whole path's.
         """
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
-        if self._auto and len(self._chroma_lag2) < AUTO_GROUPS and on[0].ndim == 3 and self._site_parity is None:
+        if self._choosing_channel(on[0]):
             rho = self._chroma_correlation(on[0], off[0])
             if rho is not None:
                 self._chroma_lag2.append(rho)
-                luma = float(np.median(self._chroma_lag2)) > CHROMA_LAG2
-                self._weights = CHANNEL_WEIGHTS["luma" if luma else "red"]
+                self._weights = self._auto_weights(self._chroma_lag2)
         if self._jpeg is None:  # told once, by the first laser-off frame
             self._jpeg = jpeg_blockiness(off[0]) > JPEG_BLOCKINESS
-        on_vals = self._gather(on)
-        off_vals = self._gather(off)
-        # Room light may differ between the frames (flicker): scale the off frame to the on frame
-        # by least squares on pixels where no laser can land.
-        bon, boff = on_vals[self._bg_slice], off_vals[self._bg_slice]
-        # (ndarray.dot: the same BLAS dot as @, with less overhead; so below)
-        denom = float(boff.dot(boff))
-        gain = float(bon.dot(boff)) / denom if denom > 0 else 1.0
-        # (np.add.reduce: ndarray.sum's own reduction, without its Python wrapper)
-        off_level = float(np.add.reduce(boff)) / boff.size if boff.size else 0.0  # (before boff is scaled below)
-        # on − gain·off, in place: two fewer arrays of every strip and background pixel
-        off_vals *= gain
-        diff = np.subtract(on_vals, off_vals, out=on_vals)
-        # Pixel noise of the difference, robustly (MAD), from the background sample.
-        bg = diff[self._bg_slice]
-        centre = 0.0
-        if bg.size:
-            mid = bg.size // 2
-            work = bg.copy()
-            centre = _kth(work, mid)
-            # Each sample's deviation, kept in order for the noise by level below; its median in
-            # the partitioned copy's buffer.
-            deviation = np.abs(np.subtract(bg, centre, out=work), out=work)
-            noise = 1.4826 * _kth(deviation.copy(), mid)
-        else:
-            deviation, noise = bg, 0.0
+        diff, off_vals, gain, off_level = self._difference(on, off)
+        centre, deviation, noise = self._spread(diff)
         quantum_scale = self._delivered_scale or self.full_scale(on[0])
         quantum = 0.5 / (quantum_scale * math.sqrt(len(on)))
         noise = max(noise, quantum)  # quantisation
@@ -844,15 +862,13 @@ class SpotFinder:
         # difference noise is (mostly) the shot noise of two frames of it.
         shot = noise**2 / (2.0 * max(off_level, 1e-3))
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
-        if texture.bayer is None and self._site_parity is not None and on[0].ndim == 3:
-            texture.bayer, texture.demosaiced = self._site_parity, True
         self._demosaiced = texture.demosaiced
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
         strips = diff[: self._bg_slice.start].reshape(self._strip_width, -1)  # (width, samples)
         profile = np.maximum.reduce(strips, axis=0)  # (ndarray.max's reduction, without its Python wrapper)
         # The noise a spot stands above, by how bright the room is where it falls: the laser-off
         # frame along each path's centre line (no laser there; the levels only pick a bin).
-        table = _noise_by_level(boff, np.minimum(deviation, 5.0 * noise, out=deviation), noise,
+        table = _noise_by_level(off_vals[self._bg_slice], np.minimum(deviation, 5.0 * noise, out=deviation), noise,
                                 max(quantum, NOISE_FLOOR_FRACTION * noise))
         floor = None
         if table is not None:
@@ -928,7 +944,7 @@ class SpotFinder:
                 self._curvature += shares
                 self._curved_spots += 1
                 self._curved_at.append((u, v))
-        ratio = next((r for n, r in SITE_LOOKS if before < n <= self._curved_spots), None)
+        ratio = next((told for count, told in SITE_LOOKS if before < count <= self._curved_spots), None)
         if ratio is not None:
             col_even, col_odd, row_even, row_odd = self._curvature.tolist()
             cols_told = max(col_even, col_odd) >= ratio * max(min(col_even, col_odd), 1e-12)
@@ -1111,6 +1127,14 @@ class SpotFinder:
         return float(c[0] @ c[1]) / var if var > 0 else None
 
     def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:
+        """`_noise_texture`, with the red pixels' parity that bright spots told (`_look_for_sites`)
+        where the noise shows no Bayer filter."""
+        texture = self._noise_texture(diff, centre, noise, colour)
+        if texture.bayer is None and self._site_parity is not None and colour:
+            texture.bayer, texture.demosaiced = self._site_parity, True
+        return texture
+
+    def _noise_texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:
         """How the difference image's noise is correlated, from the background samples and their
         neighbours: JPEG's blocks and a demosaicing's interpolation spread one pixel's noise over
         its neighbours, so that a spot's position is less certain than white noise would make it;
@@ -1457,24 +1481,16 @@ class SpotFinder:
         blockiness = jpeg_blockiness(second)
         jpeg = self._jpeg if self._jpeg is not None else blockiness > JPEG_BLOCKINESS
         weights, rho = self._weights, None
-        if self._auto and len(self._chroma_lag2) < AUTO_GROUPS and colour:
+        if self._choosing_channel(first):
             rho = self._chroma_correlation(first, second)
             told = [*self._chroma_lag2, *([] if rho is None else [rho])]
             if told:
-                weights = CHANNEL_WEIGHTS["luma" if float(np.median(told)) > CHROMA_LAG2 else "red"]
+                weights = self._auto_weights(told)
         # `_gather` and `_texture` read the channel from the finder: this pair's, and back after.
         kept, self._weights = self._weights, weights
         try:
-            values, off_vals = self._gather([first]), self._gather([second])
-            bon, boff = values[self._bg_slice], off_vals[self._bg_slice]
-            denom = float(boff.dot(boff))
-            off_vals *= float(bon.dot(boff)) / denom if denom > 0 else 1.0  # the flicker gain, as in find
-            diff = np.subtract(values, off_vals, out=values)
-            bg = diff[self._bg_slice]
-            centre = noise = 0.0
-            if bg.size:
-                centre = _kth(bg.copy(), bg.size // 2)
-                noise = 1.4826 * _kth(np.abs(bg - centre), bg.size // 2)
+            diff = self._difference([first], [second])[0]
+            centre, _, noise = self._spread(diff)
             # (The texture as find measures it, with the noise floored at the values' step.)
             quantum = 0.5 / (self._delivered_scale or self.full_scale(first))
             texture = self._texture(diff, centre, max(noise, quantum), colour)
