@@ -732,8 +732,9 @@ class Ranger:
         self._near_path = {name: self.finder.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
         self._inv_depths = self.finder.inv_depth_range()
 
-    def _linear(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
-        """The frame groups with `frame_gamma`'s curve undone: 16-bit values proportional to light."""
+    def linear(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
+        """The frame groups with `frame_gamma`'s curve undone: 16-bit values proportional to light
+        (and the finder told the first frame as delivered: JPEG or not, and its values' step)."""
         first = groups[0].off[0] if groups[0].off else groups[0].on[0]
         if first.dtype not in (np.uint8, np.uint16):
             raise ConfigError(f"ranging.frame_gamma: only 8- and 16-bit frames can be made linear, not {first.dtype}")
@@ -750,7 +751,7 @@ class Ranger:
         if not groups:
             return ZoneResult(index, pan_deg, tilt_deg, FAULT, detail="no usable frame pair")
         if self.config.frame_gamma != 1.0:
-            groups = self._linear(groups)
+            groups = self.linear(groups)
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         # How many of the frame groups each spot showed in, against how many it could have.

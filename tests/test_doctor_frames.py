@@ -47,6 +47,14 @@ def test_jpeg_frames_are_named_and_read_by_their_luma():
     assert "Bayer" not in line
 
 
+def test_frames_through_a_tone_curve_are_read_as_ranging_reads_them():
+    """With `ranging.frame_gamma`, ranging tells JPEG by the frame as delivered and reads the
+    frames made linear: the line says what those are."""
+    line = _frames_line("sim.sensor.gamma=2.2", "ranging.frame_gamma=2.2", "sim.sensor.jpeg_quality=80")
+    assert line.startswith("640x480 colour, JPEG (blockiness ")
+    assert "levels of 65535 in linear light" in line
+
+
 @pytest.mark.parametrize("colour", [True, False])
 def test_plain_frames_are_neither_jpeg_nor_demosaiced(colour):
     line = _frames_line(f"sim.sensor.colour={str(colour).lower()}")

@@ -53,8 +53,7 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
     the same frame, or where the camera smooths their noise."""
     import numpy as np
 
-    from edge.ranging import Ranger
-    from edge.tone import linear_table
+    from edge.ranging import FrameGroup, Ranger
     from edge.vision import JPEG_BLOCKINESS, jpeg_blockiness
 
     if len(frames) < 2:
@@ -63,14 +62,13 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
     repeated = sum(np.array_equal(a, b) for a, b in zip(frames, frames[1:]))
     if repeated:
         raise _repeated(frames[0], repeated, len(frames) - 1, config)
-    finder = Ranger(rig, config.ranging).finder  # the finder as ranging builds it, nothing told yet
+    ranger = Ranger(rig, config.ranging)  # the finder as ranging builds it, nothing told yet
+    finder = ranger.finder
     seen = list(frames)
     blockiness = None
     if config.ranging.frame_gamma != 1.0:  # as ranging: JPEG told by the delivered frame, then made linear
-        finder.delivered(frames[0])
+        seen = list(ranger.linear([FrameGroup(seen, [], ())])[0].on)
         blockiness = jpeg_blockiness(frames[0])
-        lut = linear_table(frames[0].dtype, config.ranging.frame_gamma)
-        seen = [lut.take(f) for f in frames]
     kinds = [finder.frame_kind(a, b) for a, b in itertools.combinations(seen, 2)]
     kind = kinds[0]
     jpeg = _most(k.jpeg for k in kinds)
