@@ -571,6 +571,36 @@ def test_faint_blobs_in_one_view_do_not_tie_with_spots_in_every_view() -> None:
     assert abs(result.range_m - 2.0) <= 2 * result.sigma_m
 
 
+def test_a_bright_spots_shoulder_does_not_outvote_it(monkeypatch) -> None:
+    """The centre and parallel spots on a wall at 2 m, the sloped one on a surface at 1.25 m below;
+    beside each bright spot, 5-8 px along its path, a faint blob in every view, where that surface
+    would put it (JPEG's ringing of a bright spot: tuning-566 zone 15). The blobs and the sloped
+    spot fit one plane, three lasers against the spots' two; but a blob that near a spot 4 × as
+    bright is the spot's shoulder: the range is the wall's. Without that rule it is the blobs'."""
+    import edge.ranging
+
+    wall, near = _wall(2.0), _wall(1.25)
+    rig = wall.rig
+
+    def shoulders(img: np.ndarray) -> np.ndarray:
+        for name in ("center", "parallel"):
+            u, v = rig.camera.project(rig.laser(name).point_at_depth(1.25))
+            level = float(img[int(v), int(u), 2]) + 25
+            cv2.circle(img, (round(u * 16), round(v * 16)), 32, (0, 0, level), -1, cv2.LINE_AA, 4)  # (1/16 px)
+        return img
+
+    groups = [_lit({"center": wall, "parallel": wall, "sloped": near}, 0.0514 * k, k) for k in range(2)]
+    groups = [replace(g, on=[shoulders(g.on[0].copy())]) for g in groups]
+    found = Ranger(rig).finder.find(groups[0].on, groups[0].off)
+    assert len(found["center"]) == 2 and len(found["parallel"]) == 2  # each spot and its shoulder
+    result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    assert result.status == OK and set(result.lasers) == {"center", "parallel"}, result.detail
+    assert abs(result.range_m - 2.0) <= 2 * result.sigma_m
+    monkeypatch.setattr(edge.ranging, "SHOULDER_PX", 0.0)  # no blob is a shoulder
+    outvoted = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    assert outvoted.status == OK and outvoted.range_m < 1.4 and len(outvoted.lasers) == 3
+
+
 def test_a_faint_reference_in_some_views_is_not_confirmed_by_a_far_laser_alone() -> None:
     """The reference spot faint, showing in one of the zone's two views (tuning-75 zone 22 and
     tuning-111 zone 16: 11 % and 17 % off, each confirmed by the sloped laser alone, whose spot is
