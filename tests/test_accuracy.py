@@ -4,6 +4,7 @@ rules, and a tiny family recorded, replayed and reported."""
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -205,13 +206,50 @@ def test_a_tiny_family_is_recorded_replayed_and_reported(tmp_path: Path) -> None
         assert label in text
 
 
-def test_the_command_refuses_what_it_cannot_run(capsys: pytest.CaptureFixture[str]) -> None:
+def test_kept_recordings_are_ranged_again_by_replay(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`--keep` keeps a family's recordings and their figures; `--replay` ranges them again, as the
+    estimator is now, without rendering or running the oracle again: the same zones, the same
+    results from the same estimator, and what ranging was given follows --rig."""
+    from edge.accuracy.bench import KEPT_FILE, KeptFamily, family_document, replay_family, run_family
+    from edge.cli import main
+
+    tiny = replace(cond.condition("tuning", 0), width=160, height=120, fx=110.0, cx=79.5, cy=59.5, k1=0.0,
+                   scene="office", jpeg_quality=0, bayer="none", laser_power=3.0)
+    runs = run_family(None, [], [tiny], zones=3, rig="true", jobs=1, keep=tmp_path)
+    (tmp_path / KEPT_FILE).write_text(json.dumps(family_document(runs, "tuning", 3, "true", None, [])))
+    kept = KeptFamily.read(tmp_path)
+    assert kept.conditions == (tiny,) and kept.zones == 3 and kept.rig == "true"
+    (again,) = replay_family(None, [], kept, "true")
+    assert again.rows == runs[0].rows  # frame SNR and the oracle's errors kept, the ranging the same
+    assert any(row["status"] == "ok" for row in again.rows)
+    (nominal,) = replay_family(None, [], kept, "nominal")
+    assert nominal.rig == "nominal" and [r["frame_snr"] for r in nominal.rows] == [r["frame_snr"] for r in again.rows]
+    assert nominal.rows != again.rows  # the nominal rig is not the rig as built: other ranges
+
+    out = tmp_path / "again.json"
+    assert main(["bench", "accuracy", "--replay", str(tmp_path), "--jobs", "1", "--json", str(out)]) == 0
+    assert "family: 3 zones" in capsys.readouterr().out
+    assert json.loads(out.read_text())["rows"] == json.loads(json.dumps(list(runs[0].rows)))
+
+
+def test_the_command_refuses_what_it_cannot_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from edge.cli import main
 
     assert main(["bench", "accuracy", "--conditions", "0"]) != 0
     assert "--conditions: must be 1-1000" in capsys.readouterr().err
     assert main(["bench", "accuracy", "--zones", "0"]) != 0
     assert "--zones" in capsys.readouterr().err
+    assert main(["bench", "accuracy", "--replay", str(tmp_path)]) != 0
+    err = capsys.readouterr().err
+    assert f"--replay {tmp_path}: no accuracy.json there" in err and "Traceback" not in err
+    (tmp_path / "accuracy.json").write_text('{"family": "tuning"}')
+    assert main(["bench", "accuracy", "--replay", str(tmp_path)]) != 0
+    assert "is not what --keep writes" in capsys.readouterr().err
+    (tmp_path / "accuracy.json").write_text(json.dumps(
+        {"family": "tuning", "zones": 2, "rig": "true", "conditions": [cond.condition("tuning", 5).to_json()],
+         "rows": []}))
+    assert main(["bench", "accuracy", "--replay", str(tmp_path)]) != 0
+    assert "tuning-5 has no recording there" in capsys.readouterr().err
 
 
 @pytest.mark.slow  # a calibration recording: six distances of four nudged pairs

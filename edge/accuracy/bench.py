@@ -31,7 +31,7 @@ from edge.accuracy.conditions import Condition
 from edge.accuracy.score import PLACEABLE_FRACTION, Figures, ZoneOutcome, targets
 from edge.config import Config, load_config
 from edge.ranging import FrameGroup, Ranger, ZoneResult
-from edge.recording import ZoneRecord
+from edge.recording import Recording, ZoneRecord
 from edge.rig import Rig
 
 log = logging.getLogger(__name__)
@@ -64,27 +64,52 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     from edge.accuracy.oracle import ZoneOracle
     from edge.accuracy.truth import floor_truth
     from edge.recording import read_recording
-    from edge.replay import zone_groups
-    from edge.sim.record import record_sweep, true_rig
+    from edge.sim.record import record_sweep
 
     began = time.monotonic()
-    base = load_config(config_path, list(overrides))
-    extra = cond.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones,
-                           base.camera.frame_rate_hz)
-    config = load_config(config_path, [*overrides, *extra])
+    config = condition_config(config_path, overrides, cond, zones)
     out = folder / cond.name
     record_sweep(config, out, extra_truth=floor_truth(config))
     recording = read_recording(out)
-    if rig == "true":
-        ranging_rig, said = true_rig(config), "true"
-    elif rig == "calibrated":
+    if rig == "calibrated":
         ranging_rig, said = _calibrated(config, recording.rig, folder / f"{cond.name}-calibration")
-    elif rig == "nominal":
-        ranging_rig, said = recording.rig, "nominal"
     else:
-        raise ValueError(f"rig must be one of {', '.join(RIGS)}, got {rig!r}")
-    ranger = Ranger(ranging_rig, config.ranging)
+        ranging_rig, said = _given_rig(config, recording.rig, rig)
     zone_oracle = ZoneOracle.of(config) if oracle else None
+
+    def seen(zone: ZoneRecord, groups: Sequence[FrameGroup], reference: str) -> tuple[float | None, float | None]:
+        t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
+        return (_frame_snr(groups, zone, reference),
+                zone_oracle.error_m(groups, zone.truth or {}, t_s) if zone_oracle else None)
+
+    return _ranged(cond, config, recording, ranging_rig, said, began, seen)
+
+
+def condition_config(config_path: str | None, overrides: Sequence[str], cond: Condition, zones: int) -> Config:
+    """The configuration that condition `cond` of `zones` zones is recorded and ranged with."""
+    base = load_config(config_path, list(overrides))
+    extra = cond.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones,
+                           base.camera.frame_rate_hz)
+    return load_config(config_path, [*overrides, *extra])
+
+
+def _given_rig(config: Config, nominal: Rig, rig: str) -> tuple[Rig, str]:
+    from edge.sim.record import true_rig
+
+    if rig == "true":
+        return true_rig(config), "true"
+    if rig == "nominal":
+        return nominal, "nominal"
+    raise ValueError(f"rig must be one of {', '.join(RIGS)}, got {rig!r}")
+
+
+def _ranged(cond: Condition, config: Config, recording: Recording, ranging_rig: Rig, said: str, began: float,
+            seen: Callable[[ZoneRecord, Sequence[FrameGroup], str], tuple[float | None, float | None]]) -> Run:
+    """Range every zone of `cond`'s `recording` with `ranging_rig` and score it; `seen` tells a
+    zone's frame SNR and the oracle's error (measured, or kept from when it was recorded)."""
+    from edge.replay import zone_groups
+
+    ranger = Ranger(ranging_rig, config.ranging)
     reference = recording.rig.reference.name
     outcomes, rows = [], []
     for zone in recording.zones:
@@ -92,12 +117,47 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
         # reads them: zone_groups).
         groups, _ = zone_groups(recording, zone)
         result = ranger.range_zone(zone.index, zone.pan_deg, zone.tilt_deg, groups)
-        t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
-        outcome = ZoneOutcome.of(result, zone.truth, reference, _frame_snr(groups, zone, reference),
-                                 zone_oracle.error_m(groups, zone.truth or {}, t_s) if zone_oracle else None)
+        frame_snr, oracle_error_m = seen(zone, groups, reference)
+        outcome = ZoneOutcome.of(result, zone.truth, reference, frame_snr, oracle_error_m)
         outcomes.append(outcome)
         rows.append(_row(cond, zone.pan_deg, zone.tilt_deg, outcome, result, zone.truth or {}, reference))
     return Run(cond, tuple(outcomes), said, time.monotonic() - began, tuple(rows))
+
+
+def replay_condition(config_path: str | None, overrides: Sequence[str], cond: Condition, zones: int,
+                     rig: str, folder: Path, kept: Sequence[dict]) -> Run:
+    """Range condition `cond`'s recording kept in `folder` again, with the estimator as it is now;
+    its zones' frame SNR and the oracle's errors are taken from `kept` (their rows as recorded),
+    which neither changes. The rig `calibrated` is fitted again from the kept board recording."""
+    from edge.calibration.fit import fit_calibration
+    from edge.errors import CalibrationError, UsageError
+    from edge.recording import read_recording
+
+    began = time.monotonic()
+    config = condition_config(config_path, overrides, cond, zones)
+    out = folder / cond.name
+    if not (out / "sweep.json").is_file():
+        raise UsageError(f"--replay {folder}: {cond.name} has no recording there ({out / 'sweep.json'} is missing)")
+    recording = read_recording(out)
+    if rig == "calibrated":
+        board = folder / f"{cond.name}-calibration"
+        if not (board / "sweep.json").is_file():
+            raise UsageError(f"--replay {folder}: {cond.name} was not recorded with --rig calibrated "
+                             f"({board / 'sweep.json'} is missing)")
+        try:
+            ranging_rig, said = fit_calibration(read_recording(board), CALIBRATION_DISTANCES_M).apply(
+                recording.rig), "calibrated"
+        except CalibrationError as exc:
+            ranging_rig, said = recording.rig, f"nominal (calibration failed: {exc})"
+    else:
+        ranging_rig, said = _given_rig(config, recording.rig, rig)
+    by_zone = {int(row["zone"]): row for row in kept}
+
+    def seen(zone: ZoneRecord, groups: Sequence[FrameGroup], reference: str) -> tuple[float | None, float | None]:
+        row = by_zone.get(zone.index) or {}
+        return row.get("frame_snr"), row.get("oracle_error_m")
+
+    return _ranged(cond, config, recording, ranging_rig, said, began, seen)
 
 
 def _frame_snr(groups: Sequence[FrameGroup], zone: ZoneRecord, reference: str) -> float | None:
@@ -156,22 +216,91 @@ def run_family(config_path: str | None, overrides: Sequence[str], conditions: Se
     with tempfile.TemporaryDirectory(prefix="edge-accuracy-") as scratch:
         folder = keep if keep is not None else Path(scratch)
         folder.mkdir(parents=True, exist_ok=True)
-        args = [(config_path, tuple(overrides), c, zones, rig, folder) for c in conditions]
-        runs: list[Run] = []
-        if jobs <= 1:
-            for a in args:
-                runs.append(run_condition(*a))
-                if progress:
-                    progress(runs[-1])
-            return runs
-        # Fresh interpreters: the parent may hold threads (logging, a progress bar) that fork copies badly.
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(run_condition, *a) for a in args]
-            for f in futures:
-                runs.append(f.result())
-                if progress:
-                    progress(runs[-1])
+        return _pooled(run_condition, [(config_path, tuple(overrides), c, zones, rig, folder) for c in conditions],
+                       jobs, progress)
+
+
+def replay_family(config_path: str | None, overrides: Sequence[str], kept: KeptFamily, rig: str, jobs: int = 1,
+                  progress: Callable[[Run], None] | None = None) -> list[Run]:
+    """Every condition of a family kept by `run_family` (`kept`), ranged again from its recordings."""
+    args = [(config_path, tuple(overrides), c, kept.zones, rig, kept.folder, kept.rows_of(c.name))
+            for c in kept.conditions]
+    return _pooled(replay_condition, args, jobs, progress)
+
+
+def _pooled(work: Callable[..., Run], args: Sequence[tuple], jobs: int,
+            progress: Callable[[Run], None] | None) -> list[Run]:
+    """`work` on each of `args`, `jobs` at a time, in their order."""
+    runs: list[Run] = []
+    if jobs <= 1:
+        for a in args:
+            runs.append(work(*a))
+            if progress:
+                progress(runs[-1])
         return runs
+    # Fresh interpreters: the parent may hold threads (logging, a progress bar) that fork copies badly.
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(work, *a) for a in args]
+        for f in futures:
+            runs.append(f.result())
+            if progress:
+                progress(runs[-1])
+    return runs
+
+
+KEPT_FILE = "accuracy.json"
+
+
+def family_document(runs: Sequence[Run], family_name: str, zones: int, rig: str,
+                    config_path: str | None, overrides: Sequence[str]) -> dict:
+    """What `--json` writes, and `--keep` beside its recordings (KEPT_FILE): every zone's row, and
+    what the family was run with."""
+    return {"family": family_name, "zones": zones, "rig": rig, "config": config_path, "set": list(overrides),
+            "conditions": [r.condition.to_json() | {"rig": r.rig} for r in runs],
+            "rows": [row for r in runs for row in r.rows]}
+
+
+@dataclass(frozen=True)
+class KeptFamily:
+    """A family's recordings kept by `--keep` (folder), and what `family_document` said of them."""
+
+    folder: Path
+    family: str
+    zones: int
+    rig: str
+    config: str | None
+    overrides: tuple[str, ...]
+    conditions: tuple[Condition, ...]
+    rows: tuple[dict, ...]
+
+    def rows_of(self, name: str) -> list[dict]:
+        return [row for row in self.rows if row.get("condition") == name]
+
+    @classmethod
+    def read(cls, folder: Path) -> KeptFamily:
+        """The family kept in `folder`; a UsageError that names the file and what is wrong with it."""
+        import json
+
+        from edge.accuracy.conditions import FAMILIES
+        from edge.errors import UsageError
+
+        file = folder / KEPT_FILE
+        try:
+            doc = json.loads(file.read_text())
+        except FileNotFoundError:
+            raise UsageError(f"--replay {folder}: no {KEPT_FILE} there (it is written by edge bench accuracy "
+                             f"--keep {folder})") from None
+        except (OSError, ValueError) as exc:
+            raise UsageError(f"--replay {folder}: {file} cannot be read: {exc}") from None
+        try:
+            family_name = doc["family"]
+            if family_name not in FAMILIES:
+                raise ValueError(f"family {family_name!r} is not one of {', '.join(FAMILIES)}")
+            conditions = tuple(Condition.from_json(c) for c in doc["conditions"])
+            return cls(folder, family_name, int(doc["zones"]), str(doc["rig"]), doc.get("config"),
+                       tuple(str(s) for s in doc.get("set") or ()), conditions, tuple(doc["rows"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise UsageError(f"--replay {folder}: {file} is not what --keep writes: {exc!r}") from None
 
 
 # --- the report ---------------------------------------------------------------------------------

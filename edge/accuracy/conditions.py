@@ -177,6 +177,11 @@ class Condition:
     def to_json(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
+    @classmethod
+    def from_json(cls, doc: dict) -> Condition:
+        """The condition `to_json` wrote (a KeyError names a field it lacks)."""
+        return cls(**{f.name: doc[f.name] for f in fields(cls)})
+
 
 def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))

@@ -25,11 +25,15 @@ def add_parsers(sub: Any) -> None:
     a.add_argument("--zones", type=int, default=16, help="zones per condition (default 16)")
     a.add_argument("--family", choices=["tuning", "evaluation"], default="tuning",
                    help="tuning (default) for work on the estimator; evaluation, which no tuning may see, to report")
-    a.add_argument("--rig", choices=["true", "calibrated", "nominal"], default="true",
+    a.add_argument("--rig", choices=["true", "calibrated", "nominal"],
                    help="what ranging is given: the simulated rig as built (default), one fitted from a "
                         "simulated calibration, or the nominal one")
     a.add_argument("--jobs", type=int, default=0, help="conditions run at once (default: one per core)")
-    a.add_argument("--keep", metavar="DIR", help="keep the recordings in DIR")
+    a.add_argument("--keep", metavar="DIR", help="keep the recordings in DIR (and their figures, for --replay)")
+    a.add_argument("--replay", metavar="DIR",
+                   help="range the recordings that --keep kept in DIR again, with the estimator as it is now "
+                        "(the family, conditions and zones are DIR's; --config and --set, if given, replace "
+                        "the ones it was recorded with)")
     a.add_argument("--json", metavar="FILE", help="also write every zone's result, truth and floor (JSON)")
     p.set_defaults(func=cmd_bench)
 
@@ -72,35 +76,56 @@ def cmd_bench_accuracy(args: argparse.Namespace) -> int:
     import sys
     from pathlib import Path
 
-    from edge.accuracy.bench import condition_line, report, run_family
+    from edge.accuracy.bench import (
+        KEPT_FILE,
+        KeptFamily,
+        condition_line,
+        family_document,
+        replay_family,
+        report,
+        run_family,
+    )
     from edge.accuracy.conditions import FAMILY_SIZE, family
+    from edge.config import load_config
     from edge.errors import UsageError
+    from edge.fsutil import atomic_write_bytes
 
-    if not 1 <= args.conditions <= 1000:
-        raise UsageError("--conditions: must be 1-1000")
-    if not 0 <= args.seed <= FAMILY_SIZE - args.conditions:
-        raise UsageError(f"--seed: must be 0-{FAMILY_SIZE - args.conditions}")
-    if not 1 <= args.zones <= 1024:
-        raise UsageError("--zones: must be 1-1024")
     if args.json:
         from edge.fsutil import check_output
 
         check_output(args.json, "--json", error=UsageError)
-    load(args)  # a bad configuration is reported before any work
-    conditions = family(args.family, args.conditions, args.seed)
-    jobs = args.jobs or min(len(conditions), os.cpu_count() or 1)
+    if args.replay and args.keep:
+        raise UsageError("--replay and --keep: a replay keeps nothing new; give one of them")
 
     def done(run) -> None:
         print(condition_line(run), file=sys.stderr, flush=True)
 
-    runs = run_family(args.config, args.set, conditions, args.zones, args.rig, jobs,
-                      Path(args.keep) if args.keep else None, done)
-    print("\n".join(report(runs, args.family, args.zones, args.rig)))
+    if args.replay:
+        kept = KeptFamily.read(Path(args.replay))
+        config_path, overrides = ((args.config, args.set) if args.config or args.set
+                                  else (kept.config, list(kept.overrides)))
+        load_config(config_path, overrides)  # a bad configuration is reported before any work
+        family_name, zones, rig = kept.family, kept.zones, args.rig or kept.rig
+        jobs = args.jobs or min(len(kept.conditions), os.cpu_count() or 1)
+        runs = replay_family(config_path, overrides, kept, rig, jobs, done)
+    else:
+        if not 1 <= args.conditions <= 1000:
+            raise UsageError("--conditions: must be 1-1000")
+        if not 0 <= args.seed <= FAMILY_SIZE - args.conditions:
+            raise UsageError(f"--seed: must be 0-{FAMILY_SIZE - args.conditions}")
+        if not 1 <= args.zones <= 1024:
+            raise UsageError("--zones: must be 1-1024")
+        load(args)  # a bad configuration is reported before any work
+        config_path, overrides = args.config, args.set
+        family_name, zones, rig = args.family, args.zones, args.rig or "true"
+        conditions = family(family_name, args.conditions, args.seed)
+        jobs = args.jobs or min(len(conditions), os.cpu_count() or 1)
+        runs = run_family(config_path, overrides, conditions, zones, rig, jobs,
+                          Path(args.keep) if args.keep else None, done)
+    print("\n".join(report(runs, family_name, zones, rig)))
+    doc = json.dumps(family_document(runs, family_name, zones, rig, config_path, overrides), indent=1).encode()
+    if args.keep:
+        atomic_write_bytes(Path(args.keep) / KEPT_FILE, doc)
     if args.json:
-        from edge.fsutil import atomic_write_bytes
-
-        doc = {"family": args.family, "zones": args.zones, "rig": args.rig,
-               "conditions": [r.condition.to_json() | {"rig": r.rig} for r in runs],
-               "rows": [row for r in runs for row in r.rows]}
-        atomic_write_bytes(Path(args.json), json.dumps(doc, indent=1).encode())
+        atomic_write_bytes(Path(args.json), doc)
     return 0
