@@ -239,6 +239,8 @@ def test_the_command_refuses_what_it_cannot_run(tmp_path: Path, capsys: pytest.C
     assert "--conditions: must be 1-1000" in capsys.readouterr().err
     assert main(["bench", "accuracy", "--zones", "0"]) != 0
     assert "--zones" in capsys.readouterr().err
+    assert main(["bench", "accuracy", "--replay", str(tmp_path), "--seed", "3"]) != 0
+    assert "the family, its conditions and zones are the kept ones; drop --seed" in capsys.readouterr().err
     assert main(["bench", "accuracy", "--replay", str(tmp_path)]) != 0
     err = capsys.readouterr().err
     assert f"--replay {tmp_path}: no accuracy.json there" in err and "Traceback" not in err

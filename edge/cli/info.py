@@ -20,10 +20,10 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--repeats", type=int,
                    help="runs to take the median of (blindaid: passes of the fan; rangefinder: ranges)")
     a = p.add_argument_group("accuracy")
-    a.add_argument("--conditions", type=int, default=8, help="conditions of the family to run (default 8)")
-    a.add_argument("--seed", type=int, default=0, help="the first condition's index in its family (default 0)")
-    a.add_argument("--zones", type=int, default=16, help="zones per condition (default 16)")
-    a.add_argument("--family", choices=["tuning", "evaluation"], default="tuning",
+    a.add_argument("--conditions", type=int, help="conditions of the family to run (default 8)")
+    a.add_argument("--seed", type=int, help="the first condition's index in its family (default 0)")
+    a.add_argument("--zones", type=int, help="zones per condition (default 16)")
+    a.add_argument("--family", choices=["tuning", "evaluation"],
                    help="tuning (default) for work on the estimator; evaluation, which no tuning may see, to report")
     a.add_argument("--rig", choices=["true", "calibrated", "nominal"],
                    help="what ranging is given: the simulated rig as built (default), one fitted from a "
@@ -101,6 +101,10 @@ def cmd_bench_accuracy(args: argparse.Namespace) -> int:
         print(condition_line(run), file=sys.stderr, flush=True)
 
     if args.replay:
+        given = [f"--{o}" for o in ("family", "conditions", "seed", "zones") if getattr(args, o) is not None]
+        if given:
+            raise UsageError(f"--replay {args.replay}: the family, its conditions and zones are the kept ones; "
+                             f"drop {', '.join(given)}")
         kept = KeptFamily.read(Path(args.replay))
         config_path, overrides = ((args.config, args.set) if args.config or args.set
                                   else (kept.config, list(kept.overrides)))
@@ -109,6 +113,9 @@ def cmd_bench_accuracy(args: argparse.Namespace) -> int:
         jobs = args.jobs or min(len(kept.conditions), os.cpu_count() or 1)
         runs = replay_family(config_path, overrides, kept, rig, jobs, done)
     else:
+        args.conditions = 8 if args.conditions is None else args.conditions
+        args.seed = 0 if args.seed is None else args.seed
+        args.zones = 16 if args.zones is None else args.zones
         if not 1 <= args.conditions <= 1000:
             raise UsageError("--conditions: must be 1-1000")
         if not 0 <= args.seed <= FAMILY_SIZE - args.conditions:
@@ -117,7 +124,7 @@ def cmd_bench_accuracy(args: argparse.Namespace) -> int:
             raise UsageError("--zones: must be 1-1024")
         load(args)  # a bad configuration is reported before any work
         config_path, overrides = args.config, args.set
-        family_name, zones, rig = args.family, args.zones, args.rig or "true"
+        family_name, zones, rig = args.family or "tuning", args.zones, args.rig or "true"
         conditions = family(family_name, args.conditions, args.seed)
         jobs = args.jobs or min(len(conditions), os.cpu_count() or 1)
         runs = run_family(config_path, overrides, conditions, zones, rig, jobs,
