@@ -325,6 +325,17 @@ def _fit_unsaturated(signal: np.ndarray, unsaturated: np.ndarray, r: int, floor:
     return None if fit is None else _centre(fit[0])
 
 
+def value_step(frame: np.ndarray) -> float:
+    """The step between the values `frame` holds (≥ 1): a sensor's 8-12 bits carried in a 16-bit
+    frame are scaled to its full range (×257, ×64.06, …), so that its values are that far apart,
+    and the difference of two frames is that coarse. The least gap between the distinct values
+    of every 7th pixel (in a frame of as few as 256 levels, a noisy room shows neighbouring values)."""
+    values = np.unique(frame.reshape(-1)[::7])
+    if values.size < 2:
+        return 1.0
+    return max(float(np.diff(values).min()), 1.0)
+
+
 def _level_bins(levels: np.ndarray) -> np.ndarray:
     """Each of `levels`' (full scale, ≥ 0) bin of NOISE_BINS equal steps of √level."""
     scaled = np.sqrt(levels)
@@ -616,6 +627,7 @@ class SpotFinder:
         # The full scale of the camera's own values where they were linearised before the finder
         # saw them (`delivered`): their quantisation, not the linear values', floors the noise.
         self._delivered_scale: float | None = None
+        self._step: float | None = None  # the step between the values a frame can hold (value_step)
         # Behind a Bayer filter: the widths that spots' red pixels told, with where (inverse depth).
         self._told: deque[tuple[float, float, float]] = deque(maxlen=_TOLD_KEPT)
         # Bright spots' second differences by parity (_curvature_by_parity), summed, and how many
@@ -708,6 +720,10 @@ class SpotFinder:
         if self._jpeg is None:
             self._jpeg = jpeg_blockiness(frame) > JPEG_BLOCKINESS
         self._delivered_scale = self.full_scale(frame)
+        # Through a curve, the gaps between delivered values are the curve's (a steep toe spreads
+        # the shadows' few levels apart), not the sensor's: one level of the delivered scale, as
+        # before the values' step was measured.
+        self._step = 1.0
 
     @staticmethod
     def full_scale(image: np.ndarray) -> float:
@@ -855,8 +871,10 @@ class SpotFinder:
             self._jpeg = jpeg_blockiness(off[0]) > JPEG_BLOCKINESS
         diff, off_vals, gain, off_level = self._difference(on, off)
         centre, deviation, noise = self._spread(diff)
+        if self._step is None:  # told once, by the first laser-off frame (or 1: `delivered`)
+            self._step = value_step(off[0])
         quantum_scale = self._delivered_scale or self.full_scale(on[0])
-        quantum = 0.5 / (quantum_scale * math.sqrt(len(on)))
+        quantum = 0.5 * self._step / (quantum_scale * math.sqrt(len(on)))
         noise = max(noise, quantum)  # quantisation
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
@@ -1492,7 +1510,8 @@ class SpotFinder:
             diff = self._difference([first], [second])[0]
             centre, _, noise = self._spread(diff)
             # (The texture as find measures it, with the noise floored at the values' step.)
-            quantum = 0.5 / (self._delivered_scale or self.full_scale(first))
+            step = self._step if self._step is not None else value_step(second)
+            quantum = 0.5 * step / (self._delivered_scale or self.full_scale(first))
             texture = self._texture(diff, centre, max(noise, quantum), colour)
         finally:
             self._weights = kept
