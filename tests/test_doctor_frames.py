@@ -128,3 +128,14 @@ def test_asking_the_finder_what_the_frames_are_changes_nothing_it_finds():
                                                                           for c in theirs[name]]
         assert any(ours.values())
     assert asked.channel == fresh.channel == "luma"
+
+
+@pytest.mark.parametrize(("adc_bits", "says"), [(8, "values 257 apart: the sensor's 8 bits"),
+                                                (10, "values 64 apart: the sensor's 10 bits"),
+                                                (16, "(16-bit)")])
+def test_16_bit_frames_say_how_far_apart_their_values_are(adc_bits, says):
+    """A sensor's 8 or 10 bits carried in 16-bit frames are that far apart, and ranging's noise is
+    no finer than that: the line says so; a 16-bit sensor's values are 1 apart."""
+    line = _frames_line("sim.sensor.output_bits=16", f"sim.sensor.adc_bits={adc_bits}", "sim.sensor.colour=false")
+    assert line.startswith("640x480 grey (16-bit")
+    assert says in line

@@ -22,6 +22,7 @@ Pure: frames and the configuration in, the line out.
 from __future__ import annotations
 
 import itertools
+import math
 import statistics
 from collections import Counter
 from collections.abc import Iterable, Sequence
@@ -80,7 +81,7 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
     # colour filter to interpolate, as a grey frame has none.
     grey = not kind.colour or all(np.array_equal(f[..., 0], f[..., c]) for f in frames[:2] for c in (1, 2))
     words = [f"{width}x{height} {'grey' if not kind.colour else 'grey in colour frames' if grey else 'colour'}"
-             + ("" if frames[0].dtype == np.uint8 else f" ({frames[0].dtype.itemsize * 8}-bit)"),
+             + ("" if frames[0].dtype == np.uint8 else f" ({_depth(frames[0])})"),
              f"JPEG (blockiness {blockiness:.2f} > {JPEG_BLOCKINESS:g})" if jpeg
              else f"not JPEG (blockiness {blockiness:.2f} ≤ {JPEG_BLOCKINESS:g})"]
     channel = _most(k.channel for k in kinds)
@@ -98,6 +99,19 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
                       f"colour filter spreads it (over {SMOOTHED_AREA:g} is smoothing), which reshapes a spot by how "
                       f"bright it is. {line}", _smoothing_remedy(config))
     return line
+
+
+def _depth(frame: np.ndarray) -> str:
+    """A 16-bit frame's depth, and the sensor's where its values are further apart than 1: a
+    sensor's 8-12 bits scaled to 16 (ranging's noise is no finer than that step)."""
+    from edge.vision import value_step
+
+    bits = frame.dtype.itemsize * 8
+    step = value_step(frame)
+    if step <= 1.0:
+        return f"{bits}-bit"
+    sensor = math.log2((2**bits - 1) / step + 1)
+    return f"{bits}-bit, its values {step:g} apart: the sensor's {sensor:.0f} bits"
 
 
 def _most(values: Iterable[T]) -> T:
