@@ -325,15 +325,23 @@ def _fit_unsaturated(signal: np.ndarray, unsaturated: np.ndarray, r: int, floor:
     return None if fit is None else _centre(fit[0])
 
 
+# The coarsest step a 16-bit frame's values may have: an 8-bit sensor's, scaled to 16 bits.
+COARSEST_STEP = 257.0
+
+
 def value_step(frame: np.ndarray) -> float:
-    """The step between the values `frame` holds (≥ 1): a sensor's 8-12 bits carried in a 16-bit
-    frame are scaled to its full range (×257, ×64.06, …), so that its values are that far apart,
-    and the difference of two frames is that coarse. The least gap between the distinct values
-    of every 7th pixel (in a frame of as few as 256 levels, a noisy room shows neighbouring values)."""
+    """The step between the values a 16-bit `frame` holds: a sensor's 8-12 bits carried in 16 are
+    scaled to its full range (×257, ×64.06, …), so that its values are that far apart, and the
+    difference of two frames is that coarse. The least gap between the distinct values of every
+    7th pixel (a room's noise shows neighbouring values), at most COARSEST_STEP: a frame of a few
+    far-apart values (a lens cap's black and a few hot pixels) must not make every later spot
+    noise. 1 for 8-bit frames, whose values are a sensor's 8 bits or fewer."""
+    if frame.dtype != np.uint16:
+        return 1.0
     values = np.unique(frame.reshape(-1)[::7])
     if values.size < 2:
         return 1.0
-    return max(float(np.diff(values).min()), 1.0)
+    return min(max(float(np.diff(values).min()), 1.0), COARSEST_STEP)
 
 
 def _level_bins(levels: np.ndarray) -> np.ndarray:

@@ -578,15 +578,19 @@ def test_the_sigma_of_a_dim_spot_on_a_dark_surface_matches_its_scatter() -> None
 
 
 def test_the_values_step_is_what_a_frame_can_hold() -> None:
-    """8 bits carried in 16 (×257), 10 bits scaled to 16 (×64.06, rounded), plain 8-bit noise, a
-    frame of one value."""
+    """8 bits carried in 16 (×257), 10 bits scaled to 16 (×64.06, rounded), 8-bit frames, a frame
+    of one value, a frame of two far-apart values."""
     rng = np.random.default_rng(0)
     levels = rng.integers(0, 256, (120, 160))
     assert vision.value_step((levels * 257).astype(np.uint16)) == 257.0
     ten = rng.integers(0, 1024, (120, 160))
     assert vision.value_step(np.rint(ten * (65535 / 1023)).astype(np.uint16)) == 64.0
     assert vision.value_step(levels.astype(np.uint8)) == 1.0
-    assert vision.value_step(np.full((120, 160), 7, np.uint8)) == 1.0
+    assert vision.value_step((levels * 2).astype(np.uint8)) == 1.0  # 8-bit frames: 1, whatever they hold
+    assert vision.value_step(np.full((120, 160), 7, np.uint16)) == 1.0
+    black = np.zeros((120, 160), np.uint16)
+    black[::9, ::11] = 65535  # a lens cap's black and hot pixels: no coarser than an 8-bit sensor's
+    assert vision.value_step(black) == vision.COARSEST_STEP == 257.0
 
 
 def _coarse_pair(seed: int, rig) -> tuple[np.ndarray, np.ndarray]:
