@@ -805,6 +805,13 @@ class SpotFinder:
             acc += self._plane(image, rows, cols)
         return acc * np.float32(1.0 / (len(frames) * self.full_scale(frames[0])))
 
+    def _quantum(self, frame: np.ndarray, laser_off: np.ndarray, frames: int = 1) -> float:
+        """The noise floor that quantisation sets (full scale) on a difference of `frames` frames
+        of each kind averaged: half the step between the values the camera delivers (`value_step`
+        of `laser_off` until `find` has told it once)."""
+        step = self._step if self._step is not None else value_step(laser_off)
+        return 0.5 * step / ((self._delivered_scale or self.full_scale(frame)) * math.sqrt(frames))
+
     def _choosing_channel(self, frame: np.ndarray) -> bool:
         """Is `auto` still measuring colour frames' chroma to choose its channel? (Not once spots
         told a Bayer filter: red then.)"""
@@ -881,8 +888,7 @@ class SpotFinder:
         centre, deviation, noise = self._spread(diff)
         if self._step is None:  # told once, by the first laser-off frame (or 1: `delivered`)
             self._step = value_step(off[0])
-        quantum_scale = self._delivered_scale or self.full_scale(on[0])
-        quantum = 0.5 * self._step / (quantum_scale * math.sqrt(len(on)))
+        quantum = self._quantum(on[0], off[0], len(on))
         noise = max(noise, quantum)  # quantisation
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
@@ -1518,9 +1524,7 @@ class SpotFinder:
             diff = self._difference([first], [second])[0]
             centre, _, noise = self._spread(diff)
             # (The texture as find measures it, with the noise floored at the values' step.)
-            step = self._step if self._step is not None else value_step(second)
-            quantum = 0.5 * step / (self._delivered_scale or self.full_scale(first))
-            texture = self._texture(diff, centre, max(noise, quantum), colour)
+            texture = self._texture(diff, centre, max(noise, self._quantum(first, second)), colour)
         finally:
             self._weights = kept
         channel = "grey" if not colour else "luma" if weights == CHANNEL_WEIGHTS["luma"] else "red"

@@ -129,8 +129,7 @@ def replay_condition(config_path: str | None, overrides: Sequence[str], cond: Co
     """Range condition `cond`'s recording kept in `folder` again, with the estimator as it is now;
     its zones' frame SNR and the oracle's errors are taken from `kept` (their rows as recorded),
     which neither changes. The rig `calibrated` is fitted again from the kept board recording."""
-    from edge.calibration.fit import fit_calibration
-    from edge.errors import CalibrationError, UsageError
+    from edge.errors import UsageError
     from edge.recording import read_recording
 
     began = time.monotonic()
@@ -144,11 +143,7 @@ def replay_condition(config_path: str | None, overrides: Sequence[str], cond: Co
         if not (board / "sweep.json").is_file():
             raise UsageError(f"--replay {folder}: {cond.name} was not recorded with --rig calibrated "
                              f"({board / 'sweep.json'} is missing)")
-        try:
-            ranging_rig, said = fit_calibration(read_recording(board), CALIBRATION_DISTANCES_M).apply(
-                recording.rig), "calibrated"
-        except CalibrationError as exc:
-            ranging_rig, said = recording.rig, f"nominal (calibration failed: {exc})"
+        ranging_rig, said = _fitted(board, recording.rig)
     else:
         ranging_rig, said = _given_rig(config, recording.rig, rig)
     by_zone = {int(row["zone"]): row for row in kept}
@@ -179,16 +174,22 @@ def _frame_snr(groups: Sequence[FrameGroup], zone: ZoneRecord, reference: str) -
 def _calibrated(config: Config, nominal: Rig, out: Path) -> tuple[Rig, str]:
     """The rig fitted from a simulated white board at CALIBRATION_DISTANCES_M (the room's surfaces
     do not matter: a user calibrates with a matte white board), or the nominal rig if it fails."""
-    from edge.calibration.fit import fit_calibration
-    from edge.errors import CalibrationError
-    from edge.recording import read_recording
     from edge.sim.record import record_targets
     from edge.sim.settings import SurfacesConfig
 
     board = replace(config, sim=replace(config.sim, surfaces=SurfacesConfig()))
     record_targets(board, list(CALIBRATION_DISTANCES_M), out, pairs=CALIBRATION_PAIRS)
+    return _fitted(out, nominal)
+
+
+def _fitted(board: Path, nominal: Rig) -> tuple[Rig, str]:
+    """The rig fitted from the board recording `board`, or the nominal rig if the fit fails."""
+    from edge.calibration.fit import fit_calibration
+    from edge.errors import CalibrationError
+    from edge.recording import read_recording
+
     try:
-        cal = fit_calibration(read_recording(out), CALIBRATION_DISTANCES_M)
+        cal = fit_calibration(read_recording(board), CALIBRATION_DISTANCES_M)
     except CalibrationError as exc:
         return nominal, f"nominal (calibration failed: {exc})"
     return cal.apply(nominal), "calibrated"
