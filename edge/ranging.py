@@ -792,6 +792,14 @@ class Ranger:
                 shown = sum(ref in g.lasers for g in groups)
                 sightings.update({id(m): (shown, shown) for m in measured})  # one sighting of every view
                 refs = self._believable(measured)
+        if not refs and self.finder.channel == "luma":
+            # Luma holds a third of a red spot's light: a spot it shows nowhere may stand out in
+            # red, which JPEG's half-resolution chroma places less well but which is there.
+            found = self._in_red(groups, ref)
+            if found:
+                refs = found
+                shown = sum(ref in g.lasers for g in groups)
+                sightings.update({id(m): (shown, shown) for m in found})  # one sighting of every view
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
         others = {n: ms for n, ms in cands.items() if n != ref}
@@ -1035,6 +1043,18 @@ class Ranger:
             # blobs alike at one depth, tuning-42 zone 12's at 0.25 m where a wall was 3.07 m off.)
             return None
         return fusion, grown, pooled_in
+
+    def _in_red(self, groups: Sequence[FrameGroup], name: str) -> list[LaserMeasurement]:
+        """`name`'s spots that red shows, in the zone's frame groups pooled, where the finder reads
+        luma and showed none to believe (each one sighting for all the groups; `_pooled`)."""
+        mine = [g for g in groups if name in g.lasers]
+        if not mine:
+            return []
+        on = [f for g in mine for f in g.on]
+        off = [f for g in mine for f in g.off]
+        views = {g.view for g in mine}
+        found = self.finder.find(on, off, [name], channel="red").get(name, [])[:3]
+        return self._believable([self._measure(_Track(name, [c], set(views))) for c in found])
 
     def _pooled(self, groups: Sequence[FrameGroup], name: str) -> list[_Track]:
         """`name`'s spots in the zone's frame groups pooled, where no group alone showed one to believe.

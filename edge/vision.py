@@ -632,6 +632,7 @@ class SpotFinder:
         self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
         self._jpeg: bool | None = None  # are the frames JPEG's? (from the first laser-off frame)
         self._demosaiced = False  # were the frames of the last `find` demosaiced? (grid_px)
+        self._aside = False  # is `find` reading another channel than the finder's, for one search?
         # The full scale of the camera's own values where they were linearised before the finder
         # saw them (`delivered`): their quantisation, not the linear values', floors the noise.
         self._delivered_scale: float | None = None
@@ -863,6 +864,7 @@ class SpotFinder:
         max_candidates: int = 3,
         near: Mapping[str, tuple[float, float]] | None = None,
         threshold: float = 1.0,
+        channel: str | None = None,
     ) -> dict[str, list[Candidate]]:
         """Candidate spots per laser from laser-on and laser-off frames of one pose.
 
@@ -875,9 +877,20 @@ class SpotFinder:
         (inverse depths lo … hi, 1/m), and `threshold` scales both detection thresholds (min_snr
         and MATCHED_SNR; 1: as everywhere), which a short stretch's few chances of noise allow
         lower than a whole path's.
+
+        `channel` ("red" or "luma"): colour frames read from it for this search alone, whatever
+        the finder reads them from; nothing the finder learns of the frames (`auto`'s choice, a
+        Bayer filter's red pixels, spots' widths) is learnt from such a search.
         """
+        if channel is not None and on[0].ndim == 3 and CHANNEL_WEIGHTS[channel] != self._weights:
+            kept = self._weights, self._demosaiced, self._aside
+            self._weights, self._aside = CHANNEL_WEIGHTS[channel], True
+            try:
+                return self.find(on, off, lasers, max_candidates, near, threshold)
+            finally:
+                self._weights, self._demosaiced, self._aside = kept
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
-        if self._choosing_channel(on[0]):
+        if not self._aside and self._choosing_channel(on[0]):
             rho = self._chroma_correlation(on[0], off[0])
             if rho is not None:
                 self._chroma_lag2.append(rho)
@@ -947,7 +960,7 @@ class SpotFinder:
             refined[name] = out
         if texture.bayer is not None:  # (only then are spots placed by their red pixels)
             self._place_again(refined)
-        elif self._curved_spots < SITE_SPOTS and on[0].ndim == 3:
+        elif self._curved_spots < SITE_SPOTS and on[0].ndim == 3 and not self._aside:
             self._look_for_sites([c for out in refined.values() for _, c in out], on, off, gain)
         return {name: [self._unsnapped(c) for _, c in out] for name, out in refined.items()}
 
@@ -994,7 +1007,8 @@ class SpotFinder:
         told = [(c.along, *c.site_width) for out in refined.values() for _, c in out
                 if c.site_width is not None and c.site_width[1] < _WIDTH_TOLD]
         pool = [*self._told, *told]
-        self._told.extend(told)
+        if not self._aside:
+            self._told.extend(told)
         for out in refined.values():
             for i, (refine, c) in enumerate(out):
                 width = None if c.site_width is None else self._shared_width(pool, c.along)

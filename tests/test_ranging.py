@@ -35,7 +35,7 @@ from edge.ranging import (
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Rig, default_rig
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
-from edge.vision import Candidate, jpeg_blockiness
+from edge.vision import Candidate, SpotFinder, jpeg_blockiness
 
 
 def _laser(ox: float, oy: float, ax: float, ay: float, name: str = "l") -> Laser:
@@ -569,6 +569,24 @@ def test_faint_blobs_in_one_view_do_not_tie_with_spots_in_every_view() -> None:
     result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
     assert result.status == OK, result.detail
     assert abs(result.range_m - 2.0) <= 2 * result.sigma_m
+
+
+@pytest.mark.parametrize("seed", [2, 3, 5, 7])
+def test_a_reference_spot_that_luma_cannot_show_is_looked_for_in_red(seed: int) -> None:
+    """JPEG at quality 64 passes for half-resolution chroma, and luma is read: it holds a third of
+    a red spot's light. A dim spot that luma shows in no view, nor in the views pooled, stands out
+    in red, and the zone is ranged from it, within its σ."""
+    config = load_config(None, ["sim.beam.e_per_ms_at_1m=2000", "sim.beam.speckle=0", "sim.sensor.jpeg_quality=64",
+                                'sim.sensor.jpeg_chroma="4:4:4"', 'ranging.channel="luma"'])
+    renderer = Renderer(flat_target_scene(1.5), config.rig.build(), config.sim)
+    groups = _render_groups(renderer, seed=seed)
+    on, off = [f for g in groups for f in g.on], [f for g in groups for f in g.off]
+    assert not SpotFinder(renderer.rig, channel="luma").find(on, off)["center"]
+    assert SpotFinder(renderer.rig, channel="red").find(on, off)["center"]
+    result = Ranger(renderer.rig, config.ranging).range_zone(0, 0.0, 0.0, groups)
+    assert result.status == OK, result.detail
+    assert "center" in result.lasers
+    assert abs(result.range_m - 1.5) <= 2 * result.sigma_m
 
 
 def test_a_bright_spots_shoulder_does_not_outvote_it(monkeypatch) -> None:

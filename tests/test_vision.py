@@ -182,6 +182,27 @@ def test_luma_channel_reads_jpeg_frames() -> None:
         SpotFinder(renderer.rig, channel="green")
 
 
+def test_a_search_in_another_channel_leaves_the_finders_own() -> None:
+    # `auto` reads luma from 4:2:0 JPEG; one search in red (ranging's, for a spot luma cannot
+    # show) finds red's spot and changes nothing the finder learns of the frames: it goes on as a
+    # twin that never searched in red.
+    renderer = _renderer(load_scene("office"), jpeg_quality=75, jpeg_chroma="4:2:0")
+    pairs = [_pair(renderer, pan=-90.0, seed=seed) for seed in (3, 4, 5)]
+    finder, twin = SpotFinder(renderer.rig, channel="auto"), SpotFinder(renderer.rig, channel="auto")
+    on, off = pairs[0]
+    finder.find([on], [off]), twin.find([on], [off])
+    assert finder.channel == "luma"
+    red = finder.find([on], [off], channel="red")["center"]
+    assert [c.pixel.tolist() for c in red] == [
+        c.pixel.tolist() for c in SpotFinder(renderer.rig, channel="red").find([on], [off])["center"]]
+    assert finder.channel == "luma"
+    for on, off in pairs[1:]:
+        mine, theirs = finder.find([on], [off]), twin.find([on], [off])
+        assert {n: [c.pixel.tolist() for c in cs] for n, cs in mine.items()} == {
+            n: [c.pixel.tolist() for c in cs] for n, cs in theirs.items()}
+        assert mine["center"] and mine["center"][0].pixel.tolist() != red[0].pixel.tolist()
+
+
 @pytest.mark.parametrize(("sensor", "expect"), [
     ({"jpeg_quality": 75, "jpeg_chroma": "4:2:0"}, "luma"),
     ({"bayer": "bilinear"}, "red"),
