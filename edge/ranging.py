@@ -71,6 +71,11 @@ FAR_PARTNER_SHARE = 0.8
 # (17°: a wall seen a little askew) and 3 σ of the reference's depth. There, in every view pooled,
 # a spot is found at this share of the usual thresholds: a few px of path hold few chances of noise.
 LOOK_SLOPE = 0.3
+# A reference that rests on a far laser alone, beside a near laser's spot placed as surely that
+# misses it by at most this many σ of the two: one of them is off, and the zone's σ covers half the
+# miss. Missed by more (another surface, or a wrong blob), a reference too loose alone is refused.
+NEAR_MISS_SIGMAS = 5.0
+NEAR_WITNESS_M = FAR_LASER_M  # (a near laser's spot: within this of the reference's)
 LOOK_THRESHOLD = 0.8
 # Two spots fitted together (edge.deblend) are fitted in a window of this half-size (px).
 DEBLEND_WINDOW_PX = 6
@@ -849,6 +854,21 @@ class Ranger:
                 fusion, others, pooled_in = looked
                 sightings.update(pooled_in)
         fusion = common_grown(scatter_grown(fusion), chosen, self.finder.common_px)
+        if len(fusion.used) == 2 and _rests_on_a_far_one(fusion):
+            witness = self._near_witness(chosen, fusion, others, known)
+            if witness is not None:
+                gap, near = witness
+                if gap <= NEAR_MISS_SIGMAS * math.hypot(chosen.sigma_m, near.sigma_m):
+                    # The near laser's spot, 4 cm from the reference's and placed as surely, nearly
+                    # agrees: one of the two is off by more than its σ, and the far laser cannot
+                    # tell which (tuning-682 zone 5: 12 % long at ± 3.7 %, the parallel 13.7 % short).
+                    fusion = replace(fusion, sigma_m=math.hypot(fusion.sigma_m, 0.5 * gap))
+                elif self._too_loose_alone(chosen):
+                    return self._result(
+                        index, pan_deg, tilt_deg, AMBIGUOUS, cands,
+                        detail=f"the {ref} spot is placed too loosely to range alone (± {chosen.sigma_m:.2f} m), "
+                               f"and the {near.laser} laser's spot beside it says {near.depth_m:.2f} m",
+                    )
         if len(fusion.used) == 1 and any(others.values()):
             # No other laser agrees with the reference spot. A strong spot may still be right (an
             # edge between the beams), but not if the others agree among themselves elsewhere,
@@ -1043,6 +1063,27 @@ class Ranger:
             # blobs alike at one depth, tuning-42 zone 12's at 0.25 m where a wall was 3.07 m off.)
             return None
         return fusion, grown, pooled_in
+
+    def _near_witness(self, chosen: LaserMeasurement, fusion: Fusion, others: Mapping[str, Sequence[LaserMeasurement]],
+                      known: Sequence[float]) -> tuple[float, LaserMeasurement] | None:
+        """Of the spots of lasers that `fusion` left out whose beams land within NEAR_WITNESS_M of the
+        reference's `chosen` spot, those placed at least as surely and bright enough to believe:
+        the one nearest to agreeing, with how far its depth is (m) from the reference's carried
+        to it along the likeliest of the `known` slopes. None where there is none."""
+        used = {m.laser for m in fusion.used}
+        best: tuple[float, LaserMeasurement] | None = None
+        for name, ms in others.items():
+            if name in used:
+                continue
+            for m in ms:
+                if (_apart(chosen, m) > NEAR_WITNESS_M or m.sigma_m > chosen.sigma_m
+                        or (m.snr < self.config.min_snr and m.sigma_px > FAINT_MAX_SIGMA_PX)):
+                    continue
+                dy = m.point_m.item(1) - chosen.point_m.item(1)
+                gap = min(abs(m.depth_m - chosen.depth_m - g * dy) for g in known)
+                if best is None or gap < best[0]:
+                    best = (gap, m)
+        return best
 
     def _in_red(self, groups: Sequence[FrameGroup], name: str) -> list[LaserMeasurement]:
         """`name`'s spots that red shows, in the zone's frame groups pooled, where the finder reads

@@ -589,6 +589,32 @@ def test_a_reference_spot_that_luma_cannot_show_is_looked_for_in_red(seed: int) 
     assert abs(result.range_m - 1.5) <= 2 * result.sigma_m
 
 
+@pytest.mark.parametrize(("centre_m", "power"), [(2.1, 0.15), (3.0, 0.1)])
+def test_a_near_lasers_spot_that_the_reference_misses_is_heard(monkeypatch, centre_m: float, power: float) -> None:
+    """A dim reference spot on a wall at `centre_m`, the sloped laser's 30 cm away agreeing with
+    it, and the parallel laser's, 4 cm away and placed as surely, on a wall at 2 m (a reference
+    pulled off its spot: tuning-682 zone 5, 12 % long at ± 3.7 %, the parallel 13.7 % short).
+    Missed by a few σ, the zone's σ covers half the miss; missed by more, a reference too loose
+    to range alone is refused. Without the near laser's say, both are ranged on the sloped
+    laser's word, to a σ that leaves the parallel's wall out."""
+    import edge.ranging
+
+    walls = {"center": _wall(centre_m), "parallel": _wall(2.0), "sloped": _wall(centre_m)}
+    groups = [_lit_at({"center": power, "parallel": 1.0, "sloped": 1.0}, 0.0514 * k, [3, k], walls) for k in range(2)]
+    rig = walls["center"].rig
+    result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    if centre_m < 2.5:
+        assert result.status == OK and set(result.lasers) == {"center", "sloped"}, result.detail
+        assert abs(result.range_m - 2.0) <= 2 * result.sigma_m and abs(result.range_m - centre_m) <= result.sigma_m
+    else:
+        assert result.status == AMBIGUOUS, result.detail
+        assert "the parallel laser's spot beside it says 2.0" in result.detail
+    monkeypatch.setattr(edge.ranging, "NEAR_WITNESS_M", 0.0)  # no laser's spot is near enough to have a say
+    unheard = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    assert unheard.status == OK and set(unheard.lasers) == {"center", "sloped"}, unheard.detail
+    assert abs(unheard.range_m - 2.0) > 2 * unheard.sigma_m
+
+
 def test_a_bright_spots_shoulder_does_not_outvote_it(monkeypatch) -> None:
     """The centre and parallel spots on a wall at 2 m, the sloped one on a surface at 1.25 m below;
     beside each bright spot, 5-8 px along its path, a faint blob in every view, where that surface
