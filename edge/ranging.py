@@ -1089,8 +1089,8 @@ class Ranger:
         """`name`'s spots that red shows, in the zone's frame groups pooled, where the finder reads
         luma and showed none to believe (each one sighting for all the groups; `_pooled`)."""
         mine = [g for g in groups if name in g.lasers]
-        if not mine:
-            return []
+        if not mine or mine[0].on[0].ndim != 3:
+            return []  # (grey frames have no red: the same search again would find the same)
         on = [f for g in mine for f in g.on]
         off = [f for g in mine for f in g.off]
         views = {g.view for g in mine}
