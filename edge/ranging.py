@@ -71,9 +71,12 @@ FAR_PARTNER_SHARE = 0.8
 # (17°: a wall seen a little askew) and 3 σ of the reference's depth. There, in every view pooled,
 # a spot is found at this share of the usual thresholds: a few px of path hold few chances of noise.
 LOOK_SLOPE = 0.3
-# A reference that rests on a far laser alone, beside a near laser's spot placed as surely that
-# misses it by at most this many σ of the two: one of them is off, and the zone's σ covers half the
-# miss. Missed by more (another surface, or a wrong blob), a reference too loose alone is refused.
+# A spot that misses another laser's by at most this many σ of the two is a little off, not on
+# another surface: a reference that rests on a far laser alone, beside a near laser's spot placed as
+# surely that misses it so, is ranged with its σ grown by half the miss (one of the two is off);
+# missed by more (another surface, or a wrong blob), a reference too loose alone is refused. A
+# reference that no other laser confirms, where the others agree on a surface it misses so, is
+# fused with them with its own σ grown by half the miss (two lasers outvote one spot).
 NEAR_MISS_SIGMAS = 5.0
 NEAR_WITNESS_M = FAR_LASER_M  # (a near laser's spot: within this of the reference's)
 LOOK_THRESHOLD = 0.8
@@ -845,6 +848,11 @@ class Ranger:
             if self.config.fuse and others
             else fuse(rig, chosen, ())
         )
+        if (len(fusion.used) == 1 and self.config.fuse and chosen.snr >= EDGE_MIN_SNR
+                and sightings[id(chosen)][0] >= sightings[id(chosen)][1] and _agreeing_others(others)):
+            nearly = self._nearly_confirmed(chosen, others, known)
+            if nearly is not None:
+                fusion = nearly
         if len(fusion.used) == 1 and self.config.fuse and chosen.snr < (
                 self.config.lone_min_snr if any(others.values()) else self.config.alone_min_snr
         ) and not _agreeing_others(others):
@@ -1084,6 +1092,30 @@ class Ranger:
                 if best is None or gap < best[0]:
                     best = (gap, m)
         return best
+
+    def _nearly_confirmed(self, chosen: LaserMeasurement, others: Mapping[str, Sequence[LaserMeasurement]],
+                          known: Sequence[float]) -> Fusion | None:
+        """The fusion of a spot `chosen` that no other laser confirms, while the others agree on a
+        surface that it misses by NEAR_MISS_SIGMAS or less, with its σ grown by half that miss
+        (in quadrature): both of the others must then agree with it. Two lasers that agree outvote
+        one spot placed a little off (JPEG, speckle, demosaicing: tuning-632 zone 0, 2.3 % long
+        at ± 1.1 %, the parallel and sloped spots on the wall to 1.4 %). None where it misses by
+        more (another surface, or not the spot), or where they do not agree with it even so."""
+        gap = math.inf
+        for ms in others.values():
+            for m in ms:
+                if m.snr < self.config.min_snr and m.sigma_px > FAINT_MAX_SIGMA_PX:
+                    continue
+                dy = m.point_m.item(1) - chosen.point_m.item(1)
+                miss = min(abs(m.depth_m - chosen.depth_m - g * dy) for g in known)
+                if miss <= NEAR_MISS_SIGMAS * math.hypot(chosen.sigma_m, m.sigma_m):
+                    gap = min(gap, miss)
+        if gap == math.inf:
+            return None
+        grown = math.hypot(chosen.sigma_m, 0.5 * gap)
+        loosened = replace(chosen, sigma_m=grown, sigma_px=chosen.sigma_px * grown / max(chosen.sigma_m, 1e-12))
+        fusion = best_fusion(self.rig, loosened, others, self.config.surface_sigma_per_m, known)
+        return fusion if len(fusion.used) >= 3 else None
 
     def _in_red(self, groups: Sequence[FrameGroup], name: str) -> list[LaserMeasurement]:
         """`name`'s spots that red shows, in the zone's frame groups pooled, where the finder reads
