@@ -1097,10 +1097,12 @@ class Ranger:
                           known: Sequence[float]) -> Fusion | None:
         """The fusion of a spot `chosen` that no other laser confirms, while the others agree on a
         surface that it misses by NEAR_MISS_SIGMAS or less, with its σ grown by half that miss
-        (in quadrature): both of the others must then agree with it. Two lasers that agree outvote
-        one spot placed a little off (JPEG, speckle, demosaicing: tuning-632 zone 0, 2.3 % long
-        at ± 1.1 %, the parallel and sloped spots on the wall to 1.4 %). None where it misses by
-        more (another surface, or not the spot), or where they do not agree with it even so."""
+        (in quadrature): both of the others must then agree with it, or the near one (within
+        NEAR_WITNESS_M), and then the fusion's σ grows by half the miss too (one of the two is
+        off). Two lasers that agree outvote one spot placed a little off (JPEG, speckle,
+        demosaicing: tuning-632 zone 0, 2.3 % long at ± 1.1 %, the parallel and sloped spots on
+        the wall to 1.4 %). None where it misses by more (another surface, or not the spot), or
+        where they do not agree with it even so."""
         gap = math.inf
         for ms in others.values():
             for m in ms:
@@ -1115,7 +1117,11 @@ class Ranger:
         grown = math.hypot(chosen.sigma_m, 0.5 * gap)
         loosened = replace(chosen, sigma_m=grown, sigma_px=chosen.sigma_px * grown / max(chosen.sigma_m, 1e-12))
         fusion = best_fusion(self.rig, loosened, others, self.config.surface_sigma_per_m, known)
-        return fusion if len(fusion.used) >= 3 else None
+        if len(fusion.used) >= 3:
+            return fusion
+        if len(fusion.used) == 2 and _apart(*fusion.used) <= NEAR_WITNESS_M:
+            return replace(fusion, sigma_m=math.hypot(fusion.sigma_m, 0.5 * gap))
+        return None
 
     def _in_red(self, groups: Sequence[FrameGroup], name: str) -> list[LaserMeasurement]:
         """`name`'s spots that red shows, in the zone's frame groups pooled, where the finder reads

@@ -615,23 +615,29 @@ def test_a_near_lasers_spot_that_the_reference_misses_is_heard(monkeypatch, cent
     assert abs(unheard.range_m - 2.0) > 2 * unheard.sigma_m
 
 
-@pytest.mark.parametrize("centre_m", [2.08, 2.3])
-def test_a_reference_a_little_off_the_surface_two_lasers_agree_on_is_outvoted(monkeypatch, centre_m: float) -> None:
-    """A bright reference spot at `centre_m`, the parallel and sloped spots agreeing on a wall at
-    2 m. 4 % off at ± 1 % (as JPEG, speckle or demosaicing place a spot: tuning-632 zone 0, 2.3 %
-    long at ± 1.1 %, the other two on the wall), the spot misses their surface by 4 σ: two lasers
-    outvote it, and the zone is ranged on the wall with all three. 15 % off, it is on another
-    surface or not the spot, and which cannot be said."""
+@pytest.mark.parametrize(("centre_m", "sloped_m", "outvoted_by"), [
+    (2.08, 2.0, {"parallel", "sloped"}), (2.08, 1.6, {"parallel"}), (2.3, 2.0, None)])
+def test_a_reference_a_little_off_the_surface_the_others_give_is_outvoted(
+        monkeypatch, centre_m: float, sloped_m: float, outvoted_by: set | None) -> None:
+    """A bright reference spot on a wall at `centre_m`, the parallel spot on a wall at 2 m and the
+    sloped one at `sloped_m`; no other laser confirms the reference, and the others fit one
+    surface. 4 % off at ± 1 % (as JPEG, speckle or demosaicing place a spot: tuning-632 zone 0,
+    2.3 % long at ± 1.1 %, the other two on the wall), the spot misses the parallel's by 4 σ:
+    the others outvote it, and the zone is ranged with them (the sloped laser's spot, 30 cm
+    away, on a surface of its own, has no say, and the σ then grows by half the miss). 15 % off,
+    it is on another surface or not the spot, and which cannot be said."""
     import edge.ranging
 
-    walls = {"center": _wall(centre_m), "parallel": _wall(2.0), "sloped": _wall(2.0)}
+    walls = {"center": _wall(centre_m), "parallel": _wall(2.0), "sloped": _wall(sloped_m)}
     groups = [_lit_at(dict.fromkeys(walls, 1.0), 0.0514 * k, [3, k], walls) for k in range(2)]
     rig = walls["center"].rig
     result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
-    if centre_m < 2.2:
-        assert result.status == OK and set(result.lasers) == {"center", "parallel", "sloped"}, result.detail
+    if outvoted_by is not None:
+        assert result.status == OK and set(result.lasers) == {"center", *outvoted_by}, result.detail
         assert abs(result.range_m - 2.0) <= 2 * result.sigma_m
-        assert result.lasers["center"].sigma_m > 0.5 * abs(centre_m - 2.0) * 0.9  # loosened by half its miss
+        assert result.lasers["center"].sigma_m > 0.45 * (centre_m - 2.0)  # loosened by half its miss
+        if len(outvoted_by) == 1:
+            assert result.sigma_m > 0.45 * (centre_m - 2.0)
     else:
         assert result.status == AMBIGUOUS and "agree on another surface" in result.detail, result.detail
     monkeypatch.setattr(edge.ranging, "NEAR_MISS_SIGMAS", 0.0)  # no miss is near
