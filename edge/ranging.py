@@ -639,6 +639,13 @@ def _expected(laser: Laser, reference: LaserMeasurement, slopes_y: Sequence[floa
     return 1.0 / far, 1.0 / max(near, 0.05)
 
 
+def _miss(spot: LaserMeasurement, other: LaserMeasurement, slopes_y: Sequence[float]) -> float:
+    """How far (m) `other`'s depth is from `spot`'s carried to it along the likeliest of the known
+    slopes dz/dy (`level_slopes`)."""
+    dy = other.point_m.item(1) - spot.point_m.item(1)
+    return min(abs(other.depth_m - spot.depth_m - g * dy) for g in slopes_y)
+
+
 def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
     """Do at least two of the other lasers have spots that lie on one surface?"""
     found = [ms for ms in others.values() if ms]
@@ -962,9 +969,14 @@ class Ranger:
         if any(m.snr >= self.config.min_snr for m in refs):
             # Faint blobs (found by the matched filter alone) count only where nothing brighter is,
             refs = [m for m in refs if m.snr >= self.config.min_snr]
-        # and only where they are a spot's size and shape: a faint blob placed to worse than half a
-        # pixel is noise that the filter lined up, or a JPEG ghost.
-        return [m for m in refs if m.snr >= self.config.min_snr or m.sigma_px <= FAINT_MAX_SIGMA_PX]
+        # and only where they are a spot's size and shape.
+        return [m for m in refs if self._believed(m)]
+
+    def _believed(self, spot: LaserMeasurement) -> bool:
+        """Is `spot` bright enough to believe, or faint (found by the matched filter alone) and a
+        spot's size and shape? A faint blob placed to worse than half a pixel is noise that the
+        filter lined up, or a JPEG ghost."""
+        return spot.snr >= self.config.min_snr or spot.sigma_px <= FAINT_MAX_SIGMA_PX
 
     def _comes_and_goes(self, spot: LaserMeasurement, groups: Sequence[FrameGroup],
                         tracks: Mapping[str, Sequence[_Track]]) -> bool:
@@ -1084,11 +1096,9 @@ class Ranger:
             if name in used:
                 continue
             for m in ms:
-                if (_apart(chosen, m) > NEAR_WITNESS_M or m.sigma_m > chosen.sigma_m
-                        or (m.snr < self.config.min_snr and m.sigma_px > FAINT_MAX_SIGMA_PX)):
+                if _apart(chosen, m) > NEAR_WITNESS_M or m.sigma_m > chosen.sigma_m or not self._believed(m):
                     continue
-                dy = m.point_m.item(1) - chosen.point_m.item(1)
-                gap = min(abs(m.depth_m - chosen.depth_m - g * dy) for g in known)
+                gap = _miss(chosen, m, known)
                 if best is None or gap < best[0]:
                     best = (gap, m)
         return best
@@ -1106,10 +1116,9 @@ class Ranger:
         gap = math.inf
         for ms in others.values():
             for m in ms:
-                if m.snr < self.config.min_snr and m.sigma_px > FAINT_MAX_SIGMA_PX:
+                if not self._believed(m):
                     continue
-                dy = m.point_m.item(1) - chosen.point_m.item(1)
-                miss = min(abs(m.depth_m - chosen.depth_m - g * dy) for g in known)
+                miss = _miss(chosen, m, known)
                 if miss <= NEAR_MISS_SIGMAS * math.hypot(chosen.sigma_m, m.sigma_m):
                     gap = min(gap, miss)
         if gap == math.inf:

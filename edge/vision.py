@@ -882,6 +882,8 @@ class SpotFinder:
         the finder reads them from; nothing the finder learns of the frames (`auto`'s choice, a
         Bayer filter's red pixels, spots' widths) is learnt from such a search.
         """
+        if channel is not None and channel not in CHANNEL_WEIGHTS:
+            raise ValueError(f"channel must be one of {', '.join(CHANNEL_WEIGHTS)}, got {channel!r}")
         if channel is not None and on[0].ndim == 3 and CHANNEL_WEIGHTS[channel] != self._weights:
             kept = self._weights, self._demosaiced, self._aside
             self._weights, self._aside = CHANNEL_WEIGHTS[channel], True

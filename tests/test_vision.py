@@ -196,6 +196,8 @@ def test_a_search_in_another_channel_leaves_the_finders_own() -> None:
     assert [c.pixel.tolist() for c in red] == [
         c.pixel.tolist() for c in SpotFinder(renderer.rig, channel="red").find([on], [off])["center"]]
     assert finder.channel == "luma"
+    with pytest.raises(ValueError, match="channel must be one of red, luma, got 'green'"):
+        finder.find([on], [off], channel="green")
     for on, off in pairs[1:]:
         mine, theirs = finder.find([on], [off]), twin.find([on], [off])
         assert {n: [c.pixel.tolist() for c in cs] for n, cs in mine.items()} == {
