@@ -17,7 +17,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -646,6 +646,26 @@ def _miss(spot: LaserMeasurement, other: LaserMeasurement, slopes_y: Sequence[fl
     return min(abs(other.depth_m - spot.depth_m - g * dy) for g in slopes_y)
 
 
+def _pool(groups: Sequence[FrameGroup], name: str
+          ) -> tuple[list[np.ndarray], list[np.ndarray], set[tuple[float, float]]] | None:
+    """The laser-on and laser-off frames of every frame group where `name` was on, and their
+    views; None where it was on in none."""
+    mine = [g for g in groups if name in g.lasers]
+    if not mine:
+        return None
+    return [f for g in mine for f in g.on], [f for g in mine for f in g.off], {g.view for g in mine}
+
+
+def _in_every_view(spots: Sequence[LaserMeasurement], groups: Sequence[FrameGroup]) -> dict[int, tuple[int, int]]:
+    """The sightings (shown, of how many) of `spots` found in the zone's frame groups pooled: one
+    sighting of every group where their laser was on."""
+    out = {}
+    for m in spots:
+        shown = sum(m.laser in g.lasers for g in groups)
+        out[id(m)] = (shown, shown)
+    return out
+
+
 def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
     """Do at least two of the other lasers have spots that lie on one surface?"""
     found = [ms for ms in others.values() if ms]
@@ -804,17 +824,13 @@ class Ranger:
             # made it no weaker.
             if not refs or any(m.snr >= max(r.snr for r in refs) for m in self._believable(measured)):
                 tracks[ref], cands[ref] = pooled, measured
-                shown = sum(ref in g.lasers for g in groups)
-                sightings.update({id(m): (shown, shown) for m in measured})  # one sighting of every view
+                sightings.update(_in_every_view(measured, groups))
                 refs = self._believable(measured)
         if not refs and self.finder.channel == "luma":
             # Luma holds a third of a red spot's light: a spot it shows nowhere may stand out in
             # red, which JPEG's half-resolution chroma places less well but which is there.
-            found = self._in_red(groups, ref)
-            if found:
-                refs = found
-                shown = sum(ref in g.lasers for g in groups)
-                sightings.update({id(m): (shown, shown) for m in found})  # one sighting of every view
+            refs = self._in_red(groups, ref)
+            sightings.update(_in_every_view(refs, groups))
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
         others = {n: ms for n, ms in cands.items() if n != ref}
@@ -1058,17 +1074,15 @@ class Ranger:
         pooled_in: dict[int, tuple[int, int]] = {}
         for name, laser in self._lasers.items():
             span = None if name == chosen.laser else _expected(laser, chosen, known)
-            mine = [g for g in groups if name in g.lasers]
-            if span is None or not mine:
+            pool = _pool(groups, name)
+            if span is None or pool is None:
                 continue
-            on = [f for g in mine for f in g.on]
-            off = [f for g in mine for f in g.off]
-            views = {g.view for g in mine}
+            on, off, views = pool
             found = self.finder.find(on, off, [name], near={name: span}, threshold=LOOK_THRESHOLD).get(name, [])
-            for c in found:
-                m = self._measure(_Track(name, [c], set(views)))
-                grown.setdefault(name, []).append(m)
-                pooled_in[id(m)] = (len(mine), len(mine))
+            new = [self._measure(_Track(name, [c], set(views))) for c in found]
+            if new:
+                grown.setdefault(name, []).extend(new)
+                pooled_in.update(_in_every_view(new, groups))
         if not pooled_in:
             return None
         fusion = best_fusion(self.rig, chosen, grown, self.config.surface_sigma_per_m, known)
@@ -1091,17 +1105,14 @@ class Ranger:
         the one nearest to agreeing, with how far its depth is (m) from the reference's carried
         to it along the likeliest of the `known` slopes. None where there is none."""
         used = {m.laser for m in fusion.used}
-        best: tuple[float, LaserMeasurement] | None = None
-        for name, ms in others.items():
-            if name in used:
-                continue
-            for m in ms:
-                if _apart(chosen, m) > NEAR_WITNESS_M or m.sigma_m > chosen.sigma_m or not self._believed(m):
-                    continue
-                gap = _miss(chosen, m, known)
-                if best is None or gap < best[0]:
-                    best = (gap, m)
-        return best
+        near = [m for name, ms in others.items() if name not in used for m in ms
+                if _apart(chosen, m) <= NEAR_WITNESS_M and m.sigma_m <= chosen.sigma_m]
+        return min(self._misses(chosen, near, known), key=lambda gm: gm[0], default=None)
+
+    def _misses(self, chosen: LaserMeasurement, spots: Iterable[LaserMeasurement],
+                known: Sequence[float]) -> list[tuple[float, LaserMeasurement]]:
+        """How far (m, `_miss`) `chosen` misses each of `spots` that is bright enough to believe."""
+        return [(_miss(chosen, m, known), m) for m in spots if self._believed(m)]
 
     def _nearly_confirmed(self, chosen: LaserMeasurement, others: Mapping[str, Sequence[LaserMeasurement]],
                           known: Sequence[float]) -> Fusion | None:
@@ -1113,16 +1124,11 @@ class Ranger:
         demosaicing: tuning-632 zone 0, 2.3 % long at ± 1.1 %, the parallel and sloped spots on
         the wall to 1.4 %). None where it misses by more (another surface, or not the spot), or
         where they do not agree with it even so."""
-        gap = math.inf
-        for ms in others.values():
-            for m in ms:
-                if not self._believed(m):
-                    continue
-                miss = _miss(chosen, m, known)
-                if miss <= NEAR_MISS_SIGMAS * math.hypot(chosen.sigma_m, m.sigma_m):
-                    gap = min(gap, miss)
-        if gap == math.inf:
+        near = [miss for miss, m in self._misses(chosen, [m for ms in others.values() for m in ms], known)
+                if miss <= NEAR_MISS_SIGMAS * math.hypot(chosen.sigma_m, m.sigma_m)]
+        if not near:
             return None
+        gap = min(near)
         grown = math.hypot(chosen.sigma_m, 0.5 * gap)
         loosened = replace(chosen, sigma_m=grown, sigma_px=chosen.sigma_px * grown / max(chosen.sigma_m, 1e-12))
         fusion = best_fusion(self.rig, loosened, others, self.config.surface_sigma_per_m, known)
@@ -1133,32 +1139,27 @@ class Ranger:
         return None
 
     def _in_red(self, groups: Sequence[FrameGroup], name: str) -> list[LaserMeasurement]:
-        """`name`'s spots that red shows, in the zone's frame groups pooled, where the finder reads
-        luma and showed none to believe (each one sighting for all the groups; `_pooled`)."""
-        mine = [g for g in groups if name in g.lasers]
-        if not mine or mine[0].on[0].ndim != 3:
+        """`name`'s spots that red shows, in the zone's frame groups pooled (`_pooled`), where the
+        finder reads luma and showed none to believe."""
+        if not groups or groups[0].on[0].ndim != 3:
             return []  # (grey frames have no red: the same search again would find the same)
-        on = [f for g in mine for f in g.on]
-        off = [f for g in mine for f in g.off]
-        views = {g.view for g in mine}
-        found = self.finder.find(on, off, [name], channel="red").get(name, [])[:3]
-        return self._believable([self._measure(_Track(name, [c], set(views))) for c in found])
+        return self._believable([self._measure(t) for t in self._pooled(groups, name, channel="red")])
 
-    def _pooled(self, groups: Sequence[FrameGroup], name: str) -> list[_Track]:
-        """`name`'s spots in the zone's frame groups pooled, where no group alone showed one to believe.
+    def _pooled(self, groups: Sequence[FrameGroup], name: str, channel: str | None = None) -> list[_Track]:
+        """`name`'s spots in the zone's frame groups pooled, where no group alone showed one to believe
+        (`channel`: read from that channel for this search, vision.SpotFinder.find).
 
         Camera and lasers turn together, so a spot stays at (nearly) the same pixel in every view
         of a zone while the room behind it shifts. The finder takes the mean of the laser-on
         frames less the mean of the laser-off frames: pooled, that is the mean of each group's own
         difference, in which the room cancels, and a spot too faint for any one group stands
-        √groups higher above the noise. Each spot found so is one sighting for all the groups."""
-        mine = [g for g in groups if name in g.lasers]
-        if len(mine) < 2:
+        √groups higher above the noise. Each spot found so is one sighting for all the groups.
+        (One group pooled is that group, searched already, unless in another channel.)"""
+        pool = _pool(groups, name)
+        if pool is None or (channel is None and sum(name in g.lasers for g in groups) < 2):
             return []
-        on = [f for g in mine for f in g.on]
-        off = [f for g in mine for f in g.off]
-        views = {g.view for g in mine}
-        found = self.finder.find(on, off, [name]).get(name, [])
+        on, off, views = pool
+        found = self.finder.find(on, off, [name], channel=channel).get(name, [])
         return [_Track(name, [c], set(views)) for c in found][:3]
 
     def _deblend(self, group: FrameGroup, found: dict[str, list[Candidate]]) -> dict[str, list[Candidate]]:

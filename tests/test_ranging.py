@@ -762,7 +762,7 @@ def test_a_blob_found_twice_in_one_group_is_seen_once() -> None:
     def spot(name: str, pixel) -> Candidate:
         return Candidate(name, np.asarray(pixel, float), 0.7, 6.5, 1.0, 0.5, 0.0, 6.5)
 
-    def find(on, off, lasers=None):
+    def find(on, off, lasers=None, **search):  # (search: near, threshold, channel, as the finder takes them)
         if on[0] is groups[0].on[0]:
             return {"center": [], "parallel": [], "sloped": []}
         return {"center": [spot("center", centre), spot("center", centre + (0.9, 0.0))],
