@@ -86,6 +86,10 @@ NEIGHBOURS = ((1, 0), (2, 0), (0, 1), (0, 2), (1, 1))
 # noise measured along the same stretch of its path) is a seed even when its brightest pixel is
 # below `min_snr`: a dim spot is found where the noise allows, a bright window's glare is not.
 MATCHED_SNR = 5.0
+# How far off a laser's path `find` keeps a blob of its strip as a stray (px): two lasers' spots
+# run together (the centre and parallel beams, 4 cm apart, on a small camera or far away) make one
+# blob between their paths, up to half their spacing from each.
+STRAY_REACH_PX = 3.0
 # The pixel noise a spot is judged against follows the room's level where it falls
 # (`_noise_by_level`): bins of equal steps of √level (shot noise's scale), each told by at least
 # NOISE_BIN_SAMPLES background samples; and at most a factor NOISE_FLOOR_FRACTION below the
@@ -865,6 +869,7 @@ class SpotFinder:
         near: Mapping[str, tuple[float, float]] | None = None,
         threshold: float = 1.0,
         channel: str | None = None,
+        strays: list[Candidate] | None = None,
     ) -> dict[str, list[Candidate]]:
         """Candidate spots per laser from laser-on and laser-off frames of one pose.
 
@@ -881,6 +886,10 @@ class SpotFinder:
         `channel` ("red" or "luma"): colour frames read from it for this search alone, whatever
         the finder reads them from; nothing the finder learns of the frames (`auto`'s choice, a
         Bayer filter's red pixels, spots' widths) is learnt from such a search.
+
+        `strays`, where given, gets the blobs that a laser's strip holds but that lie off its path
+        (by more than `path_tolerance`, within STRAY_REACH_PX): two lasers' spots run together into
+        one blob lie between their paths, and only a fit of both can place them (`edge.deblend`).
         """
         if channel is not None and channel not in CHANNEL_WEIGHTS:
             raise ValueError(f"channel must be one of {', '.join(CHANNEL_WEIGHTS)}, got {channel!r}")
@@ -888,7 +897,7 @@ class SpotFinder:
             kept = self._weights, self._demosaiced, self._aside
             self._weights, self._aside = CHANNEL_WEIGHTS[channel], True
             try:
-                return self.find(on, off, lasers, max_candidates, near, threshold)
+                return self.find(on, off, lasers, max_candidates, near, threshold, strays=strays)
             finally:
                 self._weights, self._demosaiced, self._aside = kept
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
@@ -956,8 +965,13 @@ class SpotFinder:
                           ] if len(everywhere) > 1 else []
                 refine = functools.partial(self._refine, self.bands[name], (u, v), row, others, on, off, gain, here,
                                            shot, peak, mf, texture, scales, planes)
-                cand = refine()
-                if cand is not None:
+                cand = refine() if strays is None else refine(reach=STRAY_REACH_PX)
+                if cand is None:
+                    continue
+                if cand.cross_px > self.path_tolerance:
+                    assert strays is not None  # (only then is a blob off the path kept)
+                    strays.append(cand)
+                else:
                     out.append((refine, cand))
             refined[name] = out
         if texture.bayer is not None:  # (only then are spots placed by their red pixels)
@@ -1344,8 +1358,8 @@ class SpotFinder:
 
     def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak, matched=0.0,
                 texture: _Texture | None = None, scales: tuple[float, float] | None = None,
-                planes: tuple[np.ndarray, ...] | None = None, width: tuple[float, float] | None = None
-                ) -> Candidate | None:
+                planes: tuple[np.ndarray, ...] | None = None, width: tuple[float, float] | None = None,
+                reach: float | None = None) -> Candidate | None:
         """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
         thresholded difference in a window, which is unbiased for a symmetric spot; the window
         grows for big (near, defocused, saturated) spots so that it never clips one, and pixels
@@ -1358,7 +1372,8 @@ class SpotFinder:
         JPEG's blocks, demosaicing).
 
         `scales` and `planes` are `_scales` and `_planes` of the frames, which `find` works out
-        once for all its windows (None: work them out here)."""
+        once for all its windows (None: work them out here). `reach`: how far from the path a
+        spot may lie and be kept (default `path_tolerance`; `find`'s strays go farther)."""
         texture = texture or _Texture(1.0, 1.0, None)
         cam = self.rig.camera
         r = self._radius
@@ -1498,7 +1513,7 @@ class SpotFinder:
         pu, pv, tu, tv, _ = band.samples[row]
         along = (cu - pu) * tu + (cv - pv) * tv
         cross = abs((cu - pu) * tv - (cv - pv) * tu)
-        if cross > self.path_tolerance:
+        if cross > (self.path_tolerance if reach is None else reach):
             return None  # not on this laser's path: another light, or another laser's spot
         k = min(max(row + int(round(along / band.step)), 0), len(band.samples) - 1)
         return Candidate(

@@ -734,7 +734,7 @@ def test_sightings_in_two_views_are_one_spot_if_their_noise_allows() -> None:
     def zone(sigma_px: float):
         placed = {0.0: (u, v), 0.0514: (u + 1.44, v + 1.08)}  # 1.8 px apart
 
-        def find(on, off, lasers=None):
+        def find(on, off, lasers=None, **search):
             view = next(g.view[0] for g in groups if g.on[0] is on[0] and g.off[0] is off[0])
             return {"center": [Candidate("center", np.array(placed[view]), sigma_px, 30.0, 1.0, 0.5, 0.0, 30.0)],
                     "parallel": [], "sloped": []}
@@ -745,6 +745,45 @@ def test_sightings_in_two_views_are_one_spot_if_their_noise_allows() -> None:
     assert loose.lasers["center"].views == 2  # one spot, both views
     sharp = zone(0.1)
     assert "center" not in sharp.lasers and sharp.status == AMBIGUOUS  # two spots: which?
+
+
+def _soft_small_camera(distance: float) -> Renderer:
+    """A wall seen by a 352 × 288 camera through a soft lens (PSF 3 px), the lasers 8 × as bright."""
+    config = load_config()
+    camera = CameraModel(352, 288, 290.0, 290.0, 175.5, 143.5, (0.0, 0.0, 0.0, 0.0, 0.0))
+    sim = replace(config.sim, optics=replace(config.sim.optics, psf_sigma_px=3.0),
+                  beam=replace(config.sim.beam, e_per_ms_at_1m=8 * config.sim.beam.e_per_ms_at_1m))
+    return Renderer(flat_target_scene(distance), Rig(camera, config.rig.build().lasers), sim)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_two_spots_run_together_between_their_paths_are_split(seed: int) -> None:
+    """The centre and parallel spots, 4 cm apart, one bright blob between their paths and off
+    each by more than path_tolerance_px: kept as a stray and split by the deblender, not
+    `no_spot` (tuning-538 zone 10, a blob of SNR 100 on a 352-px camera)."""
+    renderer = _soft_small_camera(2.2)
+    rig = renderer.rig
+    groups = []
+    for k in range(2):
+        rng = np.random.default_rng([seed, k])
+        view = 0.0514 * k
+        on = renderer.render(view, 0.0, {"center": 1.0, "parallel": 0.75, "sloped": 1.0}, 0.0, rng)
+        off = renderer.render(view, 0.0, {}, 0.0, rng)
+        groups.append(FrameGroup([on], [off], rig.laser_names, (view, 0.0)))
+    ranger = Ranger(rig)
+    truth = renderer.spots(0.0, 0.0)
+    # Nearer than twice the blur: one blob, with no dip between the spots.
+    assert np.linalg.norm(truth["center"].pixel - truth["parallel"].pixel) < 2 * 3.0
+    strays: list[Candidate] = []
+    found = ranger.finder.find(groups[0].on, groups[0].off, rig.laser_names, strays=strays)
+    assert not found["center"]  # on its path, no spot of its own
+    assert {c.laser for c in strays} >= {"center"}
+    assert all(c.cross_px > ranger.finder.path_tolerance for c in strays)
+    result = ranger.range_zone(0, 0.0, 0.0, groups)
+    assert result.status == OK, result.detail
+    assert abs(result.range_m - 2.2) <= 2.0 * result.sigma_m
+    assert abs(result.range_m - 2.2) / 2.2 < 0.03
+    assert np.linalg.norm(result.lasers["center"].pixel - truth["center"].pixel) < 1.0
 
 
 def test_a_blob_found_twice_in_one_group_is_seen_once() -> None:
