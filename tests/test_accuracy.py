@@ -213,7 +213,7 @@ def test_kept_recordings_are_ranged_again_by_replay(tmp_path: Path, capsys: pyte
     from edge.accuracy.bench import KEPT_FILE, KeptFamily, family_document, replay_family, run_family
     from edge.cli import main
 
-    tiny = replace(cond.condition("tuning", 0), width=160, height=120, fx=110.0, cx=79.5, cy=59.5, k1=0.0,
+    tiny = replace(cond.condition("tuning", 0), width=160, height=120, fx=140.0, cx=79.5, cy=59.5, k1=0.0,
                    scene="office", jpeg_quality=0, bayer="none", laser_power=3.0)
     runs = run_family(None, [], [tiny], zones=3, rig="true", jobs=1, keep=tmp_path)
     (tmp_path / KEPT_FILE).write_text(json.dumps(family_document(runs, "tuning", 3, "true", None, [])))
