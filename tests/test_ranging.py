@@ -90,9 +90,34 @@ def test_fusion_of_a_facing_wall_averages_with_the_right_weights() -> None:
     par = _meas("parallel", (0.035, -0.04, 1.99), 0.01, rig.laser("parallel"))
     f = fuse(rig, ref, [par], slopes=False, surface_sigma_per_m=0.0)
     w1, w2 = 1 / 0.02**2, 1 / 0.01**2
+    first = (w1 * 2.01 + w2 * 1.99) / (w1 + w2)
+    # Weighed again with each σ carried to that depth (∝ depth²).
+    w1, w2 = 1 / (0.02 * (first / 2.01) ** 2) ** 2, 1 / (0.01 * (first / 1.99) ** 2) ** 2
     assert f.range_m == pytest.approx((w1 * 2.01 + w2 * 1.99) / (w1 + w2))
     assert f.sigma_m == pytest.approx(1 / math.sqrt(w1 + w2))
     assert f.consistent and f.dof == 1
+
+
+@pytest.mark.parametrize("slopes", [False, True])
+def test_spots_read_short_and_long_are_weighed_alike(slopes: bool) -> None:
+    """Three spots on a wall at 2.5 m placed to 0.3 px: depth's σ grows as depth², so weighed by
+    the σ of the depth each measured, the ones read short count more and the fused range leans
+    short (by 0.2-0.3 % here); carried to one depth, they count alike and it does not."""
+    rig = default_rig()
+    rng = np.random.default_rng(7)
+    fused, naive = [], []
+    for _ in range(3000):
+        ms = []
+        for laser in rig.lasers:
+            pixel = rig.camera.project(laser.point_at_depth(2.5)) + rng.normal(0.0, 0.3, 2)
+            ms.append(measure(laser, rig.camera, pixel, 0.3, 50.0, 1))
+        f = fuse(rig, ms[0], ms[1:], slopes=slopes, surface_sigma_per_m=0.0)
+        fused.append(f.range_m)
+        w = [1.0 / m.sigma_m**2 for m in ms]
+        naive.append(sum(wi * m.depth_m for wi, m in zip(w, ms)) / sum(w))
+    spread = float(np.std(fused)) / math.sqrt(len(fused))
+    assert np.mean(naive) - 2.5 < -0.001 - 3 * spread  # what weights at the measured depths do
+    assert abs(np.mean(fused) - 2.5) < 3 * spread
 
 
 def test_fusion_on_a_tilted_plane_gives_its_normal() -> None:
@@ -278,7 +303,9 @@ def test_no_plane_is_fitted_that_the_lasers_would_see_70_degrees_from_square_on(
     """Tuning-246 zone 6, an office: the reference spot 0.8 px off by demosaicing (1.60 ± 0.06 m;
     truth 1.74 m), the parallel laser's on the same wall (1.73 m), the sloped laser's on a table
     below (1.01 m). A plane through all three slopes 74° (χ² 0.3 on 1 degree of freedom) and said
-    1.60 ± 0.03 m, 8 % off; no known slope holds the reference and the parallel's spot together."""
+    1.60 ± 0.03 m, 8 % off. The wall's known slope holds the reference and the parallel's spot
+    together, just (χ² 3.7 on 1, with each σ at the fitted depth; at the depth each measured, 4.3
+    and the reference alone, 8 % off): the table's spot has no say."""
     rig = default_rig()
     tan10 = math.tan(math.radians(10.0))
     ref, par, slo = _on_camera(rig,
@@ -289,8 +316,8 @@ def test_no_plane_is_fitted_that_the_lasers_would_see_70_degrees_from_square_on(
     assert fuse(rig, ref, [par, slo]).consistent is False  # the plane through all three: too oblique
     slopes = level_slopes(rig.camera_to_base(101.9, -6.4))
     f = best_fusion(rig, ref, {"parallel": [par], "sloped": [slo]}, 0.05, slopes)
-    assert [m.laser for m in f.used] == ["center"]
-    assert f.range_m == pytest.approx(1.598)
+    assert [m.laser for m in f.used] == ["center", "parallel"]
+    assert abs(f.range_m - 1.74) <= 2 * f.sigma_m
 
 
 def _render_groups(renderer: Renderer, pan: float = 0.0, pairs: int = 2, seed: int = 0, edit=None):
