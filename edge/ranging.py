@@ -82,6 +82,9 @@ NEAR_WITNESS_M = FAR_LASER_M  # (a near laser's spot: within this of the referen
 LOOK_THRESHOLD = 0.8
 # Two spots fitted together (edge.deblend) are fitted in a window of this half-size (px).
 DEBLEND_WINDOW_PX = 6
+# A blob off every path (vision.SpotFinder.find's strays) is fitted as two lasers' spots run
+# together only this bright (peak over noise): a faint one is noise fitted as two spots as often.
+STRAY_MIN_SNR = 10.0
 # Their σ is the fit's, from its residual as if white, grown for the residual's correlation (JPEG's
 # blocks, demosaicing), with a floor for the two spots' shapes that the fit takes as one Gaussian:
 # on the tuning family the fit's own σ was half the error.
@@ -348,11 +351,11 @@ def fuse(
     if A.shape[0] < A.shape[1]:  # too few points for the slopes: the reference alone
         return Fusion(reference.depth_m, reference.sigma_m, reference.point_m, None, 0.0, 0, (reference,))
     AtW = A.T * w
-    cov = np.linalg.inv(AtW @ A)
-    params = cov @ (AtW @ z)
-    # Weighed again, each σ at the depth the surface puts its spot at (_at_depth).
-    at = np.clip((A @ params) / z, *_AT_DEPTH_RATIO) ** 2
-    w = 1.0 / ((np.array([max(m.sigma_m, 1e-9) for m in ms]) * at) ** 2 + model**2)
+    # A first fit says only where the surface puts each spot: the fit is made with each σ carried
+    # to that depth (_at_depth, as _fuse_flat does).
+    first = A @ np.linalg.solve(AtW @ A, AtW @ z)
+    w = 1.0 / (np.array([_at_depth(m.sigma_m, zi, fi) for m, zi, fi in zip(ms, z.tolist(), first.tolist())]) ** 2
+               + model**2)
     AtW = A.T * w
     cov = np.linalg.inv(AtW @ A)
     params = cov @ (AtW @ z)
@@ -1203,9 +1206,8 @@ class Ranger:
             for c in list(found[name]):
                 self._split(group, found, name, c)
         for c in strays:
-            # (A faint blob split in two is noise fitted as two spots as often as two spots:
-            # tuning-1082 zone 1, SNR 9 on a 320-px camera, 14 % short.)
-            if c.laser in found and c.snr >= EDGE_MIN_SNR:
+            # (tuning-1082 zone 1: a stray of SNR 9 on a 320-px camera, split, was 14 % short.)
+            if c.laser in found and c.snr >= STRAY_MIN_SNR:
                 self._split(group, found, c.laser, c)
         return found
 
