@@ -1204,7 +1204,8 @@ class Ranger:
         own path (:mod:`edge.deblend`), and keep both if both are spots. So too for `strays`, blobs
         of a laser's strip off its path (`SpotFinder.find`): where another's path passes too, two
         spots run together lie between the paths, neither on its own (tuning-538 zone 10: the
-        centre and parallel spots one blob of SNR 100 on a 352-px camera, and `no_spot`)."""
+        centre and parallel spots one blob of SNR 100 on a 352-px camera, and `no_spot`). Last,
+        two lasers' spots found close together are placed together (`_together`)."""
         for name in list(found):
             for c in list(found[name]):
                 self._split(group, found, name, c)

@@ -788,6 +788,18 @@ def _soft_small_camera(distance: float, psf_px: float = 3.0, power: float = 8.0,
     return Renderer(flat_target_scene(distance), Rig(camera, config.rig.build().lasers), sim)
 
 
+def _two_views(renderer: Renderer, parallel: float, seed: int) -> list[FrameGroup]:
+    """Two nudged views of one pair each, every laser on, the parallel laser at that power."""
+    groups = []
+    for k in range(2):
+        rng = np.random.default_rng([seed, k])
+        view = 0.0514 * k
+        on = renderer.render(view, 0.0, {"center": 1.0, "parallel": parallel, "sloped": 1.0}, 0.0, rng)
+        off = renderer.render(view, 0.0, {}, 0.0, rng)
+        groups.append(FrameGroup([on], [off], renderer.rig.laser_names, (view, 0.0)))
+    return groups
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_two_spots_run_together_between_their_paths_are_split(seed: int) -> None:
     """The centre and parallel spots, 4 cm apart, one bright blob between their paths and off
@@ -795,13 +807,7 @@ def test_two_spots_run_together_between_their_paths_are_split(seed: int) -> None
     `no_spot` (tuning-538 zone 10, a blob of SNR 100 on a 352-px camera)."""
     renderer = _soft_small_camera(2.2)
     rig = renderer.rig
-    groups = []
-    for k in range(2):
-        rng = np.random.default_rng([seed, k])
-        view = 0.0514 * k
-        on = renderer.render(view, 0.0, {"center": 1.0, "parallel": 0.75, "sloped": 1.0}, 0.0, rng)
-        off = renderer.render(view, 0.0, {}, 0.0, rng)
-        groups.append(FrameGroup([on], [off], rig.laser_names, (view, 0.0)))
+    groups = _two_views(renderer, 0.75, seed)
     ranger = Ranger(rig)
     truth = renderer.spots(0.0, 0.0)
     # Nearer than twice the blur: one blob, with no dip between the spots.
@@ -827,13 +833,7 @@ def test_a_faint_spot_beside_a_bright_one_is_placed_with_it(seed: int) -> None:
     speckle: what is left is the placing alone."""
     renderer = _soft_small_camera(3.0, psf_px=1.2, power=4.0, speckle=0.0)
     rig = renderer.rig
-    groups = []
-    for k in range(2):
-        rng = np.random.default_rng([seed, k])
-        view = 0.0514 * k
-        on = renderer.render(view, 0.0, {"center": 1.0, "parallel": 0.4, "sloped": 1.0}, 0.0, rng)
-        off = renderer.render(view, 0.0, {}, 0.0, rng)
-        groups.append(FrameGroup([on], [off], rig.laser_names, (view, 0.0)))
+    groups = _two_views(renderer, 0.4, seed)
     ranger = Ranger(rig)
     parallel = rig.laser("parallel")
     found = ranger.finder.find(groups[0].on, groups[0].off, rig.laser_names)
