@@ -31,10 +31,11 @@ from edge.grid import (
     state_bytes,
     yaml_text,
 )
-from edge.ranging import OK, STATUSES, LaserMeasurement, ZoneResult
+from edge.ranging import OK, STATUSES, ZoneResult
 from edge.recording import SWEEP_JSON, LaserKeys, format_is, load, rig_of
 from edge.rig import CameraModel, Mount, Rig
 from edge.schema import Label, fail, read_json, require
+from edge.triangulation import LaserMeasurement
 
 log = logging.getLogger(__name__)
 

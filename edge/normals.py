@@ -15,7 +15,7 @@ its slope; a third row off that plane is what shows the bend. Where the point's 
 window's end, the others must reach far enough to pin the slope without it (see `_pinned`).
 
 The zone's own lasers' spots are in every window: the ranging fused them onto the point's surface
-(``edge.ranging.fuse``), so a window on the far side of a crease, which a row right at the crease
+(``edge.fusion.fuse``), so a window on the far side of a crease, which a row right at the crease
 fits as well as its own side does, fails on them. Up the column two layers do where the zone's
 own spots make the second one (the bottom row's floor: its row and its sloped laser's spots):
 they join the two rows at the zone, and the plane is kept only at a slope at which the fusion
@@ -196,7 +196,7 @@ def _well_pinned(plane: _Plane) -> bool:
 
 def _joined_at_a_known_slope(plane: _Plane, across: np.ndarray, up: np.ndarray) -> bool:
     """For a window of two layers up the column joined by the zone's own spots: whether its plane
-    has a slope the ranging's fusion tests a zone's lasers against (``edge.ranging.level_slopes``),
+    has a slope the ranging's fusion tests a zone's lasers against (``edge.fusion.level_slopes``),
     within _SQUARE_SIGMAS of its σ, its slope up the column pinned to _OWN_TILT_SIGMA. Level (a
     floor, a table top): the known slope then pins the normal both ways, and across the row too
     _OWN_TILT_SIGMA will do. Upright (a wall, a furniture front): it pins the plane's tilt only;

@@ -1,11 +1,8 @@
-"""From spots to a range you can trust: triangulation, assignment, fusion and honest statuses.
+"""From spots to a range you can trust: assignment, the rules of belief and honest statuses.
 
-Each laser is a known ray in the camera frame; the camera ray through its spot meets it where the
-light landed, so each found spot gives a depth (*triangulation*) with an uncertainty propagated from
-the spot's pixel uncertainty. The spots of several lasers are then *fused* into the reference
-laser's range through a local surface model (depth varying linearly across the lasers' hit points:
-first with the slope a wall or a floor has at the unit's tilt, else with a fitted one), which is
-checked against the measurements (χ²) before it is trusted. Candidates that fit no laser,
+Each found spot gives a depth (*triangulation*, `edge.triangulation`); the spots of several lasers
+are *fused* into the reference laser's range through a local surface model (`edge.fusion`). This
+module decides which spots those are, over the zone's frame groups: candidates that fit no laser,
 or give inconsistent depths, are dropped; when the reference laser's spot cannot be told apart from
 another blob the zone is ``ambiguous``, never a guess.
 
@@ -14,7 +11,6 @@ Statuses and fields follow ``shared/spec/geometry.md`` ("What a zone's result me
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 from collections.abc import Iterable, Mapping, Sequence
@@ -26,17 +22,25 @@ import numpy as np
 
 from edge.deblend import DEBLEND_PX, Placed, place_pair
 from edge.errors import ConfigError
-from edge.rig import CameraModel, Laser, Pose, Rig
+from edge.fusion import (
+    Fusion,
+    apart,
+    best_fusion,
+    common_grown,
+    fuse,
+    level_slopes,
+    pair_plausible,
+    same_blob,
+    scatter_grown,
+)
+from edge.rig import Laser, Rig
 from edge.schema import require
 from edge.tone import linear_table, require_gamma
+from edge.triangulation import LaserMeasurement, measure
 from edge.vision import Candidate, SpotFinder
 
 OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT = "ok", "no_spot", "ambiguous", "out_of_range", "fault"
 STATUSES = (OK, NO_SPOT, AMBIGUOUS, OUT_OF_RANGE, FAULT)
-# χ² acceptance at 95 % for 1…6 degrees of freedom. At 99 %, on seeds the estimator had not been
-# tuned on, one laser's spot far off the surface the other two agreed on was fused in with them and
-# pulled the range 15 % off (tuning-85, zone 12); 95 % left 5 of 8 such wrong ranges.
-_CHI2_95 = (3.84, 5.99, 7.81, 9.49, 11.07, 12.59)
 # A faint reference spot (found by the matched filter alone) must be placed at least this well (px).
 FAINT_MAX_SIGMA_PX = 0.5
 # Of several blobs on the reference's path, one that a single other laser agrees with must be placed
@@ -93,9 +97,6 @@ STRAY_MIN_SNR = 10.0
 # on the tuning family the fit's own σ was half the error.
 DEBLEND_GROW = 2.0
 DEBLEND_FLOOR_PX = 0.25
-# Two spots' depths may differ across their separation by at most this slope (tan of the surface's
-# angle from facing the lasers squarely): 75° still counts as one surface.
-_MAX_SLOPE = math.tan(math.radians(75.0))
 
 
 @dataclass(frozen=True)
@@ -144,33 +145,6 @@ class RangingConfig:
         require_gamma(self.frame_gamma, "frame_gamma")
 
 
-# Not frozen, though never changed once made: a frozen dataclass costs 3 × as much to build
-# (vision.Candidate), and every spot of every zone makes one.
-@dataclass
-class LaserMeasurement:
-    """One laser's spot and what it says about depth."""
-
-    laser: str
-    pixel: np.ndarray  # (2,) float64
-    sigma_px: float
-    point_m: np.ndarray  # (3,) where the beam meets the surface, camera frame
-    depth_m: float
-    sigma_m: float
-    snr: float
-    views: int  # distinct views (speckle patterns) averaged
-    beam_dir: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) the laser's
-
-    def to_json(self) -> dict:
-        return {
-            "pixel": [round(float(c), 3) for c in self.pixel],
-            "sigma_px": round(self.sigma_px, 4),
-            "depth_m": round(self.depth_m, 5),
-            "sigma_m": round(self.sigma_m, 5),
-            "snr": round(self.snr, 1),
-            "views": self.views,
-        }
-
-
 @dataclass(frozen=True)
 class ZoneResult:
     index: int
@@ -215,355 +189,6 @@ class ZoneResult:
         return out
 
 
-# --- triangulation ----------------------------------------------------------------------------
-
-
-def triangulate(laser: Laser, camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
-    """Points (N, 3) on `laser`'s beam nearest to the camera rays through `pixels` (N, 2)."""
-    r = camera.rays(np.atleast_2d(pixels))
-    o, d = laser.o, laser.d
-    c = r @ d
-    s = (c * (r @ o) - d @ o) / np.maximum(1.0 - c * c, 1e-12)
-    return o + s[:, None] * d
-
-
-def _ray(camera: CameraModel, u: float, v: float, distorted: bool = True) -> tuple[float, float, float]:
-    """Unit camera ray through pixel (u, v), in plain floats (one spot at a time, no array
-    overhead); the same as ``CameraModel.rays``. `distorted`: whether the camera has distortion."""
-    x, y = (u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy
-    if distorted and camera.distorted:
-        x, y = (float(c) for c in camera.undistort(np.array([x, y])))
-    n = math.sqrt(x * x + y * y + 1.0)
-    return x / n, y / n, 1.0 / n
-
-
-def _on_beam(o: tuple, d: tuple, r: tuple) -> tuple[float, float, float]:
-    """The point of the beam o + s·d nearest to the camera ray through the origin along r."""
-    c = r[0] * d[0] + r[1] * d[1] + r[2] * d[2]
-    ro = r[0] * o[0] + r[1] * o[1] + r[2] * o[2]
-    do = d[0] * o[0] + d[1] * o[1] + d[2] * o[2]
-    s = (c * ro - do) / max(1.0 - c * c, 1e-12)
-    return o[0] + s * d[0], o[1] + s * d[1], o[2] + s * d[2]
-
-
-def measure(
-    laser: Laser, camera: CameraModel, pixel: np.ndarray, sigma_px: float, snr: float, views: int,
-    cov_px: tuple[float, float, float] | None = None,
-) -> LaserMeasurement:
-    """Depth of one spot and its 1-σ uncertainty: first-order propagation of the position's
-    covariance `cov_px` (var u, var v, cov uv; px²), or of `sigma_px` on each axis. The depth moves
-    with the spot along the laser's path, hardly across it, so the measurement's `sigma_px` is
-    the position's σ along the depth's gradient: what `sigma_m` is made of."""
-    u, v = pixel.tolist()  # (plain floats: cheaper than numpy's)
-    o, d = laser.origin_m, laser.direction
-    if any(camera.dist):  # camera.distorted (a float is true unless 0), without its generator
-        h = 0.05  # central differences: depth is strongly convex in the pixel far away
-
-        def depth(uu: float, vv: float) -> float:
-            return _on_beam(o, d, _ray(camera, uu, vv))[2]
-
-        p = _on_beam(o, d, _ray(camera, u, v))
-        dz_du = (depth(u + h, v) - depth(u - h, v)) / (2 * h)
-        dz_dv = (depth(u, v + h) - depth(u, v - h)) / (2 * h)
-    else:
-        # _on_beam(_ray(…)) in one, for the unnormalised ray q = (x, y, 1): the beam's parameter
-        # is s = (q·d q·o − d·o q·q) / (q·q − (q·d)²).
-        (ox, oy, oz), (dx, dy, dz) = o, d
-        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
-        do = dx * ox + dy * oy + dz * oz
-        x, y = (u - cx) / fx, (v - cy) / fy
-        qq, qd, qo = x * x + y * y + 1.0, x * dx + y * dy + dz, x * ox + y * oy + oz
-        num, den = qd * qo - do * qq, max(qq - qd * qd, 1e-12 * qq)
-        s0 = num / den
-        p = (ox + s0 * dx, oy + s0 * dy, oz + s0 * dz)
-        # z = oz + s·dz: its derivatives in closed form (d/du = d/dx / fx).
-        dz_du = dz * ((dx * qo + qd * ox - 2.0 * do * x) - s0 * (2.0 * x - 2.0 * qd * dx)) / den / fx
-        dz_dv = dz * ((dy * qo + qd * oy - 2.0 * do * y) - s0 * (2.0 * y - 2.0 * qd * dy)) / den / fy
-    slope = math.hypot(dz_du, dz_dv)
-    if cov_px is None or slope <= 0.0:
-        sigma_m = slope * sigma_px
-    else:
-        var_u, var_v, cov_uv = cov_px
-        sigma_m = math.sqrt(max(dz_du * dz_du * var_u + dz_dv * dz_dv * var_v + 2.0 * dz_du * dz_dv * cov_uv, 0.0))
-        sigma_px = sigma_m / slope
-    return LaserMeasurement(laser.name, np.array((u, v)), sigma_px, np.array(p), p[2], sigma_m, snr, views,
-                            _beam_dir(laser.direction))
-
-
-@functools.lru_cache(maxsize=64)
-def _beam_dir(direction: tuple[float, float, float]) -> np.ndarray:
-    """A laser's direction as an array, made once (LaserMeasurement.beam_dir; never written to)."""
-    out = np.array(direction, dtype=np.float64)
-    out.flags.writeable = False
-    return out
-
-
-# --- fusion -----------------------------------------------------------------------------------
-
-
-# Not frozen (never changed once made; `replace` makes a new one): a frozen dataclass costs 4 × as
-# much to build (vision.Candidate), and every zone makes one or more.
-@dataclass
-class Fusion:
-    range_m: float
-    sigma_m: float
-    point_m: np.ndarray
-    normal: np.ndarray | None
-    chi2: float
-    dof: int
-    used: tuple[LaserMeasurement, ...]  # the reference first
-
-    @property
-    def consistent(self) -> bool:
-        return self.dof == 0 or self.chi2 <= _CHI2_95[min(self.dof, len(_CHI2_95)) - 1]
-
-
-def fuse(
-    rig: Rig,
-    reference: LaserMeasurement,
-    others: Sequence[LaserMeasurement],
-    slopes: bool = True,
-    surface_sigma_per_m: float = 0.05,
-    slope_y: float = 0.0,
-) -> Fusion:
-    """The reference laser's range from all measurements through a locally planar surface.
-
-    With `slopes`, the surface is z = a + g·(y − y_ref) + h·(x − x_ref) near the reference's point,
-    the slope terms kept only where the hit points spread enough to measure them (the thesis rig's
-    lasers lie in one vertical plane, so only g); without, it is z = a: a surface facing the camera
-    across the lasers, as walls and furniture fronts do in a level sweep, or, with `slope_y`, a
-    surface of that known slope z = a + slope_y·(y − y_ref) (a wall or a floor seen with the unit
-    tilted: see :func:`level_slopes`). The reference beam is then intersected with it.
-    """
-    ms = [reference, *others]
-    if not slopes:
-        return _fuse_flat(reference, ms, surface_sigma_per_m, slope_y)
-    pts = np.array([m.point_m for m in ms])
-    z = pts[:, 2]
-    dx, dy = pts[:, 0] - pts[0, 0], pts[:, 1] - pts[0, 1]
-    model = surface_sigma_per_m * np.hypot(dx, dy)
-    w = 1.0 / (np.array([max(m.sigma_m, 1e-9) for m in ms]) ** 2 + model**2)
-    cols = [np.ones(len(ms))]
-    use_g = slopes and np.ptp(dy) >= 0.01
-    use_h = slopes and np.ptp(dx) >= 0.01
-    if use_g:
-        cols.append(dy)
-    if use_h:
-        cols.append(dx)
-    A = np.stack(cols, axis=1)
-    if A.shape[0] < A.shape[1]:  # too few points for the slopes: the reference alone
-        return Fusion(reference.depth_m, reference.sigma_m, reference.point_m, None, 0.0, 0, (reference,))
-    AtW = A.T * w
-    # A first fit says only where the surface puts each spot: the fit is made with each σ carried
-    # to that depth (_at_depth, as _fuse_flat does).
-    first = A @ np.linalg.solve(AtW @ A, AtW @ z)
-    w = 1.0 / (np.array([_at_depth(m.sigma_m, zi, fi) for m, zi, fi in zip(ms, z.tolist(), first.tolist())]) ** 2
-               + model**2)
-    AtW = A.T * w
-    cov = np.linalg.inv(AtW @ A)
-    params = cov @ (AtW @ z)
-    resid = z - A @ params
-    chi2 = max(float((w * resid**2).sum()), _chi2_inverse(z, A @ params, w))
-    dof = len(ms) - A.shape[1]
-    g = float(params[1]) if use_g else 0.0
-    h = float(params[1 + use_g]) if use_h else 0.0
-    if abs(g) > _MAX_FITTED_SLOPE:
-        # Seen 70° or more from square on: more likely one laser's spot pulled off and another's
-        # on another surface than one surface lit so obliquely by all three. (Tuning 0-255: the
-        # one zone ranged so was 8 % off, claiming 1.7 %: tuning-246 zone 6, a reference spot
-        # 0.8 px off by demosaicing, the parallel's on the wall, the sloped's on a table.)
-        chi2 = math.inf
-    laser = rig.laser(reference.laser)
-
-    def on_beam(p: np.ndarray) -> np.ndarray:
-        a_, g_, h_ = float(p[0]), (float(p[1]) if use_g else 0.0), (float(p[1 + use_g]) if use_h else 0.0)
-        c = a_ - g_ * pts[0, 1] - h_ * pts[0, 0]
-        o, d = laser.o, laser.d
-        s = (c - o[2] + g_ * o[1] + h_ * o[0]) / (d[2] - g_ * d[1] - h_ * d[0])
-        return o + s * d
-
-    point = on_beam(params)
-    # First-order propagation of the parameters' covariance to the reference's depth.
-    J = np.zeros(len(params))
-    for k in range(len(params)):
-        step = np.zeros(len(params))
-        step[k] = 1e-6 * max(1.0, abs(params[k]))
-        J[k] = (on_beam(params + step)[2] - point[2]) / step[k]
-    sigma = math.sqrt(max(float(J @ cov @ J), 0.0))
-    normal = None
-    if use_g and use_h:
-        n = np.array([h, g, -1.0])
-        normal = n / np.linalg.norm(n)
-    return Fusion(float(point[2]), sigma, point, normal, chi2, dof, tuple(ms))
-
-
-def _fuse_flat(reference: LaserMeasurement, ms: list[LaserMeasurement], surface_sigma_per_m: float,
-               slope_y: float = 0.0) -> Fusion:
-    """`fuse` for z = a + slope_y·(y − y_ref), slope_y known: a weighted mean of the depths carried
-    to the reference's height, in plain floats (this runs for every zone)."""
-    # (.item: plain floats, which numpy's scalars cost several times more to make)
-    rx, ry = reference.point_m.item(0), reference.point_m.item(1)
-    g = slope_y
-    # A surface's slope g = dz/dy is cot of the angle it is seen at: a tilt of δθ moves it by
-    # (1 + g²)·δθ, so a floor seen at a grazing angle has a slope known only roughly.
-    per_m = surface_sigma_per_m * (1.0 + g * g)
-    weights, carried, models = [], [], []
-    for m in ms:
-        dx, dy = m.point_m.item(0) - rx, m.point_m.item(1) - ry
-        # The known slope is across the lasers' column (dz/dy); a wall seen obliquely also slopes
-        # along x, where a rig's lasers, mounted a few tenths of a degree off, hit 1-2 cm apart.
-        model = math.hypot(per_m * math.hypot(dx, dy), _ACROSS_SLOPE * dx)
-        models.append(model * model)
-        weights.append(1.0 / (max(m.sigma_m, 1e-9) ** 2 + model * model))
-        carried.append((m.depth_m, g * dy))
-    total = sum(weights)
-    # (Lists, not generators: the same sums, with less overhead for a few lasers.)
-    a = sum([w * (z - lift) for w, (z, lift) in zip(weights, carried)]) / total
-    if len(ms) > 1:
-        # Weighed again, each σ at the depth the surface puts its spot at (_at_depth).
-        weights = [1.0 / (_at_depth(m.sigma_m, z, a + lift) ** 2 + mm) for m, (z, lift), mm in zip(ms, carried, models)]
-        total = sum(weights)
-        a = sum([w * (z - lift) for w, (z, lift) in zip(weights, carried)]) / total
-    chi2 = sum([w * (z - a - lift) ** 2 for w, (z, lift) in zip(weights, carried)])
-    if len(ms) > 1:
-        # _chi2_inverse in plain floats
-        inverse = 0.0
-        for w, (z, lift) in zip(weights, carried):
-            zm, zf = max(abs(z), 1e-6), max(abs(a + lift), 1e-6)
-            inverse += w * zm**4 * (1.0 / zm - 1.0 / zf) ** 2
-        chi2 = max(chi2, inverse)
-    sigma = math.sqrt(1.0 / total)
-    if len(ms) == 1:
-        return Fusion(reference.depth_m, sigma, reference.point_m, None, chi2, 0, tuple(ms))
-    if g == 0.0:
-        return Fusion(a, sigma, _point_at_depth(reference, a), None, chi2, len(ms) - 1, tuple(ms))
-    # The reference beam P + s·D meets the plane z − g·y = a − g·y_ref.
-    P, D = reference.point_m, reference.beam_dir
-    den = float(D[2]) - g * float(D[1])
-    s_ = (a - g * ry - float(P[2]) + g * float(P[1])) / den
-    point = P + s_ * D
-    return Fusion(float(point[2]), sigma * abs(float(D[2]) / den), point, None, chi2, len(ms) - 1, tuple(ms))
-
-
-# A spot's depth σ carried to the fitted surface's depth (_at_depth) changes by at most these
-# ratios of the depths: beyond, the spot is on another surface, which χ² tells, not its weight.
-_AT_DEPTH_RATIO = (0.8, 1.25)
-
-
-def _at_depth(sigma_m: float, measured_m: float, fitted_m: float) -> float:
-    """A spot's depth σ at the depth a fit puts it at rather than the one it measured. Depth's σ
-    grows as depth² (a pixel's error moves a far spot more), so a spot read short claims less than
-    one read long: weighed by their own σ, the lasers' mean leans short (tuning 320-959: −0.11 %
-    on average, and two in three `ok` zones outside 2σ were short). At one depth, both alike."""
-    ratio = min(max(fitted_m / measured_m, _AT_DEPTH_RATIO[0]), _AT_DEPTH_RATIO[1]) if measured_m > 0 else 1.0
-    return max(sigma_m, 1e-9) * ratio * ratio
-
-
-def _chi2_inverse(z: np.ndarray, fitted: np.ndarray, w: np.ndarray) -> float:
-    """χ² of measured depths `z` against `fitted` ones in inverse depth, where a spot's pixel error
-    acts linearly (depth's σ, from the derivative at the measured depth, becomes z²-scaled): far or
-    weak spots, whose depth is very non-linear in the pixel, are then judged by what their pixels
-    say. A spot whose depth 9.7 ± 2.7 m looks consistent with 3.9 m is 5 σ off in its pixels."""
-    z = np.maximum(np.abs(z), 1e-6)
-    fitted = np.maximum(np.abs(fitted), 1e-6)
-    return float((w * z**4 * (1.0 / z - 1.0 / fitted) ** 2).sum())
-
-
-def _point_at_depth(m: LaserMeasurement, z: float) -> np.ndarray:
-    """The point of `m`'s beam at depth z: from its measured point along its beam direction."""
-    # In plain floats, the same operations as m.point_m + (z − depth)·beam_dir / beam_dir[2] on
-    # arrays: three numpy calls cost more than the arithmetic on three numbers.
-    t = z - m.depth_m
-    (px, py, pz), (bx, by, bz) = m.point_m.tolist(), m.beam_dir.tolist()
-    return np.array((px + t * bx / bz, py + t * by / bz, pz + t * bz / bz))
-
-
-# The slope dz/dx of a surface across the lasers' column, which no known slope gives (a wall seen
-# at any angle in pan), taken as this much (1 σ) in a fusion by a known slope.
-_ACROSS_SLOPE = 1.0
-
-
-# A known slope is used while the surface it stands for is seen at most this obliquely in the
-# lasers' plane: |slope| ≤ 3 is 72° from facing the camera (a floor seen with the unit tilted less
-# than 18° down is left to the sloped model, or to the reference alone).
-_MAX_KNOWN_SLOPE = 3.0
-
-
-# A plane fitted through the spots (no known slope) may be seen at most this obliquely: tan 70°.
-_MAX_FITTED_SLOPE = math.tan(math.radians(70.0))
-
-
-def level_slopes(to_base: Pose) -> tuple[float, ...]:
-    """The slopes dz/dy (camera frame) of a vertical surface (a wall, a furniture front) and of a
-    horizontal one (a floor, a table top) at this pose: the surfaces rooms are made of. Level, a
-    wall's slope is 0 (z = a) and a floor's is not seen across the lasers' column; tilted by t, a
-    wall's is ±tan t and a floor's ∓cot t. The lasers' column is vertical in the camera, so the
-    slope across it (dz/dx) is not needed."""
-    # Base's up in the camera, R.T·(0, 0, 1): R's last row, as plain floats (cheaper than numpy's).
-    _, up_y, up_z = to_base.R[2].tolist()
-    out = []
-    if abs(up_y) > 1e-9 and abs(up_z / up_y) <= _MAX_KNOWN_SLOPE:
-        out.append(0.0 if abs(up_z) < 1e-9 else up_z / up_y)  # contains up: z changes by up_z per up_y
-    if abs(up_z) > 1e-9 and abs(up_y / up_z) <= _MAX_KNOWN_SLOPE:
-        out.append(-up_y / up_z)  # normal up: up·p constant
-    return tuple(out) or (0.0,)
-
-
-def _apart(a: LaserMeasurement, b: LaserMeasurement) -> float:
-    """How far apart two spots' points are across the view (x, y; m)."""
-    (ax, ay, _), (bx, by, _) = a.point_m.tolist(), b.point_m.tolist()  # (plain floats: cheaper than numpy's)
-    return math.hypot(ax - bx, ay - by)
-
-
-def _pair_plausible(a: LaserMeasurement, b: LaserMeasurement) -> bool:
-    """Could two spots lie on one surface? Their depth change across their separation must be a
-    slope a surface can have while both lasers still light it."""
-    sep = _apart(a, b)
-    dz = abs(a.depth_m - b.depth_m) - 3.0 * math.hypot(a.sigma_m, b.sigma_m)
-    return dz <= _MAX_SLOPE * max(sep, 1e-3)
-
-
-def best_fusion(
-    rig: Rig,
-    reference: LaserMeasurement,
-    others: Mapping[str, Sequence[LaserMeasurement]],
-    surface_sigma_per_m: float = 0.05,
-    slopes_y: Sequence[float] = (0.0,),
-) -> Fusion:
-    """The most informative consistent fusion of the reference with the other lasers' spots.
-
-    First the largest set of lasers whose depths agree on a surface of a known slope (`slopes_y`,
-    from :func:`level_slopes`: at a level pose, z = a, a surface facing the camera across the
-    lasers; tilted, a wall's or a floor's slope), the strongest model; failing that, all lasers on
-    a sloped plane, which has fewer checks; failing both, the reference alone. A set counts only if
-    every pair is plausible on one surface and χ² accepts it; of the sets of the most lasers that
-    count, the one that places the reference best (least σ). Not the least χ²: beside a loose
-    reference spot any one other laser fits, and the least χ² then chose by chance between the
-    parallel laser 5 cm away on a wall and the sloped laser 30 cm away carried through a floor's
-    slope (tuning-239, a wall's foot: 11 % off).
-    """
-    names = [n for n, ms in others.items() if ms]
-    for slopes in (False, True):
-        for k in range(len(names), 0, -1):
-            best: Fusion | None = None
-            for subset in itertools.combinations(names, k):
-                for choice in itertools.product(*(others[n] for n in subset)):
-                    group = [reference, *choice]
-                    if any(_same_blob(x, y) for x, y in itertools.combinations(group, 2)):
-                        continue
-                    if not all(_pair_plausible(x, y) for x, y in itertools.combinations(group, 2)):
-                        continue
-                    for g in ((0.0,) if slopes else slopes_y):
-                        fusion = fuse(rig, reference, choice, slopes, surface_sigma_per_m, g)
-                        if fusion.dof > 0 and fusion.consistent and (best is None or fusion.sigma_m < best.sigma_m):
-                            best = fusion
-            if best is not None:
-                return best
-            if slopes:
-                break  # a sloped plane is only worth it with every laser on it
-    return fuse(rig, reference, ())
-
-
 def _no_shoulders(refs: list[LaserMeasurement], sightings: Mapping[int, tuple[int, int]]) -> list[LaserMeasurement]:
     """Of several blobs on the reference's path, all but the shoulders: a blob within a JPEG block
     (SHOULDER_PX) of one SHOULDER_RATIO times as bright, seen in as many views, is that spot's
@@ -585,31 +210,11 @@ def _steady(refs: list[LaserMeasurement], sightings: Mapping[int, tuple[int, int
     a faint blob in one view 4 px beside a spot of SNR 120 in both, 11 % off). A blob that is also
     another laser's, where their paths cross, may be that laser's spot, and counts for nothing."""
     steady = [m.snr for m in refs if sightings[id(m)][0] >= sightings[id(m)][1]
-              and not any(_same_blob(m, o) for ms in others.values() for o in ms)]
+              and not any(same_blob(m, o) for ms in others.values() for o in ms)]
     if not steady:
         return refs
     best = max(steady)
     return [m for m in refs if sightings[id(m)][0] >= sightings[id(m)][1] or m.snr > best]
-
-
-def scatter_grown(fusion: Fusion) -> Fusion:
-    """`fusion` with its σ grown by the lasers' scatter (the Birge ratio √(χ²/dof)) where they agree
-    less well than their σ say, yet well enough for the χ² test: on the tuning family, fused σ
-    were half the reference's own and too small as often as not where one laser's spot was
-    pulled (demosaicing, JPEG) or the surface was not quite the model's. Never shrunk."""
-    if fusion.dof == 0 or fusion.chi2 <= fusion.dof:
-        return fusion
-    return replace(fusion, sigma_m=fusion.sigma_m * math.sqrt(fusion.chi2 / fusion.dof))
-
-
-def common_grown(fusion: Fusion, reference: LaserMeasurement, common_px: float) -> Fusion:
-    """`fusion` with what the frames' pipeline moves every spot by alike (`common_px`, of the
-    reference's spot: vision.SpotFinder.common_px) added to its σ: fusing spots does not average
-    it. A reference alone keeps its own σ, which holds it already."""
-    if not common_px or len(fusion.used) < 2 or reference.sigma_px <= 0:
-        return fusion
-    shared = common_px * reference.sigma_m / reference.sigma_px
-    return replace(fusion, sigma_m=math.hypot(fusion.sigma_m, shared))
 
 
 def _moved_to(spot: LaserMeasurement, refs: Sequence[tuple[_Track, LaserMeasurement]],
@@ -641,7 +246,7 @@ def _rests_on_a_far_one(fusion: Fusion) -> bool:
     from it (or by none)?"""
     if len(fusion.used) != 2:
         return len(fusion.used) < 2
-    return _apart(*fusion.used) > FAR_LASER_M
+    return apart(*fusion.used) > FAR_LASER_M
 
 
 def _one_answer(fusions: Sequence[Fusion]) -> bool:
@@ -704,7 +309,7 @@ def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
     """Do at least two of the other lasers have spots that lie on one surface?"""
     found = [ms for ms in others.values() if ms]
     for x, y in itertools.combinations(found, 2):
-        if any(_pair_plausible(a, b) and not _same_blob(a, b) for a in x for b in y):
+        if any(pair_plausible(a, b) and not same_blob(a, b) for a in x for b in y):
             return True
     return False
 
@@ -712,10 +317,6 @@ def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
 def _spotted(cands: Mapping[str, Sequence[LaserMeasurement]]) -> frozenset[str]:
     return frozenset(name for name, ms in cands.items() if ms)
 
-
-def _same_blob(a: LaserMeasurement, b: LaserMeasurement) -> bool:
-    (au, av), (bu, bv) = a.pixel.tolist(), b.pixel.tolist()  # (plain floats: cheaper than numpy's)
-    return math.hypot(au - bu, av - bv) < 1.5
 
 
 # --- the estimator -----------------------------------------------------------------------------
@@ -960,7 +561,7 @@ class Ranger:
             return self._result(
                 index, pan_deg, tilt_deg, AMBIGUOUS, cands,
                 detail=f"the {ref} spot is placed too loosely to range alone (± {chosen.sigma_m:.2f} m), "
-                       f"and only the {fusion.used[1].laser} laser's spot, {_apart(*fusion.used):.2f} m away, "
+                       f"and only the {fusion.used[1].laser} laser's spot, {apart(*fusion.used):.2f} m away, "
                        f"agrees with it: {fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m",
             )
         seen, shown = sightings[id(chosen)]
@@ -1141,7 +742,7 @@ class Ranger:
         to it along the likeliest of the `known` slopes. None where there is none."""
         used = {m.laser for m in fusion.used}
         near = [m for name, ms in others.items() if name not in used for m in ms
-                if _apart(chosen, m) <= NEAR_WITNESS_M and m.sigma_m <= chosen.sigma_m]
+                if apart(chosen, m) <= NEAR_WITNESS_M and m.sigma_m <= chosen.sigma_m]
         return min(self._misses(chosen, near, known), key=lambda gm: gm[0], default=None)
 
     def _misses(self, chosen: LaserMeasurement, spots: Iterable[LaserMeasurement],
@@ -1169,7 +770,7 @@ class Ranger:
         fusion = best_fusion(self.rig, loosened, others, self.config.surface_sigma_per_m, known)
         if len(fusion.used) >= 3:
             return fusion
-        if len(fusion.used) == 2 and _apart(*fusion.used) <= NEAR_WITNESS_M:
+        if len(fusion.used) == 2 and apart(*fusion.used) <= NEAR_WITNESS_M:
             return replace(fusion, sigma_m=math.hypot(fusion.sigma_m, 0.5 * gap))
         return None
 

@@ -115,7 +115,7 @@ def test_covariance_and_range_error_match_monte_carlo_scatter():
         true = rig.laser("center")
         # The depth at which the fitted beam puts the true spot at 2 m: the range error it causes.
         spot = rig.camera.project(true.point_at_depth(2.0))[None, :]
-        from edge.ranging import triangulate
+        from edge.triangulation import triangulate
         at2.append(float(triangulate(laser, rig.camera, spot)[0, 2]) - 2.0)
     scatter = np.cov(np.array(params).T)
     predicted = np.mean(covs, axis=0)

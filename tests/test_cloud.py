@@ -10,8 +10,9 @@ import numpy as np
 from plyfile import PlyData
 
 from edge.cloud import Cloud, lattice_neighbours, ply_bytes, scan_cloud
-from edge.ranging import NO_SPOT, OK, LaserMeasurement, ZoneResult
+from edge.ranging import NO_SPOT, OK, ZoneResult
 from edge.rig import default_rig
+from edge.triangulation import LaserMeasurement
 
 RIG = default_rig()
 WALL_X, FLOOR_Z = 2.0, -1.0

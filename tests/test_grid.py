@@ -19,8 +19,9 @@ from edge.grid import (
     yaml_text,
     zone_ray,
 )
-from edge.ranging import AMBIGUOUS, FAULT, NO_SPOT, OK, OUT_OF_RANGE, LaserMeasurement, ZoneResult
+from edge.ranging import AMBIGUOUS, FAULT, NO_SPOT, OK, OUT_OF_RANGE, ZoneResult
 from edge.rig import default_rig
+from edge.triangulation import LaserMeasurement
 
 RIG = default_rig()
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from edge.laserhealth import Hysteresis, LaserFault, LaserHealth, LaserVerdict
-from edge.ranging import NO_SPOT, OK, LaserMeasurement, ZoneResult
+from edge.ranging import NO_SPOT, OK, ZoneResult
+from edge.triangulation import LaserMeasurement
 
 NAMES = ("center", "parallel", "sloped")
 QUICK = Hysteresis(enter_dark=4, enter_stuck=2, leave=2)

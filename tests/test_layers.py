@@ -15,7 +15,8 @@ EDGE = Path(__file__).resolve().parents[1] / "edge"
 
 # Drivers own their small settings and take them as arguments: none of the core, config, modes
 # or simulator.
-HW_FORBIDDEN = ("edge.sim", "edge.config", "edge.modes", "edge.ranging", "edge.vision")
+HW_FORBIDDEN = ("edge.sim", "edge.config", "edge.modes", "edge.ranging", "edge.triangulation", "edge.fusion",
+                "edge.vision")
 
 # The pure core: arrays and dataclasses in and out; no driver, MQTT, service or simulator, and no
 # clock, thread or process (time is passed in).
@@ -23,6 +24,8 @@ CORE = (
     "rig.py",
     "vision.py",
     "ranging.py",
+    "triangulation.py",
+    "fusion.py",
     "mapping.py",
     "grid.py",
     "cloud.py",

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from edge.config import load_config
 from edge.errors import ConfigError
+from edge.fusion import best_fusion, fuse, level_slopes, scatter_grown
 from edge.ranging import (
     AMBIGUOUS,
     FAULT,
@@ -22,20 +23,14 @@ from edge.ranging import (
     OUT_OF_RANGE,
     TOGETHER_SIZES,
     FrameGroup,
-    LaserMeasurement,
     Ranger,
     RangingConfig,
     _Track,
-    best_fusion,
-    fuse,
-    level_slopes,
-    measure,
-    scatter_grown,
-    triangulate,
 )
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Rig, default_rig
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
+from edge.triangulation import LaserMeasurement, measure, triangulate
 from edge.vision import Candidate, SpotFinder, jpeg_blockiness
 
 

@@ -14,8 +14,9 @@ import pytest
 
 from edge.errors import AudioError, CameraError, HardwareError, LaserError, PtuError
 from edge.laserhealth import LaserFault
-from edge.ranging import FAULT, NO_SPOT, OK, LaserMeasurement, ZoneResult
+from edge.ranging import FAULT, NO_SPOT, OK, ZoneResult
 from edge.service import CAMERA_RESTART_AFTER, RigHealth
+from edge.triangulation import LaserMeasurement
 
 NAMES = ("center", "parallel", "sloped")
 ERRORS = (CameraError, LaserError, PtuError)

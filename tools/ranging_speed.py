@@ -34,7 +34,8 @@ import numpy as np
 from edge import thesis
 from edge.bench import _interleaved_ms, _thesis_range
 from edge.config import CameraConfig, load_config
-from edge.ranging import FrameGroup, Ranger, best_fusion, level_slopes
+from edge.fusion import best_fusion, level_slopes
+from edge.ranging import FrameGroup, Ranger
 from edge.sim.record import scene_for, true_rig
 from edge.sim.render import Renderer
 from edge.vision import SpotFinder

@@ -45,8 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge.ranging import triangulate
 from edge.rig import CameraModel, Laser
+from edge.triangulation import triangulate
 
 SUPERSAMPLE = 5  # per pixel side, as the renderer integrates a spot over its pixels
 OBSERVABLE_SNR = 6.0  # a spot this far above the noise of the mean difference image can be found

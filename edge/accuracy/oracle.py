@@ -32,8 +32,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from edge.accuracy.floor import fusion_weights, spot_profile
-from edge.ranging import FrameGroup, triangulate
+from edge.ranging import FrameGroup
 from edge.tone import linear_table
+from edge.triangulation import triangulate
 
 if TYPE_CHECKING:
     from edge.config import Config

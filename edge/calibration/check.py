@@ -6,7 +6,7 @@ but predicted by the calibrated rig; spots the calibrated rig puts within DEBLEN
 are located together from where it puts them (as ranging, which knows the rig, does: two spots 2 px
 apart show as one blob, which the whole-frame search cannot split, and that blob's centre is half a
 pixel from either); its depth is the calibrated beam's point nearest to the camera
-ray through the spot (:func:`edge.ranging.triangulate`), and its error is that depth minus the
+ray through the spot (:func:`edge.triangulation.triangulate`), and its error is that depth minus the
 tape-measured distance. Pure: a recording and a calibration in, numbers out.
 """
 
@@ -29,9 +29,9 @@ from edge.calibration.fit import (
     one_per_zone,
     zone_blobs,
 )
-from edge.ranging import triangulate
 from edge.recording import Recording
 from edge.rig import Rig
+from edge.triangulation import triangulate
 
 
 @dataclass(frozen=True)
