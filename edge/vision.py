@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from edge.rig import Laser, Rig
+from edge.spotshape import border_index, border_level, fit_gaussian, fit_sites, fit_unsaturated, window_kit
 
 # How far beyond the working range the paths are searched, so that a spot just outside it is
 # reported as out of range rather than missed: z from NEAR_FACTOR·near to FAR_FACTOR·far.
@@ -51,7 +52,7 @@ DEMOSAIC_PX = 0.25
 DEMOSAIC_SNAP_PX = 0.55
 DEMOSAIC_SNAP_SIZE_PX = 0.6
 # A spot placed by its pixels' own values behind a Bayer filter, red's and green's (raw frames;
-# `_fit_sites`), keeps this share of DEMOSAIC_PX, and all of the snap: no interpolation moves those
+# `fit_sites`), keeps this share of DEMOSAIC_PX, and all of the snap: no interpolation moves those
 # values, but a small spot's wings on them still pull it. On tuning 0-95's raw Bayer frames, such
 # spots' errors along the rows were 0.35-0.7 of their σ (RMS) with all of the term, 0.9-1.2
 # without it, and 0.56-0.88 with this (97-99 % within 2σ, brightest to faintest); the whole
@@ -108,13 +109,6 @@ BAYER_CONTRAST = 1.25
 # filter, whose blocks keep little of its pattern, 0.88–0.96. JPEG's 4:2:0 chroma can still pass for
 # a filter, as it can by the louder red pixel: tuning-31, no filter, 0.68 and 1.46.)
 BAYER_LOW_CONTRAST = 0.75
-# Fitting a spot's red pixels behind a Bayer filter: what the interpolation between them adds to the
-# demosaiced spot's variance (px², bilinear's tent over the red pixels' 2 px pitch), the narrowest
-# width held likely, and how far (in log width) the prior lets the red pixels move it.
-_DEMOSAIC_SPREAD_PX2 = 0.5
-_MIN_SITE_WIDTH_PX = 0.4
-_SITE_WIDTH_PRIOR = 0.4
-_PIXEL_VAR = 1.0 / 12.0  # a pixel's area widens a spot's samples by this variance (px²)
 # A spot's red pixels tell its width when its log's variance is below this (the prior's is 0.16);
 # then other spots at much the same depth, in this view or earlier ones, are held near the widths
 # so told, within this much (log px).
@@ -163,170 +157,6 @@ def jpeg_blockiness(image: np.ndarray) -> float:
     bx = float(dx[:, 7::8].mean()) / max(float(inner_x), 1e-9)
     by = float(dy[7::8, :].mean()) / max(float(inner_y), 1e-9)
     return 0.5 * (bx + by)
-
-
-@functools.lru_cache(maxsize=16)
-def _monomials(r: int) -> np.ndarray:
-    """(1, u, v, u², v², u·v) of every pixel of a (2r + 1)² window, row by row (v), offsets from
-    its centre: (n, 6) float64."""
-    v, u = np.divmod(np.arange((2 * r + 1) ** 2), 2 * r + 1)
-    u, v = (u - r).astype(np.float64), (v - r).astype(np.float64)
-    return np.stack([np.ones_like(u), u, v, u * u, v * v, u * v], axis=1)
-
-
-def _fit_gaussian(signal: np.ndarray, use: np.ndarray, r: int, round_: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """A Gaussian fitted to the pixels `use` of `signal`, a (2r + 1)² window: the coefficients
-    (a, b, c, d, e, f) of ln I = a + b·u + c·v + d·u² + e·v² + f·u·v (offsets from the window's
-    centre), weighted by I² (the variance of ln I is σ²/I²); with the pixels' flat indices and the
-    fit's values there. None when too few pixels are usable or the fit is not a peak. `round_` fits
-    a round spot (d = e, f = 0): fewer unknowns, for few pixels."""
-    idx = use.ravel().nonzero()[0]
-    if idx.size < (6 if round_ else 10):
-        return None
-    mono = _monomials(r)[idx]
-    val = signal.ravel()[idx].astype(np.float64)
-    if round_:
-        mono = np.stack([mono[:, 0], mono[:, 1], mono[:, 2], mono[:, 3] + mono[:, 4]], axis=1)
-    design = mono * val[:, None]
-    try:
-        coef = np.linalg.solve(design.T @ design, design.T @ (np.log(val) * val))
-    except np.linalg.LinAlgError:
-        return None
-    fitted = np.exp(np.minimum(mono @ coef, 60.0))
-    if round_:
-        coef = np.array([coef[0], coef[1], coef[2], coef[3], coef[3], 0.0])
-    _, _, _, d, e, f = coef
-    if d >= 0 or e >= 0 or 4.0 * d * e - f * f <= 0:
-        return None
-    return coef, idx, fitted
-
-
-def _centre(coef: np.ndarray) -> tuple[float, float]:
-    """The peak (du, dv) of a fitted Gaussian (`_fit_gaussian`'s coefficients)."""
-    _, b, c, d, e, f = coef.tolist()
-    det = 4.0 * d * e - f * f
-    return (f * c - 2.0 * e * b) / det, (f * b - 2.0 * d * c) / det
-
-
-def _fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.ndarray, du: float, dv: float,
-               size: float, width: tuple[float, float] | None = None,
-               others: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               ) -> tuple[float, float, np.ndarray, float, float, float] | None:
-    """A round Gaussian fitted by weighted least squares (Levenberg–Marquardt) to the pixels `sites`
-    of `above` (their noise variances `var`), started at (du, dv) with width `size`: its centre, the
-    centre's covariance (2, 2) and χ² per degree of freedom; None when it does not converge to a
-    spot. For the red pixels of a Bayer filter, 2 px apart: too few above the noise for a fit of
-    logarithms, and the demosaiced pixels between them lock a centroid onto them.
-
-    A spot as small as the filter's period lights one or two red pixels: their values fix the
-    centre only with its width, which they cannot tell. The width is then held near what the
-    demosaiced spot shows (`size`, less the interpolation's spread) by a prior, whose uncertainty
-    the centre's covariance carries; a spot that lights enough red pixels overrules it.
-
-    `others`: the same spot in another colour's own pixels, (above, sites, var) of that plane, with
-    an amplitude of its own (a red laser's light reaches a green filter at a tenth of red's): the
-    green pixels lie between the red ones, where a small spot's core falls when the red ones see
-    only its wings, and they tell its width."""
-    y, x = np.nonzero(sites)
-    if y.size < 8:
-        return None
-    val = above[y, x].astype(np.float64)
-    w = 1.0 / var[y, x]
-    second = np.zeros(y.size, bool)  # (the pixels of `others`, after the red ones)
-    amp2 = 0.0
-    if others is not None:
-        above2, sites2, var2 = others
-        y2, x2 = np.nonzero(sites2)
-        if y2.size:
-            val2 = above2[y2, x2].astype(np.float64)
-            amp2 = max(float(val2.max()), 1e-9)
-            y, x = np.concatenate([y, y2]), np.concatenate([x, x2])
-            val = np.concatenate([val, val2])
-            w = np.concatenate([w, 1.0 / var2[y2, x2]])
-            second = np.concatenate([second, np.ones(y2.size, bool)])
-    xs, ys = offs[x].astype(np.float64), offs[y].astype(np.float64)
-    if width is None:
-        t0 = 0.5 * math.log(max(size * size - _DEMOSAIC_SPREAD_PX2, _MIN_SITE_WIDTH_PX**2))
-        prior = 1.0 / _SITE_WIDTH_PRIOR**2
-    else:
-        t0, prior = width[0], 1.0 / width[1] ** 2
-
-    free = 5 if second.any() else 4  # (without `others`, the fifth column would be all zero: left out)
-    amps = (~second).astype(np.float64), second.astype(np.float64)  # (each amplitude's pixels, as 1 and 0)
-
-    # (Plain floats and one array filled column by column: numpy's calls, not the arithmetic on a
-    # few dozen pixels, are what a step costs; the values are the same to the digit.)
-    def model(p: list[float]) -> tuple[np.ndarray, np.ndarray, float]:
-        w2 = math.exp(2.0 * p[3])
-        s2 = w2 + _PIXEL_VAR
-        dx, dy = xs - p[1], ys - p[2]
-        r2 = dx * dx + dy * dy
-        g = np.exp(-0.5 * r2 / s2)
-        m = (amps[0] * p[0] + amps[1] * p[4]) * g
-        jac = np.empty((g.size, free))
-        np.multiply(g, amps[0], out=jac[:, 0])
-        jac[:, 1] = m * dx / s2
-        jac[:, 2] = m * dy / s2
-        jac[:, 3] = m * r2 * w2 / (s2 * s2)
-        if free == 5:
-            np.multiply(g, amps[1], out=jac[:, 4])
-        res = val - m
-        return jac, res, float((w * res * res).sum()) + prior * (p[3] - t0) ** 2
-
-    p = [max(float(val[~second].max()), 1e-9), du, dv, t0, amp2]
-    jac, res, cost = model(p)
-    diagonal = np.arange(free) * (free + 1)  # (flat indices of a (free, free) matrix's diagonal)
-    damping = 1e-3
-    for _ in range(20):
-        jw = jac * w[:, None]
-        info = jw.T @ jac
-        info[3, 3] += prior
-        grad = jw.T @ res
-        grad[3] -= prior * (p[3] - t0)
-        damped = info.copy()
-        damped.flat[diagonal] += damping * info.flat[diagonal]
-        try:
-            step = np.linalg.solve(damped, grad).tolist()
-        except np.linalg.LinAlgError:
-            return None
-        step[1] = min(max(step[1], -0.5), 0.5)
-        step[2] = min(max(step[2], -0.5), 0.5)
-        step[3] = min(max(step[3], -0.3), 0.3)
-        trial = [a + b for a, b in zip(p, step)] + p[free:]
-        tj, tr, tc = model(trial)
-        if tc <= cost:
-            p, jac, res, cost = trial, tj, tr, tc
-            damping = max(damping / 3.0, 1e-7)
-            if abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3:
-                break
-        else:
-            damping *= 4.0
-            if damping > 1e6:
-                break
-    amp, u, v, t = p[:4]
-    if amp <= 0 or not 0.3 < math.exp(t) < 6.0 or abs(u - du) > 1.0 or abs(v - dv) > 1.0:
-        return None
-    info = (jac * w[:, None]).T @ jac
-    info[3, 3] += prior
-    try:
-        full = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        return None
-    chi2 = float((w * res * res).sum()) / max(y.size - free, 1)
-    return u, v, full[1:3, 1:3], chi2, t, float(full[3, 3])
-
-
-def _fit_unsaturated(signal: np.ndarray, unsaturated: np.ndarray, r: int, floor: float
-                     ) -> tuple[float, float] | None:
-    """Centre of a spot whose core is clipped, from a Gaussian fitted to its unclipped pixels.
-
-    The centroid of a clipped, pixel-sampled spot is biased by up to ~0.07 px depending on where
-    the spot falls within a pixel ("pixel locking"); the wings still carry the position.
-    Returns (du, dv) relative to the centre of the (2r + 1)² window, or None when the fit is not a peak.
-    """
-    fit = _fit_gaussian(signal, unsaturated & (signal > floor), r)
-    return None if fit is None else _centre(fit[0])
 
 
 # The coarsest step a 16-bit frame's values may have: an 8-bit sensor's, scaled to 16 bits.
@@ -433,54 +263,6 @@ def _curvature_by_parity(window: np.ndarray, u0: int, v0: int) -> np.ndarray | N
     if cols_total <= 0.0 or rows_total <= 0.0:
         return None
     return np.array([by_col[0] / cols_total, by_col[1] / cols_total, by_row[0] / rows_total, by_row[1] / rows_total])
-
-
-@functools.lru_cache(maxsize=16)
-def _offsets(r: int) -> np.ndarray:
-    """A window's offsets from its centre, −r … r (float32)."""
-    return np.arange(-r, r + 1, dtype=np.float32)
-
-
-@functools.lru_cache(maxsize=16)
-def _powers(r: int) -> np.ndarray:
-    """1, x, x², y and y² of every pixel of a (2r + 1)² window (offsets −r … r from its centre,
-    row by row): (5, (2r + 1)²) float64, for a window's moments by one matrix-vector product."""
-    v, u = np.divmod(np.arange((2 * r + 1) ** 2), 2 * r + 1)
-    u, v = (u - r).astype(np.float64), (v - r).astype(np.float64)
-    return np.stack([np.ones_like(u), u, u * u, v, v * v])
-
-
-@functools.lru_cache(maxsize=16)
-def _border_index(size: int) -> np.ndarray:
-    """Flat indices of the outermost ring of a size × size window."""
-    ring = np.ones((size, size), bool)
-    ring[1:-1, 1:-1] = False
-    return np.flatnonzero(ring)
-
-
-def _border_level(win: np.ndarray, border: np.ndarray) -> float:
-    """The median of a square window's outermost ring, `border` (`_border_index`; the upper of
-    the middle two): the room's level about a spot. (The ring, a copy, sorted in place costs half
-    sorted() of its values as floats, and less than np.partition, on a few dozen values.)"""
-    ring = win.take(border)
-    ring.sort()
-    return ring.item(ring.size // 2)
-
-
-@dataclass(frozen=True)
-class _Kit:
-    """What `SpotFinder._refine` needs of a (2r + 1)² window, whatever its pixels: made once per
-    half-size r (`_kit`), one lookup instead of four per window."""
-
-    border: np.ndarray  # `_border_index`
-    offsets: np.ndarray  # `_offsets`
-    powers: np.ndarray  # `_powers`
-    monomials: np.ndarray  # `_monomials`
-
-
-@functools.lru_cache(maxsize=16)
-def _kit(r: int) -> _Kit:
-    return _Kit(_border_index(2 * r + 1), _offsets(r), _powers(r), _monomials(r))
 
 
 # Not frozen, though never changed once made (`replace` makes a new one): a frozen dataclass's
@@ -1070,7 +852,7 @@ class SpotFinder:
     def _grid_px(size: float, own_values: bool = False) -> tuple[float, float]:
         """What demosaicing adds to the σ of a spot of RMS radius `size` (px), and the part of it
         that is locked to the pixel grid (see Candidate.locked_px); `own_values`: for a spot that
-        the pixels keeping their own values placed (`_fit_sites`, lossless frames), which no
+        the pixels keeping their own values placed (`fit_sites`, lossless frames), which no
         interpolation moves: SITE_GRID_SHARE of the DEMOSAIC_PX base, and all of the snap.
 
         Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation shifts a
@@ -1156,7 +938,7 @@ class SpotFinder:
         if cut is None:
             return 0.0
         win = cut[0]
-        level = float(np.median(win.take(_border_index(2 * self._radius + 1))))
+        level = float(np.median(win.take(border_index(2 * self._radius + 1))))
         return float(win.sum()) - level * win.size
 
     @property
@@ -1313,7 +1095,7 @@ class SpotFinder:
                      shot: float, mine: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Behind a Bayer filter, a spot's window in the green plane at the green pixels `sites`,
         which keep their own value through the demosaicing: (difference above the window border's
-        median, the usable green pixels, their noise variances), for `_fit_sites`; None for grey
+        median, the usable green pixels, their noise variances), for `fit_sites`; None for grey
         frames, and for JPEG's, whose blocks keep no pixel's own value (their 4:2:0 chroma can pass
         for a Bayer filter's pattern: `_texture`). The noise is red's: the room's light and the
         sensor are much the same in both."""
@@ -1323,7 +1105,7 @@ class SpotFinder:
         lit = sum([image[rows, cols, 1].astype(np.float32) for image in on]) * scale
         dark = sum([image[rows, cols, 1].astype(np.float32) for image in off]) * off_scale
         win = lit - dark
-        above = win - _border_level(win, _border_index(win.shape[0]))
+        above = win - border_level(win, border_index(win.shape[0]))
         usable = sites & (lit < _SATURATED)
         if mine is not None:
             usable &= mine
@@ -1394,8 +1176,8 @@ class SpotFinder:
             else:
                 lit = self._scaled(on, rows, cols, scale)
                 win = lit - self._scaled(off, rows, cols, off_scale)
-            kit = _kit(r)
-            level = _border_level(win, kit.border)
+            kit = window_kit(r)
+            level = border_level(win, kit.border)
             # Subtracting a level a little above the background and clipping at zero keeps the
             # noise of the empty pixels out; its bias is a tiny fraction of threshold/peak.
             signal = win - (level + 2.0 * noise)
@@ -1446,7 +1228,7 @@ class SpotFinder:
             var_all = noise**2 + np.maximum(above, 0.0) * shot  # each pixel's noise variance
             green = self._green_sites(on, off, rows, cols, (scale, off_scale), row_red[:, None] != col_red[None, :],
                                       noise, shot, mine)
-            fit = _fit_sites(above, red if usable is None else red & usable, var_all, offs, du, dv, size, width,
+            fit = fit_sites(above, red if usable is None else red & usable, var_all, offs, du, dv, size, width,
                              green)
             # A fit that leaves far more than noise, or knows the centre to worse than a pixel, has
             # not found the spot's shape: the centroid then.
@@ -1474,7 +1256,7 @@ class SpotFinder:
             if fits:
                 ring = kit.monomials.dot(np.array([0.0, -2.0 * du, -2.0 * dv, 1.0, 1.0, 0.0]))
                 use &= ring <= (2.5 * max(size, 0.7)) ** 2 - du * du - dv * dv
-                gauss = _fit_gaussian(above, use, rw)
+                gauss = fit_gaussian(above, use, rw)
             if gauss is not None:
                 _, idx, model = gauss
                 val = above.ravel()[idx]
@@ -1484,7 +1266,7 @@ class SpotFinder:
                     misfit = max(1.0, chi2 / dof)
             if clipped and fits:
                 assert unsaturated is not None  # (clipped)
-                fitted = _fit_unsaturated(signal, unsaturated, rw, 3.0 * noise)
+                fitted = fit_unsaturated(signal, unsaturated, rw, 3.0 * noise)
                 if fitted is not None and abs(fitted[0] - du) < 0.5 and abs(fitted[1] - dv) < 0.5:
                     du, dv = fitted
                     cu, cv = u0 + du, v0 + dv

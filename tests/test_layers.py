@@ -23,6 +23,7 @@ HW_FORBIDDEN = ("edge.sim", "edge.config", "edge.modes", "edge.ranging", "edge.t
 CORE = (
     "rig.py",
     "vision.py",
+    "spotshape.py",
     "ranging.py",
     "triangulation.py",
     "fusion.py",

@@ -493,7 +493,7 @@ def test_a_small_spot_behind_a_bayer_filter_is_placed_by_its_red_pixels_once_its
     """A spot of σ 0.7 px lights one or two red pixels (2 px apart): their values place it only
     together with its width, which they barely tell. Told the width (by the zone's other spots,
     `_shared_width`), the fit of its red pixels places it several times better."""
-    from edge.vision import _fit_sites
+    from edge.spotshape import fit_sites
 
     rng = np.random.default_rng(3)
     free, told = [], []
@@ -504,7 +504,7 @@ def test_a_small_spot_behind_a_bayer_filter_is_placed_by_its_red_pixels_once_its
         start = centre - c + rng.normal(0.0, 0.2, 2)
         size = math.sqrt(sd * sd + 0.5)  # as the demosaiced spot shows it
         for out, width in ((free, None), (told, (math.log(sd), 0.05))):
-            fit = _fit_sites(win, sites, var, offs, float(start[0]), float(start[1]), size, width)
+            fit = fit_sites(win, sites, var, offs, float(start[0]), float(start[1]), size, width)
             assert fit is not None
             out.append((fit[0] + c - centre[0], fit[1] + c - centre[1]))
     rms_free = np.sqrt((np.array(free) ** 2).mean())

@@ -1,0 +1,236 @@
+"""A spot's shape in a small square window about it: what its moments need, and the fits that place it.
+
+A (2r + 1)² window, offsets −r … r from its centre, row by row. `window_kit` gives what a centroid
+needs of such a window whatever its pixels (made once per r); `fit_gaussian` fits a Gaussian to the
+log of a spot's pixels, `fit_unsaturated` to the unclipped pixels of a spot whose core is clipped,
+and `fit_sites` to the pixels of a Bayer filter that saw the laser's colour. Pure numpy, no state:
+`edge.vision.SpotFinder` decides which to use.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+# Fitting a spot's red pixels behind a Bayer filter: what the interpolation between them adds to the
+# demosaiced spot's variance (px², bilinear's tent over the red pixels' 2 px pitch), the narrowest
+# width held likely, and how far (in log width) the prior lets the red pixels move it.
+_DEMOSAIC_SPREAD_PX2 = 0.5
+_MIN_SITE_WIDTH_PX = 0.4
+_SITE_WIDTH_PRIOR = 0.4
+_PIXEL_VAR = 1.0 / 12.0  # a pixel's area widens a spot's samples by this variance (px²)
+
+
+@functools.lru_cache(maxsize=16)
+def monomials(r: int) -> np.ndarray:
+    """(1, u, v, u², v², u·v) of every pixel of a (2r + 1)² window, row by row (v), offsets from
+    its centre: (n, 6) float64."""
+    v, u = np.divmod(np.arange((2 * r + 1) ** 2), 2 * r + 1)
+    u, v = (u - r).astype(np.float64), (v - r).astype(np.float64)
+    return np.stack([np.ones_like(u), u, v, u * u, v * v, u * v], axis=1)
+
+
+def fit_gaussian(signal: np.ndarray, use: np.ndarray, r: int, round_: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """A Gaussian fitted to the pixels `use` of `signal`, a (2r + 1)² window: the coefficients
+    (a, b, c, d, e, f) of ln I = a + b·u + c·v + d·u² + e·v² + f·u·v (offsets from the window's
+    centre), weighted by I² (the variance of ln I is σ²/I²); with the pixels' flat indices and the
+    fit's values there. None when too few pixels are usable or the fit is not a peak. `round_` fits
+    a round spot (d = e, f = 0): fewer unknowns, for few pixels."""
+    idx = use.ravel().nonzero()[0]
+    if idx.size < (6 if round_ else 10):
+        return None
+    mono = monomials(r)[idx]
+    val = signal.ravel()[idx].astype(np.float64)
+    if round_:
+        mono = np.stack([mono[:, 0], mono[:, 1], mono[:, 2], mono[:, 3] + mono[:, 4]], axis=1)
+    design = mono * val[:, None]
+    try:
+        coef = np.linalg.solve(design.T @ design, design.T @ (np.log(val) * val))
+    except np.linalg.LinAlgError:
+        return None
+    fitted = np.exp(np.minimum(mono @ coef, 60.0))
+    if round_:
+        coef = np.array([coef[0], coef[1], coef[2], coef[3], coef[3], 0.0])
+    _, _, _, d, e, f = coef
+    if d >= 0 or e >= 0 or 4.0 * d * e - f * f <= 0:
+        return None
+    return coef, idx, fitted
+
+
+def gaussian_centre(coef: np.ndarray) -> tuple[float, float]:
+    """The peak (du, dv) of a fitted Gaussian (`fit_gaussian`'s coefficients)."""
+    _, b, c, d, e, f = coef.tolist()
+    det = 4.0 * d * e - f * f
+    return (f * c - 2.0 * e * b) / det, (f * b - 2.0 * d * c) / det
+
+
+def fit_sites(above: np.ndarray, sites: np.ndarray, var: np.ndarray, offs: np.ndarray, du: float, dv: float,
+               size: float, width: tuple[float, float] | None = None,
+               others: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+               ) -> tuple[float, float, np.ndarray, float, float, float] | None:
+    """A round Gaussian fitted by weighted least squares (Levenberg–Marquardt) to the pixels `sites`
+    of `above` (their noise variances `var`), started at (du, dv) with width `size`: its centre, the
+    centre's covariance (2, 2) and χ² per degree of freedom; None when it does not converge to a
+    spot. For the red pixels of a Bayer filter, 2 px apart: too few above the noise for a fit of
+    logarithms, and the demosaiced pixels between them lock a centroid onto them.
+
+    A spot as small as the filter's period lights one or two red pixels: their values fix the
+    centre only with its width, which they cannot tell. The width is then held near what the
+    demosaiced spot shows (`size`, less the interpolation's spread) by a prior, whose uncertainty
+    the centre's covariance carries; a spot that lights enough red pixels overrules it.
+
+    `others`: the same spot in another colour's own pixels, (above, sites, var) of that plane, with
+    an amplitude of its own (a red laser's light reaches a green filter at a tenth of red's): the
+    green pixels lie between the red ones, where a small spot's core falls when the red ones see
+    only its wings, and they tell its width."""
+    y, x = np.nonzero(sites)
+    if y.size < 8:
+        return None
+    val = above[y, x].astype(np.float64)
+    w = 1.0 / var[y, x]
+    second = np.zeros(y.size, bool)  # (the pixels of `others`, after the red ones)
+    amp2 = 0.0
+    if others is not None:
+        above2, sites2, var2 = others
+        y2, x2 = np.nonzero(sites2)
+        if y2.size:
+            val2 = above2[y2, x2].astype(np.float64)
+            amp2 = max(float(val2.max()), 1e-9)
+            y, x = np.concatenate([y, y2]), np.concatenate([x, x2])
+            val = np.concatenate([val, val2])
+            w = np.concatenate([w, 1.0 / var2[y2, x2]])
+            second = np.concatenate([second, np.ones(y2.size, bool)])
+    xs, ys = offs[x].astype(np.float64), offs[y].astype(np.float64)
+    if width is None:
+        t0 = 0.5 * math.log(max(size * size - _DEMOSAIC_SPREAD_PX2, _MIN_SITE_WIDTH_PX**2))
+        prior = 1.0 / _SITE_WIDTH_PRIOR**2
+    else:
+        t0, prior = width[0], 1.0 / width[1] ** 2
+
+    free = 5 if second.any() else 4  # (without `others`, the fifth column would be all zero: left out)
+    amps = (~second).astype(np.float64), second.astype(np.float64)  # (each amplitude's pixels, as 1 and 0)
+
+    # (Plain floats and one array filled column by column: numpy's calls, not the arithmetic on a
+    # few dozen pixels, are what a step costs; the values are the same to the digit.)
+    def model(p: list[float]) -> tuple[np.ndarray, np.ndarray, float]:
+        w2 = math.exp(2.0 * p[3])
+        s2 = w2 + _PIXEL_VAR
+        dx, dy = xs - p[1], ys - p[2]
+        r2 = dx * dx + dy * dy
+        g = np.exp(-0.5 * r2 / s2)
+        m = (amps[0] * p[0] + amps[1] * p[4]) * g
+        jac = np.empty((g.size, free))
+        np.multiply(g, amps[0], out=jac[:, 0])
+        jac[:, 1] = m * dx / s2
+        jac[:, 2] = m * dy / s2
+        jac[:, 3] = m * r2 * w2 / (s2 * s2)
+        if free == 5:
+            np.multiply(g, amps[1], out=jac[:, 4])
+        res = val - m
+        return jac, res, float((w * res * res).sum()) + prior * (p[3] - t0) ** 2
+
+    p = [max(float(val[~second].max()), 1e-9), du, dv, t0, amp2]
+    jac, res, cost = model(p)
+    diagonal = np.arange(free) * (free + 1)  # (flat indices of a (free, free) matrix's diagonal)
+    damping = 1e-3
+    for _ in range(20):
+        jw = jac * w[:, None]
+        info = jw.T @ jac
+        info[3, 3] += prior
+        grad = jw.T @ res
+        grad[3] -= prior * (p[3] - t0)
+        damped = info.copy()
+        damped.flat[diagonal] += damping * info.flat[diagonal]
+        try:
+            step = np.linalg.solve(damped, grad).tolist()
+        except np.linalg.LinAlgError:
+            return None
+        step[1] = min(max(step[1], -0.5), 0.5)
+        step[2] = min(max(step[2], -0.5), 0.5)
+        step[3] = min(max(step[3], -0.3), 0.3)
+        trial = [a + b for a, b in zip(p, step)] + p[free:]
+        tj, tr, tc = model(trial)
+        if tc <= cost:
+            p, jac, res, cost = trial, tj, tr, tc
+            damping = max(damping / 3.0, 1e-7)
+            if abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3:
+                break
+        else:
+            damping *= 4.0
+            if damping > 1e6:
+                break
+    amp, u, v, t = p[:4]
+    if amp <= 0 or not 0.3 < math.exp(t) < 6.0 or abs(u - du) > 1.0 or abs(v - dv) > 1.0:
+        return None
+    info = (jac * w[:, None]).T @ jac
+    info[3, 3] += prior
+    try:
+        full = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return None
+    chi2 = float((w * res * res).sum()) / max(y.size - free, 1)
+    return u, v, full[1:3, 1:3], chi2, t, float(full[3, 3])
+
+
+def fit_unsaturated(signal: np.ndarray, unsaturated: np.ndarray, r: int, floor: float
+                     ) -> tuple[float, float] | None:
+    """Centre of a spot whose core is clipped, from a Gaussian fitted to its unclipped pixels.
+
+    The centroid of a clipped, pixel-sampled spot is biased by up to ~0.07 px depending on where
+    the spot falls within a pixel ("pixel locking"); the wings still carry the position.
+    Returns (du, dv) relative to the centre of the (2r + 1)² window, or None when the fit is not a peak.
+    """
+    fit = fit_gaussian(signal, unsaturated & (signal > floor), r)
+    return None if fit is None else gaussian_centre(fit[0])
+
+
+@functools.lru_cache(maxsize=16)
+def window_offsets(r: int) -> np.ndarray:
+    """A window's offsets from its centre, −r … r (float32)."""
+    return np.arange(-r, r + 1, dtype=np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def window_powers(r: int) -> np.ndarray:
+    """1, x, x², y and y² of every pixel of a (2r + 1)² window (offsets −r … r from its centre,
+    row by row): (5, (2r + 1)²) float64, for a window's moments by one matrix-vector product."""
+    v, u = np.divmod(np.arange((2 * r + 1) ** 2), 2 * r + 1)
+    u, v = (u - r).astype(np.float64), (v - r).astype(np.float64)
+    return np.stack([np.ones_like(u), u, u * u, v, v * v])
+
+
+@functools.lru_cache(maxsize=16)
+def border_index(size: int) -> np.ndarray:
+    """Flat indices of the outermost ring of a size × size window."""
+    ring = np.ones((size, size), bool)
+    ring[1:-1, 1:-1] = False
+    return np.flatnonzero(ring)
+
+
+def border_level(win: np.ndarray, border: np.ndarray) -> float:
+    """The median of a square window's outermost ring, `border` (`border_index`; the upper of
+    the middle two): the room's level about a spot. (The ring, a copy, sorted in place costs half
+    sorted() of its values as floats, and less than np.partition, on a few dozen values.)"""
+    ring = win.take(border)
+    ring.sort()
+    return ring.item(ring.size // 2)
+
+
+@dataclass(frozen=True)
+class WindowKit:
+    """What `SpotFinder._refine` needs of a (2r + 1)² window, whatever its pixels: made once per
+    half-size r (`window_kit`), one lookup instead of four per window."""
+
+    border: np.ndarray  # `border_index`
+    offsets: np.ndarray  # `window_offsets`
+    powers: np.ndarray  # `window_powers`
+    monomials: np.ndarray  # `monomials`
+
+
+@functools.lru_cache(maxsize=16)
+def window_kit(r: int) -> WindowKit:
+    return WindowKit(border_index(2 * r + 1), window_offsets(r), window_powers(r), monomials(r))
