@@ -22,9 +22,18 @@ from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 
+from edge.framenoise import (
+    BOX_PIXELS,
+    NOISE_FLOOR_FRACTION,
+    jpeg_blockiness,
+    kth,
+    level_bins,
+    noise_by_level,
+    spot_box,
+    value_step,
+)
 from edge.rig import Laser, Rig
 from edge.spotshape import border_index, border_level, fit_gaussian, fit_sites, fit_unsaturated, window_kit
 
@@ -91,14 +100,6 @@ MATCHED_SNR = 5.0
 # run together (the centre and parallel beams, 4 cm apart, on a small camera or far away) make one
 # blob between their paths, up to half their spacing from each.
 STRAY_REACH_PX = 3.0
-# The pixel noise a spot is judged against follows the room's level where it falls
-# (`_noise_by_level`): bins of equal steps of √level (shot noise's scale), each told by at least
-# NOISE_BIN_SAMPLES background samples; and at most a factor NOISE_FLOOR_FRACTION below the
-# picture's noise, for a JPEG can round a dark region's noise to nothing, and a spot there is no
-# surer than the picture's noise allows.
-NOISE_BINS = 8
-NOISE_BIN_SAMPLES = 20
-NOISE_FLOOR_FRACTION = 0.5
 # Red's noise differs this much between the four pixels of a 2 × 2 block only behind a Bayer filter
 # (demosaicing interpolates red at three of them, which averages their noise).
 BAYER_CONTRAST = 1.25
@@ -146,88 +147,6 @@ _STRETCH = 48
 _SATURATED = 0.985
 
 
-def jpeg_blockiness(image: np.ndarray) -> float:
-    """How much larger a frame's steps across the 8 × 8 block boundaries are than inside blocks
-    (1 for a frame that never was JPEG)."""
-    g = image.astype(np.float32) if image.ndim == 2 else image[..., :3].astype(np.float32).mean(axis=2)
-    dx = np.abs(np.diff(g, axis=1))
-    dy = np.abs(np.diff(g, axis=0))
-    inner_x = (dx.sum() - dx[:, 7::8].sum()) / max(dx.size - dx[:, 7::8].size, 1)
-    inner_y = (dy.sum() - dy[7::8, :].sum()) / max(dy.size - dy[7::8, :].size, 1)
-    bx = float(dx[:, 7::8].mean()) / max(float(inner_x), 1e-9)
-    by = float(dy[7::8, :].mean()) / max(float(inner_y), 1e-9)
-    return 0.5 * (bx + by)
-
-
-# The coarsest step a 16-bit frame's values may have: an 8-bit sensor's, scaled to 16 bits.
-COARSEST_STEP = 257.0
-
-
-def value_step(frame: np.ndarray) -> float:
-    """The step between the values a 16-bit `frame` holds: a sensor's 8-12 bits carried in 16 are
-    scaled to its full range (×257, ×64.06, …), so that its values are that far apart, and the
-    difference of two frames is that coarse. The least gap between the distinct values of every
-    7th pixel (a room's noise shows neighbouring values), at most COARSEST_STEP: a frame of a few
-    far-apart values (a lens cap's black and a few hot pixels) must not make every later spot
-    noise. 1 for 8-bit frames, whose values are a sensor's 8 bits or fewer."""
-    if frame.dtype != np.uint16:
-        return 1.0
-    values = np.unique(frame.reshape(-1)[::7])
-    if values.size < 2:
-        return 1.0
-    return min(max(float(np.diff(values).min()), 1.0), COARSEST_STEP)
-
-
-def _level_bins(levels: np.ndarray) -> np.ndarray:
-    """Each of `levels`' (full scale, ≥ 0) bin of NOISE_BINS equal steps of √level."""
-    scaled = np.sqrt(levels)
-    scaled *= NOISE_BINS
-    index = scaled.astype(np.intp)
-    return np.minimum(index, NOISE_BINS - 1, out=index)
-
-
-def _noise_by_level(levels: np.ndarray, deviation: np.ndarray, noise: float, least: float) -> np.ndarray | None:
-    """The difference image's pixel noise by the room's level, from background samples' `levels`
-    (the laser-off frame, full scale) and their absolute `deviation` from the background's median
-    (clipped): a table of one σ per bin of NOISE_BINS equal steps of √level (shot noise's
-    scale), float32, which `_level_bins` of a level indexes.
-
-    Shot noise grows with the light, and JPEG keeps less of a dark region's noise, so a spot on a
-    dark surface stands above far less noise than the picture's median (tuning-18: 0.0058 against
-    0.0108). A bin is no noisier than `noise`, the picture's (a bright region's own noise is
-    `_local`'s to measure), nor quieter than `least`, nor than a darker bin; a bin with too few
-    samples to tell takes the next brighter one's that can, else the picture's. None when no bin
-    can tell. (Eight numbers: plain Python, cheaper than numpy's calls on them.)"""
-    index = _level_bins(levels)
-    count = np.bincount(index, minlength=NOISE_BINS).tolist()
-    total = np.bincount(index, weights=deviation, minlength=NOISE_BINS).tolist()
-    if max(count) < NOISE_BIN_SAMPLES:
-        return None
-    table = [noise] * NOISE_BINS
-    told = noise
-    for i in range(NOISE_BINS - 1, -1, -1):  # brightest first: a bin that cannot tell takes the brighter one's
-        if count[i] >= NOISE_BIN_SAMPLES:
-            told = min(max(1.2533 * total[i] / count[i], least), noise)
-        table[i] = told
-    for i in range(1, NOISE_BINS):
-        table[i] = max(table[i], table[i - 1])
-    return np.array(table, np.float32)
-
-
-_BOX_PIXELS = 15  # the matched filter's pixels (_spot_box): its white noise is √15 a pixel's
-
-
-def _spot_box(strips: np.ndarray) -> np.ndarray:
-    """The matched filter of `strips` (width, path samples): each sum of 3 strip columns × 5 path
-    samples (about a spot's size), for the columns 1 … width − 2, and 0 in the two samples at
-    either end (float32, (width − 2, samples)). One OpenCV box filter: a fifth of numpy's
-    additions of shifted views, which cost more to call than to add on a few thousand values."""
-    box = cv2.boxFilter(strips, cv2.CV_32F, (5, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)[1:-1]
-    box[:, :2] = 0.0
-    box[:, -2:] = 0.0
-    return box
-
-
 def _scaled_plane(plane: np.ndarray, rows, cols, scale: float) -> np.ndarray:
     """A region of one plane times `scale` (float32): the same float32 product as
     np.multiply(…, dtype=np.float32), whose buffered casting loop costs more than the arithmetic
@@ -235,13 +154,6 @@ def _scaled_plane(plane: np.ndarray, rows, cols, scale: float) -> np.ndarray:
     out = plane[rows, cols].astype(np.float32)
     out *= scale
     return out
-
-
-def _kth(values: np.ndarray, k: int) -> float:
-    """The k-th smallest of `values` (reordered in place): np.partition's element, without the
-    copy and dispatch that make the function cost twice the method on a thousand values."""
-    values.partition(k)
-    return values.item(k)
 
 
 def _curvature_by_parity(window: np.ndarray, u0: int, v0: int) -> np.ndarray | None:
@@ -637,10 +549,10 @@ class SpotFinder:
             return 0.0, bg, 0.0
         mid = bg.size // 2
         work = bg.copy()
-        centre = _kth(work, mid)
+        centre = kth(work, mid)
         # The deviations in the partitioned copy's buffer; their median from a copy of them.
         deviation = np.abs(np.subtract(bg, centre, out=work), out=work)
-        return centre, deviation, 1.4826 * _kth(deviation.copy(), mid)
+        return centre, deviation, 1.4826 * kth(deviation.copy(), mid)
 
     def find(
         self,
@@ -706,12 +618,12 @@ class SpotFinder:
         profile = np.maximum.reduce(strips, axis=0)  # (ndarray.max's reduction, without its Python wrapper)
         # The noise a spot stands above, by how bright the room is where it falls: the laser-off
         # frame along each path's centre line (no laser there; the levels only pick a bin).
-        table = _noise_by_level(off_vals[self._bg_slice], np.minimum(deviation, 5.0 * noise, out=deviation), noise,
+        table = noise_by_level(off_vals[self._bg_slice], np.minimum(deviation, 5.0 * noise, out=deviation), noise,
                                 max(quantum, NOISE_FLOOR_FRACTION * noise))
         floor = None
         if table is not None:
             room = off_vals[: self._bg_slice.start].reshape(self._strip_width, -1)[self._strip_width // 2]
-            floor = table.take(_level_bins(room))
+            floor = table.take(level_bins(room))
         local_noise, matched, box = self._local(strips, noise, floor)
         # A seed is a bright pixel (`min_snr` over the noise along that stretch of the path), or a
         # dim spot that the matched filter finds (MATCHED_SNR): every path's at once.
@@ -1021,11 +933,11 @@ class SpotFinder:
         spot's size: a matched filter). A textured surface leaves more of JPEG's and the room's
         noise in the difference than the flat background does, and a bright window's glare more
         still: each stretch is judged by its own. `strips` is (width, path samples); `floor`, per
-        path sample, the least noise there (`_noise_by_level`: less where the room is dark), else
+        path sample, the least noise there (`noise_by_level`: less where the room is dark), else
         `noise`, the picture's. Returns, per path sample, the pixel noise (at least the floor) and
         the box's SNR at its best column; and the box filter (width − 2, path samples)."""
         width, n = strips.shape
-        box = _spot_box(strips)
+        box = spot_box(strips)
         block = _STRETCH
         nb = max(1, n // block)
         cut = nb * block
@@ -1039,7 +951,7 @@ class SpotFinder:
         # (np.add.reduce and np.maximum.reduce: ndarray.sum's and .max's own reductions, without
         # their Python wrappers)
         pix_noise = np.add.reduce(np.minimum(pix, 6.0 * noise, out=pix), axis=(0, 2)) * (1.2533 / per)
-        box_floor = np.float32(noise * _BOX_PIXELS**0.5)
+        box_floor = np.float32(noise * BOX_PIXELS**0.5)
         per = flt.shape[0] * flt.shape[2]
         box_level = np.add.reduce(flt, axis=(0, 2)) * (1.0 / per)
         dev = flt - box_level[None, :, None]
@@ -1057,7 +969,7 @@ class SpotFinder:
             local_box = np.maximum(box_noise, box_floor).repeat(count)
         else:
             local_pix = np.sqrt(np.maximum(pix_noise.repeat(count), floor) * floor)
-            local_box = np.maximum(box_noise.repeat(count), floor * np.float32(_BOX_PIXELS**0.5))
+            local_box = np.maximum(box_noise.repeat(count), floor * np.float32(BOX_PIXELS**0.5))
         score = (np.maximum.reduce(box, axis=0) - box_level.repeat(count)) / local_box
         return local_pix, score, box
 

@@ -24,6 +24,7 @@ CORE = (
     "rig.py",
     "vision.py",
     "spotshape.py",
+    "framenoise.py",
     "ranging.py",
     "triangulation.py",
     "fusion.py",

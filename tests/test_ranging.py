@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from edge.config import load_config
 from edge.errors import ConfigError
+from edge.framenoise import jpeg_blockiness
 from edge.fusion import best_fusion, fuse, level_slopes, scatter_grown
 from edge.ranging import (
     AMBIGUOUS,
@@ -31,7 +32,7 @@ from edge.rig import CAMERA_MODELS, CameraModel, Laser, Rig, default_rig
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
 from edge.triangulation import LaserMeasurement, measure, triangulate
-from edge.vision import Candidate, SpotFinder, jpeg_blockiness
+from edge.vision import Candidate, SpotFinder
 
 
 def _laser(ox: float, oy: float, ax: float, ay: float, name: str = "l") -> Laser:

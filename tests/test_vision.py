@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge import vision
+from edge import framenoise, vision
 from edge.config import load_config
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
@@ -450,7 +450,7 @@ def test_a_one_pixel_spot_is_localised_on_its_pixel() -> None:
 
 
 def test_the_matched_filter_sums_3_columns_by_5_samples_with_its_ends_at_0() -> None:
-    from edge.vision import _spot_box
+    from edge.framenoise import spot_box
 
     rng = np.random.default_rng(3)
     for width, n in ((7, 5), (7, 6), (5, 48), (7, 634), (11, 300)):
@@ -459,7 +459,7 @@ def test_the_matched_filter_sums_3_columns_by_5_samples_with_its_ends_at_0() -> 
         for dj in (0, 1, 2):
             for di in range(5):
                 expected[:, 2:-2] += strips[dj : width - 2 + dj, di : n - 4 + di]
-        box = _spot_box(strips)
+        box = spot_box(strips)
         assert box.shape == expected.shape and box.dtype == np.float32
         assert np.allclose(box, expected, atol=1e-3), np.abs(box - expected).max()
 
@@ -605,15 +605,15 @@ def test_the_values_step_is_what_a_frame_can_hold() -> None:
     of one value, a frame of two far-apart values."""
     rng = np.random.default_rng(0)
     levels = rng.integers(0, 256, (120, 160))
-    assert vision.value_step((levels * 257).astype(np.uint16)) == 257.0
+    assert framenoise.value_step((levels * 257).astype(np.uint16)) == 257.0
     ten = rng.integers(0, 1024, (120, 160))
-    assert vision.value_step(np.rint(ten * (65535 / 1023)).astype(np.uint16)) == 64.0
-    assert vision.value_step(levels.astype(np.uint8)) == 1.0
-    assert vision.value_step((levels * 2).astype(np.uint8)) == 1.0  # 8-bit frames: 1, whatever they hold
-    assert vision.value_step(np.full((120, 160), 7, np.uint16)) == 1.0
+    assert framenoise.value_step(np.rint(ten * (65535 / 1023)).astype(np.uint16)) == 64.0
+    assert framenoise.value_step(levels.astype(np.uint8)) == 1.0
+    assert framenoise.value_step((levels * 2).astype(np.uint8)) == 1.0  # 8-bit frames: 1, whatever they hold
+    assert framenoise.value_step(np.full((120, 160), 7, np.uint16)) == 1.0
     black = np.zeros((120, 160), np.uint16)
     black[::9, ::11] = 65535  # a lens cap's black and hot pixels: no coarser than an 8-bit sensor's
-    assert vision.value_step(black) == vision.COARSEST_STEP == 257.0
+    assert framenoise.value_step(black) == framenoise.COARSEST_STEP == 257.0
 
 
 def _coarse_pair(seed: int, rig) -> tuple[np.ndarray, np.ndarray]:

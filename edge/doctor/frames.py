@@ -54,8 +54,9 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
     the same frame, or where the camera smooths their noise."""
     import numpy as np
 
+    from edge.framenoise import jpeg_blockiness
     from edge.ranging import FrameGroup, Ranger
-    from edge.vision import JPEG_BLOCKINESS, jpeg_blockiness
+    from edge.vision import JPEG_BLOCKINESS
 
     if len(frames) < 2:
         raise ValueError("the frames line needs two laser-off frames or more")
@@ -104,7 +105,7 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
 def _depth(frame: np.ndarray) -> str:
     """A 16-bit frame's depth, and the sensor's where its values are further apart than 1: a
     sensor's 8-12 bits scaled to 16 (ranging's noise is no finer than that step)."""
-    from edge.vision import value_step
+    from edge.framenoise import value_step
 
     bits = frame.dtype.itemsize * 8
     step = value_step(frame)
