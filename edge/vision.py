@@ -34,6 +34,7 @@ from edge.framenoise import (
     spot_box,
     value_step,
 )
+from edge.redsites import SiteLook
 from edge.rig import Laser, Rig
 from edge.spotshape import border_index, border_level, fit_gaussian, fit_sites, fit_unsaturated, window_kit
 
@@ -119,20 +120,6 @@ _SHARED_WIDTH_SPREAD = 0.1
 # exp(−½ (Δ/scale)²), scale in 1/m; the finder keeps the latest so many (one sweep's zones).
 _WIDTH_DEPTH_SCALE = 0.1
 _TOLD_KEPT = 64
-# A Bayer filter that the noise does not show (JPEG at high quality keeps too little of a dim room's
-# noise for its pattern) shows in bright spots: demosaicing interpolates red linearly between the
-# red pixels, so a spot's red bends at them and runs straight between them. Spots of SITE_SPOT_SNR
-# or more, each SITE_SPOT_APART_PX from every one counted before, are summed, and looked at when
-# SITE_LOOKS' counts of them are in: where their bends along rows and along columns are each that
-# look's ratio × or more at one parity than at the other, red is read, and spots are placed by its
-# red pixels as behind a filter that the noise shows. (Tuning 0-383's colour frames without a
-# filter came to at most 2.4, 2.2, 1.8 and 1.4 at 6, 12, 24 and 48 spots; behind a bilinear filter
-# at JPEG quality 87-94 with 4:4:4 chroma, 4-15. JPEG's 4:2:0 chroma, which keeps no pixel's own
-# red, came to 2-4, and fitting its red pixels placed spots worse: the looks leave it be.)
-SITE_SPOT_SNR = 20.0
-SITE_SPOT_APART_PX = 1.0  # (a sampled spot bends most at its nearest pixel: one spot counted again passes for a filter)
-SITE_LOOKS = ((6, 5.0), (12, 4.0), (24, 3.5), (48, 3.0))
-SITE_SPOTS = SITE_LOOKS[-1][0]
 # A fit of a spot's own-colour pixels that leaves more than SITE_MISFIT × the χ² of the noise has
 # not found the spot's shape. JPEG's rounding, which the noise measured in a dim room's background
 # does not show, leaves a bright spot's red pixels 13-30 × it (tuning-371, quality 94), where the
@@ -154,27 +141,6 @@ def _scaled_plane(plane: np.ndarray, rows, cols, scale: float) -> np.ndarray:
     out = plane[rows, cols].astype(np.float32)
     out *= scale
     return out
-
-
-def _curvature_by_parity(window: np.ndarray, u0: int, v0: int) -> np.ndarray | None:
-    """Where a spot's red bends: the shares of its second differences' energy along rows at even
-    and at odd columns, and along columns at even and at odd rows (4,), from a (2r + 3)² window of
-    red (laser-on minus laser-off) centred on pixel (u0, v0); None where it is flat. Demosaicing
-    interpolates red linearly between a Bayer filter's red pixels 2 px apart: it bends only at them."""
-    r = (window.shape[0] - 3) // 2
-    core = window[1:-1, 1:-1]
-    along_u = window[1:-1, :-2] - 2.0 * core + window[1:-1, 2:]
-    along_v = window[:-2, 1:-1] - 2.0 * core + window[2:, 1:-1]
-    odd_col = (u0 - r + np.arange(2 * r + 1)) % 2 == 1
-    odd_row = (v0 - r + np.arange(2 * r + 1)) % 2 == 1
-    cols = along_u * along_u
-    rows = along_v * along_v
-    by_col = (float(cols[:, ~odd_col].sum()), float(cols[:, odd_col].sum()))
-    by_row = (float(rows[~odd_row, :].sum()), float(rows[odd_row, :].sum()))
-    cols_total, rows_total = sum(by_col), sum(by_row)
-    if cols_total <= 0.0 or rows_total <= 0.0:
-        return None
-    return np.array([by_col[0] / cols_total, by_col[1] / cols_total, by_row[0] / rows_total, by_row[1] / rows_total])
 
 
 # Not frozen, though never changed once made (`replace` makes a new one): a frozen dataclass's
@@ -337,12 +303,8 @@ class SpotFinder:
         self._step: float | None = None  # the step between the values a frame can hold (value_step)
         # Behind a Bayer filter: the widths that spots' red pixels told, with where (inverse depth).
         self._told: deque[tuple[float, float, float]] = deque(maxlen=_TOLD_KEPT)
-        # Bright spots' second differences by parity (_curvature_by_parity), summed, and how many
-        # spots: until SITE_SPOTS, then the red pixels' parity they tell (None: no filter seen).
-        self._curvature = np.zeros(4)
-        self._curved_spots = 0
-        self._curved_at: list[tuple[float, float]] = []  # where the counted spots were (px)
-        self._site_parity: int | None = None
+        # A Bayer filter that the noise does not show, as bright spots tell it (edge.redsites).
+        self._sites = SiteLook()
 
     def _band(self, laser: Laser) -> _Band:
         cam = self.rig.camera
@@ -514,7 +476,7 @@ class SpotFinder:
     def _choosing_channel(self, frame: np.ndarray) -> bool:
         """Is `auto` still measuring colour frames' chroma to choose its channel? (Not once spots
         told a Bayer filter: red then.)"""
-        return self._auto and len(self._chroma_lag2) < AUTO_GROUPS and frame.ndim == 3 and self._site_parity is None
+        return self._auto and len(self._chroma_lag2) < AUTO_GROUPS and frame.ndim == 3 and self._sites.parity is None
 
     @staticmethod
     def _auto_weights(told: Sequence[float]) -> tuple[float, float, float]:
@@ -670,44 +632,11 @@ class SpotFinder:
             refined[name] = out
         if texture.bayer is not None:  # (only then are spots placed by their red pixels)
             self._place_again(refined)
-        elif self._curved_spots < SITE_SPOTS and on[0].ndim == 3 and not self._aside:
-            self._look_for_sites([c for out in refined.values() for _, c in out], on, off, gain)
+        elif self._sites.looking and on[0].ndim == 3 and not self._aside:
+            told = self._sites.look([c for out in refined.values() for _, c in out], on, off, gain)
+            if told and self._auto:  # (then red is read, if the channel is `auto`'s to choose)
+                self._weights = CHANNEL_WEIGHTS["red"]
         return {name: [self._unsnapped(c) for _, c in out] for name, out in refined.items()}
-
-    def _look_for_sites(self, spots: Sequence[Candidate], on, off, gain: float) -> None:
-        """Colour frames where the noise shows no Bayer filter: bright `spots`' red bends, summed
-        until SITE_SPOTS of them tell whether a filter's red pixels are there, and at which
-        parity (then red is read, if the channel is `auto`'s to choose)."""
-        height, width = on[0].shape[:2]
-        before = self._curved_spots
-        for c in spots:
-            if c.snr < SITE_SPOT_SNR or self._curved_spots >= SITE_SPOTS:
-                continue
-            u, v = c.pixel.tolist()
-            # (The same spot again, a unit aimed at one wall, tells nothing new.)
-            if any(math.hypot(u - a, v - b) < SITE_SPOT_APART_PX for a, b in self._curved_at):
-                continue
-            u0, v0 = int(round(u)), int(round(v))
-            r = 3
-            if u0 - r - 1 < 0 or v0 - r - 1 < 0 or u0 + r + 2 > width or v0 + r + 2 > height:
-                continue
-            rows, cols = slice(v0 - r - 1, v0 + r + 2), slice(u0 - r - 1, u0 + r + 2)
-            red = sum([f[rows, cols, 2].astype(np.float64) for f in on]) / len(on)
-            red -= gain * sum([f[rows, cols, 2].astype(np.float64) for f in off]) / len(off)
-            shares = _curvature_by_parity(red, u0, v0)
-            if shares is not None:
-                self._curvature += shares
-                self._curved_spots += 1
-                self._curved_at.append((u, v))
-        ratio = next((told for count, told in SITE_LOOKS if before < count <= self._curved_spots), None)
-        if ratio is not None:
-            col_even, col_odd, row_even, row_odd = self._curvature.tolist()
-            cols_told = max(col_even, col_odd) >= ratio * max(min(col_even, col_odd), 1e-12)
-            rows_told = max(row_even, row_odd) >= ratio * max(min(row_even, row_odd), 1e-12)
-            if cols_told and rows_told:
-                self._site_parity = 2 * int(row_odd > row_even) + int(col_odd > col_even)
-                if self._auto:
-                    self._weights = CHANNEL_WEIGHTS["red"]
 
     def _place_again(self, refined: dict[str, list[tuple[Callable[..., Candidate | None], Candidate]]]) -> None:
         """Behind a Bayer filter: each spot that its red pixels placed, placed again (in `refined`,
@@ -883,11 +812,11 @@ class SpotFinder:
         return float(c[0] @ c[1]) / var if var > 0 else None
 
     def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:
-        """`_noise_texture`, with the red pixels' parity that bright spots told (`_look_for_sites`)
+        """`_noise_texture`, with the red pixels' parity that bright spots told (`edge.redsites.SiteLook`)
         where the noise shows no Bayer filter."""
         texture = self._noise_texture(diff, centre, noise, colour)
-        if texture.bayer is None and self._site_parity is not None and colour:
-            texture.bayer, texture.demosaiced = self._site_parity, True
+        if texture.bayer is None and self._sites.parity is not None and colour:
+            texture.bayer, texture.demosaiced = self._sites.parity, True
         return texture
 
     def _noise_texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:

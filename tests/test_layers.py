@@ -25,6 +25,7 @@ CORE = (
     "vision.py",
     "spotshape.py",
     "framenoise.py",
+    "redsites.py",
     "ranging.py",
     "triangulation.py",
     "fusion.py",

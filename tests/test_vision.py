@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge import framenoise, vision
+from edge import framenoise, redsites, vision
 from edge.config import load_config
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
@@ -402,7 +402,7 @@ def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red
     renderer, views = _small_jpeg_spots("bilinear")
     looked = _placed(renderer, views, "auto")
     plain = _placed(*_small_jpeg_spots("none"), "auto")
-    monkeypatch.setattr(vision, "SITE_LOOKS", ())  # the spots never looked at
+    monkeypatch.setattr(redsites, "SITE_LOOKS", ())  # the spots never looked at
     before = _placed(renderer, views, "auto")
     assert _share_and_rms(before)[0] == 0.0 and _share_and_rms(looked)[0] >= 0.5
     assert within(looked) >= 0.8 and within(before) <= 0.6
