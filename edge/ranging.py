@@ -833,12 +833,8 @@ class Ranger:
                     continue
                 if not any(o is a for o in found[name]) or not any(o is b for o in found[other]):
                     continue  # (one of them already placed with another spot)
-                cut = self.finder.window_difference(group.on, group.off, (a.pixel + b.pixel) / 2, DEBLEND_WINDOW_PX)
-                if cut is None:
-                    continue
-                pair = place_pair(cut[0], cut[1], (self._lasers[name], self._lasers[other]), self.rig.camera,
-                                  (a.along, b.along), self._inv_depths)
-                if pair is None or min(p.snr for p in pair) < 0.5 * self.config.min_snr:
+                pair = self._pair_at(group, (a.pixel + b.pixel) / 2, (name, other), (a.along, b.along))
+                if pair is None:
                     continue
                 for old, placed in ((a, pair[0]), (b, pair[1])):
                     found[placed.laser] = [*(o for o in found[placed.laser] if o is not old), self._deblended(placed)]
@@ -883,11 +879,18 @@ class Ranger:
         gap, w_other = self.finder.nearest_on_path(other, c.pixel)
         if gap > DEBLEND_PX:
             return None
-        cut = self.finder.window_difference(group.on, group.off, c.pixel, DEBLEND_WINDOW_PX)
+        return self._pair_at(group, c.pixel, (name, other), (c.along, w_other))
+
+    def _pair_at(self, group: FrameGroup, centre: np.ndarray, names: tuple[str, str],
+                 alongs: tuple[float, float]) -> tuple[Placed, Placed] | None:
+        """Two lasers' spots fitted together in the window about `centre` (`edge.deblend`), each
+        started at its inverse depth in `alongs`; None where the window leaves the frame, the fit
+        finds no two spots, or either is too faint to be a spot."""
+        cut = self.finder.window_difference(group.on, group.off, centre, DEBLEND_WINDOW_PX)
         if cut is None:
             return None
-        pair = place_pair(cut[0], cut[1], (self._lasers[name], self._lasers[other]), self.rig.camera,
-                          (c.along, w_other), self._inv_depths)
+        pair = place_pair(cut[0], cut[1], (self._lasers[names[0]], self._lasers[names[1]]), self.rig.camera,
+                          alongs, self._inv_depths)
         # The fit's noise is its residual, which JPEG's blocks and speckle raise well above the
         # pixels' noise: half min_snr, for a blob that was found as a spot.
         if pair is None or min(p.snr for p in pair) < 0.5 * self.config.min_snr:
