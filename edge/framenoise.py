@@ -1,10 +1,15 @@
 """What the frames' noise is like, from the frames themselves: JPEG's blocks, the step between the
 values a camera delivers, the laser-on minus laser-off difference's noise by the room's level, and
 the matched filter a spot is detected by. Pure numpy (and one OpenCV box filter), no state:
-`edge.vision.SpotFinder` measures these once per frame group.
+`edge.vision.SpotFinder` measures these once per frame group, at the pixels `edge.paths.Strips`
+reads: how the noise is correlated (`noise_texture`), and how much of it each stretch of a path
+holds (`local_noise`).
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -106,3 +111,128 @@ def kth(values: np.ndarray, k: int) -> float:
     copy and dispatch that make the function cost twice the method on a thousand values."""
     values.partition(k)
     return values.item(k)
+
+
+# Offsets (du, dv) of the neighbours of each background sample that are read too: the noise's
+# correlation at lags 1 and 2 along rows and columns, and (with (1, 1)) all four Bayer phases.
+NEIGHBOURS = ((1, 0), (2, 0), (0, 1), (0, 2), (1, 1))
+# Red's noise differs this much between the four pixels of a 2 × 2 block only behind a Bayer filter
+# (demosaicing interpolates red at three of them, which averages their noise).
+BAYER_CONTRAST = 1.25
+# Or, where the red pixels' noise is no higher than the greens' (a gradient-led demosaicing, VNG,
+# builds red at a green pixel from that pixel's own green, noise and all), the blue pixels' is this
+# much lower: their red is the mean of four red pixels. (On the tuning family's raw frames, each
+# condition's median: bilinear and edge-aware 0.53–0.75, VNG 0.62–0.85; JPEG at quality 80–90 over a
+# filter, whose blocks keep little of its pattern, 0.88–0.96. JPEG's 4:2:0 chroma can still pass for
+# a filter, as it can by the louder red pixel: tuning-31, no filter, 0.68 and 1.46.)
+BAYER_LOW_CONTRAST = 0.75
+
+
+# Not frozen (never changed once made but by the finder's own look): a frozen dataclass costs
+# 4 × as much to build; see edge.vision.Candidate.
+@dataclass
+class Texture:
+    """How the difference image's noise is structured (`noise_texture`)."""
+
+    area: float  # Σ of its correlation over neighbouring pixels: a centroid's variance grows by it
+    sites: float  # the same over a Bayer filter's red pixels alone (2 px apart)
+    bayer: int | None  # the (row, column) parity of red pixels, 2·row + column; None: no filter seen
+    demosaiced: bool = False  # red read from a colour frame whose red noise is spread over neighbours
+
+
+WHITE = (1.0, 1.0, None)  # a Texture's fields where the noise shows no structure
+
+
+def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour: bool,
+                  parity: tuple[list[int], np.ndarray, list[float]]) -> Texture:
+    """How the difference image's noise is correlated, from `block`, the difference at background
+    samples (its first row) and their neighbours at NEIGHBOURS (a row each; `centre` their median,
+    `noise` their σ): JPEG's blocks and a demosaicing's interpolation spread one pixel's noise over
+    its neighbours, so that a spot's position is less certain than white noise would make it; and
+    where red is read from colour frames (`red_of_colour`), whether a Bayer filter is behind them
+    and which pixels saw red (their noise is the sensor's; demosaicing averages the others').
+    `parity`: the block's rows that give each (row, column) parity, a one-hot matrix of each of
+    their values' parity, and each parity's count (`edge.paths.Strips`)."""
+    if not block.size or noise <= 0.0:
+        return Texture(*WHITE)
+    lim = 5.0 * noise
+    block = block.reshape(1 + len(NEIGHBOURS), -1) - centre
+    samples = np.minimum(np.maximum(block, -lim, out=block), lim, out=block)
+    d0 = samples[0]
+    dots = samples.dot(d0)  # (6,): the variance, then each neighbour's covariance
+    var0 = float(dots[0])
+    if var0 <= 0.0:
+        return Texture(*WHITE)
+    rho = dict(zip(NEIGHBOURS, (dots[1:] / var0).tolist()))
+    along_u = 1.0 + 2.0 * rho[(1, 0)] + 2.0 * rho[(2, 0)]
+    along_v = 1.0 + 2.0 * rho[(0, 1)] + 2.0 * rho[(0, 2)]
+    area = min(max(along_u * along_v, 1.0), 25.0)
+    bayer = None
+    demosaiced = red_of_colour and max(rho[(1, 0)], rho[(0, 1)]) > 0.15
+    if demosaiced:
+        # The four (row, column) parities: the sample's own and its neighbours' flips.
+        rows, onehot, count = parity
+        sq = samples[rows]
+        power = ((sq * sq).ravel() @ onehot).tolist()
+        power = [p / c for p, c in zip(power, count)]
+        low, mid1, mid2, high = sorted(power)
+        if low > 0 and high > BAYER_CONTRAST * 0.5 * (mid1 + mid2):
+            bayer = power.index(high)
+        elif 0 < low < BAYER_LOW_CONTRAST * 0.5 * (mid1 + mid2):
+            bayer = power.index(low) ^ 3  # (the red pixel is the blue one's diagonal neighbour)
+    # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
+    sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
+    return Texture(area, sites, bayer, demosaiced)
+
+
+# Path samples (about half a pixel apart) whose noise `local_noise` measures together.
+STRETCH = 48
+
+
+def local_noise(strips: np.ndarray, noise: float, floor: np.ndarray | None = None,
+                counts: Sequence[int] | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Along every path, in stretches of STRETCH samples (about 24 px): the level and noise (mean
+    absolute deviation) of the strip's pixels and of a box filter of 3 columns × 5 samples (about
+    a spot's size: a matched filter). A textured surface leaves more of JPEG's and the room's
+    noise in the difference than the flat background does, and a bright window's glare more
+    still: each stretch is judged by its own. `strips` is (width, path samples); `floor`, per
+    path sample, the least noise there (`noise_by_level`: less where the room is dark), else
+    `noise`, the picture's; `counts`, how many samples each stretch has (the last takes the rest;
+    worked out here where not given). Returns, per path sample, the pixel noise (at least the
+    floor) and the box's SNR at its best column; and the box filter (width − 2, path samples)."""
+    width, n = strips.shape
+    box = spot_box(strips)
+    block = STRETCH
+    nb = max(1, n // block)
+    cut = nb * block
+    # Mean absolute deviation, each value clipped at 4 × the flat background's: a robust and
+    # cheap scale (a spot's own pixels barely move it); × 1.2533 is σ for Gaussian noise.
+    # The pixel noise from the strip's outermost columns, 3 px from the path: beside a spot,
+    # not on it, so that a spot does not raise its own threshold.
+    pix = np.abs(strips[:: width - 1, :cut]).reshape(2, nb, -1)
+    flt = box[:, :cut].reshape(width - 2, nb, -1)
+    per = 2 * pix.shape[2]
+    # (np.add.reduce and np.maximum.reduce: ndarray.sum's and .max's own reductions, without
+    # their Python wrappers)
+    pix_noise = np.add.reduce(np.minimum(pix, 6.0 * noise, out=pix), axis=(0, 2)) * (1.2533 / per)
+    box_floor = np.float32(noise * BOX_PIXELS**0.5)
+    per = flt.shape[0] * flt.shape[2]
+    box_level = np.add.reduce(flt, axis=(0, 2)) * (1.0 / per)
+    dev = flt - box_level[None, :, None]
+    np.abs(dev, out=dev)
+    box_noise = np.add.reduce(np.minimum(dev, 4.0 * box_floor, out=dev), axis=(0, 2)) * (1.2533 / per)
+    # Each stretch's value repeated over its samples: the same as .take() of each sample's
+    # stretch, for half the instructions (a run of copies, not an index read per sample).
+    if counts is None:
+        counts = np.bincount(np.minimum(np.arange(n) // block, nb - 1), minlength=nb)
+    # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
+    # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
+    # own neighbourhood hides it.
+    if floor is None:
+        local_pix = np.sqrt(np.maximum(pix_noise, noise) * noise).repeat(counts)
+        local_box = np.maximum(box_noise, box_floor).repeat(counts)
+    else:
+        local_pix = np.sqrt(np.maximum(pix_noise.repeat(counts), floor) * floor)
+        local_box = np.maximum(box_noise.repeat(counts), floor * np.float32(BOX_PIXELS**0.5))
+    score = (np.maximum.reduce(box, axis=0) - box_level.repeat(counts)) / local_box
+    return local_pix, score, box

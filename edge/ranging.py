@@ -415,8 +415,8 @@ class Ranger:
         )
         # Set up once, for _deblend on every frame group: the pixels near each laser's path (with
         # a margin for rounding a spot's pixel), so that most spots need no search of the path.
-        self._near_path = {name: self.finder.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
-        self._inv_depths = self.finder.inv_depth_range()
+        self._near_path = {name: self.finder.strips.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
+        self._inv_depths = self.finder.strips.inv_depth_range()
 
     def linear(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
         """The frame groups with `frame_gamma`'s curve undone: 16-bit values proportional to light
@@ -876,7 +876,7 @@ class Ranger:
         cu, cv = c.pixel.tolist()  # (plain floats: cheaper than numpy's scalars)
         if any(math.dist(o.pixel.tolist(), (cu, cv)) < 2 * DEBLEND_PX for o in found[other]):
             return None
-        gap, w_other = self.finder.nearest_on_path(other, c.pixel)
+        gap, w_other = self.finder.strips.nearest_on_path(other, c.pixel)
         if gap > DEBLEND_PX:
             return None
         return self._pair_at(group, c.pixel, (name, other), (c.along, w_other))

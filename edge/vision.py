@@ -25,23 +25,23 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from edge.framenoise import (
-    BOX_PIXELS,
+    NEIGHBOURS,
     NOISE_FLOOR_FRACTION,
+    WHITE,
+    Texture,
     jpeg_blockiness,
     kth,
     level_bins,
+    local_noise,
     noise_by_level,
-    spot_box,
+    noise_texture,
     value_step,
 )
+from edge.paths import Strips, full_scale
 from edge.redsites import SiteLook
-from edge.rig import Laser, Rig
+from edge.rig import Rig
 from edge.spotshape import border_index, border_level, fit_gaussian, fit_sites, fit_unsaturated, window_kit
 
-# How far beyond the working range the paths are searched, so that a spot just outside it is
-# reported as out of range rather than missed: z from NEAR_FACTOR·near to FAR_FACTOR·far.
-NEAR_FACTOR = 0.8
-FAR_FACTOR = 1.6
 # What a colour frame's spot is read from, as weights of its B, G, R channels. `red` suits raw or
 # lossless frames of a red pointer; `luma` suits JPEG (MJPEG webcams), which keeps only luminance
 # at full resolution and blurs and shifts a small red spot's chroma by up to a pixel.
@@ -90,9 +90,6 @@ JPEG_COMMON_PX = 0.15
 JPEG_MISFIT_KNEE = 4.0
 
 
-# Offsets (du, dv) of the neighbours of each background sample that are read too: the noise's
-# correlation at lags 1 and 2 along rows and columns, and (with (1, 1)) all four Bayer phases.
-NEIGHBOURS = ((1, 0), (2, 0), (0, 1), (0, 2), (1, 1))
 # A spot whose detection needs this matched-filter SNR (box filter about a spot's size, against the
 # noise measured along the same stretch of its path) is a seed even when its brightest pixel is
 # below `min_snr`: a dim spot is found where the noise allows, a bright window's glare is not.
@@ -101,16 +98,6 @@ MATCHED_SNR = 5.0
 # run together (the centre and parallel beams, 4 cm apart, on a small camera or far away) make one
 # blob between their paths, up to half their spacing from each.
 STRAY_REACH_PX = 3.0
-# Red's noise differs this much between the four pixels of a 2 × 2 block only behind a Bayer filter
-# (demosaicing interpolates red at three of them, which averages their noise).
-BAYER_CONTRAST = 1.25
-# Or, where the red pixels' noise is no higher than the greens' (a gradient-led demosaicing, VNG,
-# builds red at a green pixel from that pixel's own green, noise and all), the blue pixels' is this
-# much lower: their red is the mean of four red pixels. (On the tuning family's raw frames, each
-# condition's median: bilinear and edge-aware 0.53–0.75, VNG 0.62–0.85; JPEG at quality 80–90 over a
-# filter, whose blocks keep little of its pattern, 0.88–0.96. JPEG's 4:2:0 chroma can still pass for
-# a filter, as it can by the louder red pixel: tuning-31, no filter, 0.68 and 1.46.)
-BAYER_LOW_CONTRAST = 0.75
 # A spot's red pixels tell its width when its log's variance is below this (the prior's is 0.16);
 # then other spots at much the same depth, in this view or earlier ones, are held near the widths
 # so told, within this much (log px).
@@ -127,9 +114,6 @@ _TOLD_KEPT = 64
 SITE_MISFIT = 10.0
 SITE_MISFIT_JPEG = 40.0
 
-
-# Path samples (about half a pixel apart) whose noise `SpotFinder._local` measures together.
-_STRETCH = 48
 # A pixel at this fraction of full scale in a laser-on frame is taken as clipped.
 _SATURATED = 0.985
 
@@ -171,17 +155,6 @@ class Candidate:
     locked_px: float = 0.0
 
 
-# Not frozen (never changed once made): a frozen dataclass costs 4 × as much to build; see Candidate.
-@dataclass
-class _Texture:
-    """How the difference image's noise is structured (:meth:`SpotFinder._texture`)."""
-
-    area: float  # Σ of its correlation over neighbouring pixels: a centroid's variance grows by it
-    sites: float  # the same over a Bayer filter's red pixels alone (2 px apart)
-    bayer: int | None  # the (row, column) parity of red pixels, 2·row + column; None: no filter seen
-    demosaiced: bool = False  # red read from a colour frame whose red noise is spread over neighbours
-
-
 @dataclass(frozen=True)
 class FrameKind:
     """What kind of frames a camera delivers, and what the finder makes of them
@@ -201,20 +174,6 @@ class FrameKind:
     area: float  # how far that noise is spread over neighbouring pixels (1: white; a centroid's variance × it)
 
 
-@dataclass(frozen=True)
-class _Band:
-    laser: str
-    v: np.ndarray  # (L, W) int pixel rows of the strip
-    u: np.ndarray  # (L, W) int pixel columns
-    path: np.ndarray  # (L, 2) path pixels (float)
-    tangent: np.ndarray  # (L, 2) unit direction of the path
-    inv_depth: np.ndarray  # (L,)
-    step: float  # mean spacing of the path samples, px
-    # Per path sample (pu, pv, tu, tv, inverse depth): `path`, `tangent` and `inv_depth` as plain
-    # floats, which `_refine` reads a few of per spot (cheaper than numpy's scalar reads).
-    samples: tuple[tuple[float, float, float, float, float], ...] = ()
-
-
 class SpotFinder:
     """Spot detection for one rig and frame size; build once, call :meth:`find` per group."""
 
@@ -229,7 +188,6 @@ class SpotFinder:
         path_tolerance_px: float = 1.5,
     ):
         self.rig = rig
-        cam = rig.camera
         self.min_snr = min_snr
         self.max_spot_px = max_spot_px
         self.halfwidth = band_halfwidth_px
@@ -240,60 +198,10 @@ class SpotFinder:
         self._chroma_lag2: list[float] = []  # `auto`'s measurements so far
         self._weights = CHANNEL_WEIGHTS["red" if self._auto else channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
-        self.bands = {name: self._band(rig.laser(name)) for name in names}
-        # Sparse background sample for the flicker gain: a grid over the frame minus the bands.
-        step = max(4, int(math.sqrt(cam.width * cam.height / 1200)))
-        gv, gu = np.mgrid[step // 2 : cam.height : step, step // 2 : cam.width : step]
-        keep = np.ones(gv.shape, bool)
-        for band in self.bands.values():
-            for (pu, pv) in band.path[:: max(1, len(band.path) // 64)]:
-                keep &= (np.abs(gu - pu) > 12) | (np.abs(gv - pv) > 12)
-        keep &= (gu + 2 < cam.width) & (gv + 2 < cam.height)
-        self._bg_v, self._bg_u = gv[keep], gu[keep]
-        # Each background sample's neighbours at NEIGHBOURS: how the noise is correlated (JPEG,
-        # demosaicing) and which pixels of a Bayer filter saw red.
-        # (A few hundred samples tell a correlation to ±0.05: enough, and cheap.)
-        self._near_n = near = min(self._bg_v.size, 400)
-        # Those samples last, their neighbours right after them: one (6, near) block.
-        order = np.roll(np.arange(self._bg_v.size), -near)
-        self._bg_v, self._bg_u = self._bg_v[order], self._bg_u[order]
-        first = self._bg_v.size - near
-        near_v = [self._bg_v[first:] + dv for _, dv in NEIGHBOURS]
-        near_u = [self._bg_u[first:] + du for du, _ in NEIGHBOURS]
-        # Every strip pixel in one gather: cheaper than one gather per laser.
-        # The strips column by column (strip width × all paths' samples): numpy reduces across a
-        # strip's few columns far faster along the first axis than along a short last one.
-        strip_v = np.concatenate([b.v for b in self.bands.values()]).T.ravel()
-        strip_u = np.concatenate([b.u for b in self.bands.values()]).T.ravel()
-        self._all_v = np.concatenate([strip_v, self._bg_v, *near_v])
-        self._all_u = np.concatenate([strip_u, self._bg_u, *near_u])
-        self._strip_width = next(iter(self.bands.values())).v.shape[1]
-        self._rows: dict[str, slice] = {}  # each laser's path samples among all strips' rows
-        start = 0
-        for name, band in self.bands.items():
-            self._rows[name] = slice(start, start + band.v.shape[0])
-            start += band.v.shape[0]
-        # Each path sample's stretch of _STRETCH samples (the last stretch takes the rest), for `_local`.
-        self._stretch = np.minimum(np.arange(start) // _STRETCH, max(1, start // _STRETCH) - 1)
-        self._stretch_counts = np.bincount(self._stretch)  # how many samples each stretch has
-        start *= self._strip_width
-        self._bg_slice = slice(start, start + self._bg_v.size)
-        start += self._bg_v.size
-        self._near_block = slice(start - near, start + len(NEIGHBOURS) * near)
-        # (row, column) parity of each sample that has neighbours
-        self._bg_phase = (self._bg_v[first:] % 2) * 2 + self._bg_u[first:] % 2
-        # The four parities' squared noise, from the samples and their neighbours one column, one
-        # row and one diagonal away (rows of the (6, near) block; the flip of the parity each
-        # makes): by one product with a one-hot matrix (4·near, 4), and each parity's count.
-        flips = ((0, 0), (1, NEIGHBOURS.index((1, 0)) + 1), (2, NEIGHBOURS.index((0, 1)) + 1),
-                 (3, NEIGHBOURS.index((1, 1)) + 1))
-        self._parity_rows = [row for _, row in flips]
-        parity = np.concatenate([self._bg_phase ^ flip for flip, _ in flips])
-        self._parity_onehot = (parity[:, None] == np.arange(4)[None, :]).astype(np.float32)
-        self._parity_count = [max(float(c), 1.0) for c in self._parity_onehot.sum(axis=0)]
+        self.strips = Strips(rig, names, band_halfwidth_px)  # the pixels it reads of each frame
+        self.bands = self.strips.bands
         # Window half-size for localisation; it grows for big spots.
         self._radius = 4
-        self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
         self._jpeg: bool | None = None  # are the frames JPEG's? (from the first laser-off frame)
         self._demosaiced = False  # were the frames of the last `find` demosaiced? (grid_px)
         self._aside = False  # is `find` reading another channel than the finder's, for one search?
@@ -305,27 +213,6 @@ class SpotFinder:
         self._told: deque[tuple[float, float, float]] = deque(maxlen=_TOLD_KEPT)
         # A Bayer filter that the noise does not show, as bright spots tell it (edge.redsites).
         self._sites = SiteLook()
-
-    def _band(self, laser: Laser) -> _Band:
-        cam = self.rig.camera
-        lo, hi = self.rig.range_limits_m
-        lo, hi = lo * NEAR_FACTOR, hi * FAR_FACTOR
-        # Sample the path about every half pixel: find its length first, then resample.
-        coarse = self.rig.camera.project(laser.point_at_depth(1.0 / np.linspace(1 / lo, 1 / hi, 64)))
-        length = float(np.linalg.norm(np.diff(coarse, axis=0), axis=1).sum())
-        n = max(8, int(length * 2))
-        inv = np.linspace(1 / lo, 1 / hi, n)
-        path = cam.project(laser.point_at_depth(1.0 / inv))
-        tangent = np.gradient(path, axis=0)
-        tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
-        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
-        offsets = np.arange(-math.ceil(self.halfwidth), math.ceil(self.halfwidth) + 1)
-        pts = path[:, None, :] + offsets[None, :, None] * normal[:, None, :]
-        u = np.clip(np.rint(pts[..., 0]), 0, cam.width - 1).astype(np.intp)
-        v = np.clip(np.rint(pts[..., 1]), 0, cam.height - 1).astype(np.intp)
-        step = float(np.linalg.norm(np.diff(path, axis=0), axis=1).mean())
-        samples = tuple(map(tuple, np.column_stack([path, tangent, inv]).tolist()))
-        return _Band(laser.name, v, u, path, tangent, inv, step, samples)
 
     @staticmethod
     def laser_channel(image: np.ndarray) -> np.ndarray:
@@ -394,49 +281,7 @@ class SpotFinder:
         # before the values' step was measured.
         self._step = 1.0
 
-    @staticmethod
-    def full_scale(image: np.ndarray) -> float:
-        kind = image.dtype.type
-        return 65535.0 if kind is np.uint16 else 255.0 if kind is np.uint8 else 1.0
-
-    def _flat_index(self, image: np.ndarray) -> list[tuple[np.ndarray, float]]:
-        """(indices into ``image.ravel()``, weight) per channel read, for every strip and
-        background pixel."""
-        channels = image.shape[2] if image.ndim == 3 else 1
-        index = self._flat.get((channels, self._weights))
-        if index is None:
-            pixel = self._all_v.astype(np.intp) * self.rig.camera.width + self._all_u
-            if channels == 1:
-                index = [(pixel, 1.0)]
-            else:
-                index = [(pixel * channels + c, w) for c, w in enumerate(self._weights) if w]
-            self._flat[(channels, self._weights)] = index
-        return index
-
-    def _gather(self, frames: Sequence[np.ndarray]) -> np.ndarray:
-        """The read channel at every strip and background pixel, averaged over `frames`, in [0, 1]."""
-        if not frames:
-            raise ValueError("no frames to gather: a pose needs at least one laser-on and one laser-off frame")
-        scale = 1.0 / (len(frames) * self.full_scale(frames[0]))
-        acc: np.ndarray | None = None
-        cam = self.rig.camera
-        for image in frames:
-            if image.shape[0] != cam.height or image.shape[1] != cam.width:
-                raise ValueError(f"a {image.shape[1]}x{image.shape[0]} frame for a {cam.width}x{cam.height} camera")
-            flat = image.reshape(-1)  # (a view, or for a frame that is not contiguous a copy in C order)
-            for index, weight in self._flat_index(image):
-                # Every index is inside a frame of the camera's size (checked above; `_band` clips
-                # the strips, the background grid keeps its neighbours inside): mode="wrap" reads
-                # the same pixels as the default "raise", whose bounds check costs a fifth of this.
-                # (astype, then scaling in place: the float32 product np.multiply(…, dtype=float32)
-                # makes, without its buffered casting loop. A Python float, not np.float32: numpy
-                # casts it to the array's float32 all the same, and a numpy scalar operand costs
-                # a ufunc more to resolve; so throughout this module.)
-                values = flat.take(index, mode="wrap").astype(np.float32)
-                values *= weight * scale
-                acc = values if acc is None else np.add(acc, values, out=acc)
-        assert acc is not None
-        return acc
+    full_scale = staticmethod(full_scale)
 
     def _plane(self, image: np.ndarray, rows, cols) -> np.ndarray:
         """The read channel of a region of `image`, float32."""
@@ -487,13 +332,14 @@ class SpotFinder:
     def _difference(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray]
                     ) -> tuple[np.ndarray, np.ndarray, float, float]:
         """The read channel's laser-on minus laser-off difference at every strip and background
-        pixel (`_gather`'s order): (the difference, the laser-off values as scaled, the scale, the
+        pixel (`Strips.gather`'s order): (the difference, the laser-off values as scaled, the scale, the
         laser-off background's mean level before it). Room light may differ between the frames
         (flicker): the off frames are scaled to the on frames by least squares on pixels where no
         laser can land."""
-        on_vals = self._gather(on)
-        off_vals = self._gather(off)
-        bon, boff = on_vals[self._bg_slice], off_vals[self._bg_slice]
+        background = self.strips.background
+        on_vals = self.strips.gather(on, self._weights)
+        off_vals = self.strips.gather(off, self._weights)
+        bon, boff = on_vals[background], off_vals[background]
         # (ndarray.dot: the same BLAS dot as @, with less overhead; so below)
         denom = float(boff.dot(boff))
         gain = float(bon.dot(boff)) / denom if denom > 0 else 1.0
@@ -506,7 +352,7 @@ class SpotFinder:
     def _spread(self, diff: np.ndarray) -> tuple[float, np.ndarray, float]:
         """The background samples of `_difference`: their median, each one's absolute deviation
         from it (in their order) and the pixel noise, robustly (MAD; 0 where there are none)."""
-        bg = diff[self._bg_slice]
+        bg = diff[self.strips.background]
         if not bg.size:
             return 0.0, bg, 0.0
         mid = bg.size // 2
@@ -576,20 +422,22 @@ class SpotFinder:
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         self._demosaiced = texture.demosaiced
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
-        strips = diff[: self._bg_slice.start].reshape(self._strip_width, -1)  # (width, samples)
+        layout = self.strips
+        background, width = layout.background, layout.strip_width
+        strips = diff[: background.start].reshape(width, -1)  # (width, samples)
         profile = np.maximum.reduce(strips, axis=0)  # (ndarray.max's reduction, without its Python wrapper)
         # The noise a spot stands above, by how bright the room is where it falls: the laser-off
         # frame along each path's centre line (no laser there; the levels only pick a bin).
-        table = noise_by_level(off_vals[self._bg_slice], np.minimum(deviation, 5.0 * noise, out=deviation), noise,
+        table = noise_by_level(off_vals[background], np.minimum(deviation, 5.0 * noise, out=deviation), noise,
                                 max(quantum, NOISE_FLOOR_FRACTION * noise))
         floor = None
         if table is not None:
-            room = off_vals[: self._bg_slice.start].reshape(self._strip_width, -1)[self._strip_width // 2]
+            room = off_vals[: background.start].reshape(width, -1)[width // 2]
             floor = table.take(level_bins(room))
-        local_noise, matched, box = self._local(strips, noise, floor)
+        local_pix, matched, box = local_noise(strips, noise, floor, layout.stretch_counts)
         # A seed is a bright pixel (`min_snr` over the noise along that stretch of the path), or a
         # dim spot that the matched filter finds (MATCHED_SNR): every path's at once.
-        bright = profile / (np.float32(self.min_snr) * local_noise)
+        bright = profile / (np.float32(self.min_snr) * local_pix)
         dim = matched * (1.0 / MATCHED_SNR)
         score = np.maximum(bright, dim)
         mid = score[1:-1]
@@ -598,14 +446,14 @@ class SpotFinder:
         listed = peaks.tolist()
         seeds = {}
         for name in names:
-            rows = self._rows[name]
+            rows = layout.rows[name]
             # Local maxima inside the path (its ends lie beyond the working range's margins).
             first, stop = rows.start + 1, rows.stop - 1
             if near is not None and name in near:
-                first, stop = self._stretch_of(name, *near[name], first, stop)
+                first, stop = layout.stretch_of(name, *near[name], first, stop)
             mine = peaks[bisect.bisect_left(listed, first) : bisect.bisect_left(listed, stop)]
             seeds[name] = self._seeds(
-                self.bands[name], rows.start, mine, score, bright, dim, strips, box, profile, local_noise,
+                self.bands[name], rows.start, mine, score, bright, dim, strips, box, profile, local_pix,
                 matched, on, off, gain, max_candidates,
             ) if mine.size else []
         # Every seed of every laser: a neighbouring spot, whichever laser's, must not pull a
@@ -737,40 +585,6 @@ class SpotFinder:
         rows, cols = slice(v0 - r, v0 + r + 1), slice(u0 - r, u0 + r + 1)
         return self._window(on, rows, cols) - self._window(off, rows, cols), (u0 - r, v0 - r)
 
-    def _stretch_of(self, laser: str, lo: float, hi: float, first: int, stop: int) -> tuple[int, int]:
-        """The samples of `laser`'s path at inverse depths lo … hi, as a range first … stop − 1
-        of the strips' sample indices, kept within the given one; empty (first, first) where no
-        sample of the path is."""
-        start = self._rows[laser].start
-        inside = ((self.bands[laser].inv_depth >= lo) & (self.bands[laser].inv_depth <= hi)).nonzero()[0]
-        if not inside.size:
-            return first, first
-        return max(first, start + int(inside[0])), min(stop, start + int(inside[-1]) + 1)
-
-    def inv_depth_range(self) -> tuple[float, float]:
-        """The inverse depths (1/m) every laser's path is searched over, nearest last (one range:
-        the rig's working range with its margins)."""
-        inv = next(iter(self.bands.values())).inv_depth
-        return float(inv.min()), float(inv.max())
-
-    def path_mask(self, laser: str, within_px: float) -> np.ndarray:
-        """The image's pixels within `within_px` of `laser`'s path, and some a little farther
-        (bool, height × width): a square about each path sample, which lie half a pixel apart.
-        For set-up, not per frame."""
-        cam = self.rig.camera
-        mask = np.zeros((cam.height, cam.width), bool)
-        r = math.ceil(within_px + 0.5)
-        for u, v in np.rint(self.bands[laser].path).astype(int).tolist():
-            mask[max(v - r, 0): max(v + r + 1, 0), max(u - r, 0): max(u + r + 1, 0)] = True
-        return mask
-
-    def nearest_on_path(self, laser: str, pixel: np.ndarray) -> tuple[float, float]:
-        """The distance (px) from `pixel` to `laser`'s path, and the inverse depth there."""
-        band = self.bands[laser]
-        d = np.hypot(band.path[:, 0] - float(pixel[0]), band.path[:, 1] - float(pixel[1]))
-        i = int(d.argmin())
-        return float(d[i]), float(band.inv_depth[i])
-
     def light_at(self, on: Sequence[np.ndarray], off: Sequence[np.ndarray], pixel: np.ndarray) -> float:
         """The laser light in a spot-sized window at `pixel`: the on frames' read channel less the
         off frames', less the window border's median (the room), summed; in full-scale units. 0 where
@@ -792,11 +606,11 @@ class SpotFinder:
         green) at the background samples: high when chroma was stored at half resolution (or, less
         so, coarsely quantised: JPEG at 4:4:4 and low quality can pass for it, where luma places a
         spot about a quarter worse than red). None when the chroma shows no noise to tell by."""
-        first = self._bg_v.size - self._near_n
+        near_v, near_u = self.strips.near_samples()
         lag = NEIGHBOURS.index((2, 0))
         width, channels = self.rig.camera.width, on.shape[2]
-        v = np.concatenate([self._bg_v[first:], self._bg_v[first:]])
-        u = np.concatenate([self._bg_u[first:], self._bg_u[first:] + NEIGHBOURS[lag][0]])
+        v = np.concatenate([near_v, near_v])
+        u = np.concatenate([near_u, near_u + NEIGHBOURS[lag][0]])
         pixel = (v.astype(np.intp) * width + u) * channels
         flat_on, flat_off = on.reshape(-1), off.reshape(-1)
         chroma = [flat_on.take(pixel + c).astype(np.float64) - flat_off.take(pixel + c) for c in (2, 1)]
@@ -811,98 +625,19 @@ class SpotFinder:
         var = float(c[0] @ c[0])
         return float(c[0] @ c[1]) / var if var > 0 else None
 
-    def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:
-        """`_noise_texture`, with the red pixels' parity that bright spots told (`edge.redsites.SiteLook`)
+    def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> Texture:
+        """`noise_texture` of the difference at the background samples and their neighbours, with
+        the red pixels' parity that bright spots told (`edge.redsites.SiteLook`)
         where the noise shows no Bayer filter."""
-        texture = self._noise_texture(diff, centre, noise, colour)
+        strips = self.strips
+        texture = noise_texture(diff[strips.near_block], centre, noise,
+                                colour and self._weights == CHANNEL_WEIGHTS["red"],
+                                (strips.parity_rows, strips.parity_onehot, strips.parity_count))
         if texture.bayer is None and self._sites.parity is not None and colour:
             texture.bayer, texture.demosaiced = self._sites.parity, True
         return texture
 
-    def _noise_texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> _Texture:
-        """How the difference image's noise is correlated, from the background samples and their
-        neighbours: JPEG's blocks and a demosaicing's interpolation spread one pixel's noise over
-        its neighbours, so that a spot's position is less certain than white noise would make it;
-        and behind a Bayer filter, which pixels saw red (their noise is the sensor's; demosaicing
-        averages the others')."""
-        if not self._bg_v.size or noise <= 0.0:
-            return _Texture(1.0, 1.0, None)
-        lim = 5.0 * noise
-        block = diff[self._near_block].reshape(1 + len(NEIGHBOURS), -1) - centre
-        samples = np.minimum(np.maximum(block, -lim, out=block), lim, out=block)
-        d0 = samples[0]
-        dots = samples.dot(d0)  # (6,): the variance, then each neighbour's covariance
-        var0 = float(dots[0])
-        if var0 <= 0.0:
-            return _Texture(1.0, 1.0, None)
-        rho = dict(zip(NEIGHBOURS, (dots[1:] / var0).tolist()))
-        along_u = 1.0 + 2.0 * rho[(1, 0)] + 2.0 * rho[(2, 0)]
-        along_v = 1.0 + 2.0 * rho[(0, 1)] + 2.0 * rho[(0, 2)]
-        area = min(max(along_u * along_v, 1.0), 25.0)
-        bayer = None
-        demosaiced = colour and self._weights == CHANNEL_WEIGHTS["red"] and max(rho[(1, 0)], rho[(0, 1)]) > 0.15
-        if demosaiced:
-            # The four (row, column) parities: the sample's own and its neighbours' flips.
-            sq = samples[self._parity_rows]
-            power = ((sq * sq).ravel() @ self._parity_onehot).tolist()
-            power = [p / c for p, c in zip(power, self._parity_count)]
-            low, mid1, mid2, high = sorted(power)
-            if low > 0 and high > BAYER_CONTRAST * 0.5 * (mid1 + mid2):
-                bayer = power.index(high)
-            elif 0 < low < BAYER_LOW_CONTRAST * 0.5 * (mid1 + mid2):
-                bayer = power.index(low) ^ 3  # (the red pixel is the blue one's diagonal neighbour)
-        # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
-        sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
-        return _Texture(area, sites, bayer, demosaiced)
-
-    def _local(self, strips: np.ndarray, noise: float, floor: np.ndarray | None = None
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Along every path, in stretches of about 24 px: the level and noise (mean absolute
-        deviation) of the strip's pixels and of a box filter of 3 columns × 5 samples (about a
-        spot's size: a matched filter). A textured surface leaves more of JPEG's and the room's
-        noise in the difference than the flat background does, and a bright window's glare more
-        still: each stretch is judged by its own. `strips` is (width, path samples); `floor`, per
-        path sample, the least noise there (`noise_by_level`: less where the room is dark), else
-        `noise`, the picture's. Returns, per path sample, the pixel noise (at least the floor) and
-        the box's SNR at its best column; and the box filter (width − 2, path samples)."""
-        width, n = strips.shape
-        box = spot_box(strips)
-        block = _STRETCH
-        nb = max(1, n // block)
-        cut = nb * block
-        # Mean absolute deviation, each value clipped at 4 × the flat background's: a robust and
-        # cheap scale (a spot's own pixels barely move it); × 1.2533 is σ for Gaussian noise.
-        # The pixel noise from the strip's outermost columns, 3 px from the path: beside a spot,
-        # not on it, so that a spot does not raise its own threshold.
-        pix = np.abs(strips[:: width - 1, :cut]).reshape(2, nb, -1)
-        flt = box[:, :cut].reshape(width - 2, nb, -1)
-        per = 2 * pix.shape[2]
-        # (np.add.reduce and np.maximum.reduce: ndarray.sum's and .max's own reductions, without
-        # their Python wrappers)
-        pix_noise = np.add.reduce(np.minimum(pix, 6.0 * noise, out=pix), axis=(0, 2)) * (1.2533 / per)
-        box_floor = np.float32(noise * BOX_PIXELS**0.5)
-        per = flt.shape[0] * flt.shape[2]
-        box_level = np.add.reduce(flt, axis=(0, 2)) * (1.0 / per)
-        dev = flt - box_level[None, :, None]
-        np.abs(dev, out=dev)
-        box_noise = np.add.reduce(np.minimum(dev, 4.0 * box_floor, out=dev), axis=(0, 2)) * (1.2533 / per)
-        # Each stretch's value repeated over its samples: the same as .take() of each sample's
-        # stretch, for half the instructions (a run of copies, not an index read per sample).
-        count = (self._stretch_counts if self._stretch.size == n
-                 else np.bincount(np.minimum(np.arange(n) // block, nb - 1), minlength=nb))
-        # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
-        # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
-        # own neighbourhood hides it.
-        if floor is None:
-            local_pix = np.sqrt(np.maximum(pix_noise, noise) * noise).repeat(count)
-            local_box = np.maximum(box_noise, box_floor).repeat(count)
-        else:
-            local_pix = np.sqrt(np.maximum(pix_noise.repeat(count), floor) * floor)
-            local_box = np.maximum(box_noise.repeat(count), floor * np.float32(BOX_PIXELS**0.5))
-        score = (np.maximum.reduce(box, axis=0) - box_level.repeat(count)) / local_box
-        return local_pix, score, box
-
-    def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, local_noise, matched, on, off,
+    def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, pixel_noise, matched, on, off,
                gain, max_candidates) -> list[tuple[int, int, float, int, float, float]]:
         """The peaks (`peaks`: path samples of all strips, those of `band`'s path, which starts at
         sample `start`) strongest first, one per blob: (u, v, peak, strip row, matched-filter SNR,
@@ -927,7 +662,7 @@ class SpotFinder:
             if seeds and any(not self._apart((u, v), (su, sv), min(peak, sp), on, off, gain)
                              for su, sv, sp, _, _, _ in seeds):
                 continue  # the same blob seen from another path sample
-            seeds.append((u, v, peak, i - start, matched.item(i), local_noise.item(i)))
+            seeds.append((u, v, peak, i - start, matched.item(i), pixel_noise.item(i)))
             if len(seeds) >= max_candidates:
                 break
         return seeds
@@ -980,7 +715,7 @@ class SpotFinder:
         return self.laser_channel(on[0]), self.laser_channel(off[0])
 
     def _refine(self, band, seed, row, others, on, off, gain, noise, shot, peak, matched=0.0,
-                texture: _Texture | None = None, scales: tuple[float, float] | None = None,
+                texture: Texture | None = None, scales: tuple[float, float] | None = None,
                 planes: tuple[np.ndarray, ...] | None = None, width: tuple[float, float] | None = None,
                 reach: float | None = None) -> Candidate | None:
         """Sub-pixel position of the spot at `seed`: the centroid of the background-subtracted,
@@ -997,7 +732,7 @@ class SpotFinder:
         `scales` and `planes` are `_scales` and `_planes` of the frames, which `find` works out
         once for all its windows (None: work them out here). `reach`: how far from the path a
         spot may lie and be kept (default `path_tolerance`; `find`'s strays go farther)."""
-        texture = texture or _Texture(1.0, 1.0, None)
+        texture = texture or Texture(*WHITE)
         cam = self.rig.camera
         r = self._radius
         cu, cv = float(seed[0]), float(seed[1])

@@ -23,6 +23,7 @@ HW_FORBIDDEN = ("edge.sim", "edge.config", "edge.modes", "edge.ranging", "edge.t
 CORE = (
     "rig.py",
     "vision.py",
+    "paths.py",
     "spotshape.py",
     "framenoise.py",
     "redsites.py",

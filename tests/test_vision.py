@@ -321,7 +321,7 @@ def test_spots_behind_a_vng_demosaicing_are_placed_by_their_red_pixels(monkeypat
     renderer = _renderer(load_scene("office"), speckle=0.5, bayer="vng")
     views = _views(renderer)
     share, rms = _share_and_rms(_placed(renderer, views))
-    monkeypatch.setattr(vision, "BAYER_LOW_CONTRAST", 0.0)  # only a louder red pixel tells the filter
+    monkeypatch.setattr(framenoise, "BAYER_LOW_CONTRAST", 0.0)  # only a louder red pixel tells the filter
     share_before, rms_before = _share_and_rms(_placed(renderer, views))
     assert share_before == 0.0 and share >= 0.3
     assert rms < 0.93 * rms_before
@@ -414,7 +414,7 @@ def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red
 def test_a_big_spot_behind_a_bayer_filter_is_localised_after_the_window_grows() -> None:
     # A defocused spot (σ 3 px) grows the localisation window three times; the Bayer fit must use
     # the last window's pixels (it once took the next window's size, and raised).
-    from edge.vision import _Texture
+    from edge.framenoise import Texture
 
     rig = load_config().rig.build()
     finder = SpotFinder(rig)
@@ -429,7 +429,7 @@ def test_a_big_spot_behind_a_bayer_filter_is_localised_after_the_window_grows() 
     off[..., 2] = 10
     seed = (int(round(cu)) + 2, int(round(cv)) + 1)
     cand = finder._refine(band, seed, row, [], [on], [off], 1.0, 2.0 / 255, 1e-4, 200.0 / 255,
-                          texture=_Texture(1.0, 1.0, 0))
+                          texture=Texture(1.0, 1.0, 0))
     assert cand is not None
     assert np.linalg.norm(cand.pixel - [cu, cv]) < 0.2
 

@@ -31,10 +31,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from edge import thesis
+from edge import thesis, vision
 from edge.bench import _interleaved_ms, _thesis_range
 from edge.config import CameraConfig, load_config
 from edge.fusion import best_fusion, level_slopes
+from edge.paths import Strips
 from edge.ranging import FrameGroup, Ranger
 from edge.sim.record import scene_for, true_rig
 from edge.sim.render import Renderer
@@ -84,32 +85,34 @@ def main() -> None:
     stages(ranger, groups, args.repeats)
 
 
-STEPS = ("_gather", "_texture", "_local", "_seeds", "_refine")  # SpotFinder.find's steps
+# SpotFinder.find's steps: where each is looked up when find calls it, and its name there.
+STEPS = ((Strips, "gather"), (SpotFinder, "_texture"), (vision, "local_noise"), (SpotFinder, "_seeds"),
+         (SpotFinder, "_refine"))
 
 
 def stages(ranger: Ranger, groups: list[FrameGroup], repeats: int) -> None:
     """Each stage alone, on the inputs it has in the whole (the finder's steps seen by wrapping
     them for one call)."""
     finder, group, rig = ranger.finder, groups[0], ranger.rig
-    originals = {name: getattr(SpotFinder, name) for name in STEPS}
-    calls: dict[str, list[tuple]] = {name: [] for name in STEPS}
+    originals = {name: getattr(owner, name) for owner, name in STEPS}
+    calls: dict[str, list[tuple]] = {name: [] for _, name in STEPS}
 
     def recording(name: str) -> Callable:
-        def step(self, *a, **k):
+        def step(*a, **k):
             calls[name].append((a, k))
-            return originals[name](self, *a, **k)
+            return originals[name](*a, **k)
         return step
 
-    for name in STEPS:
-        setattr(SpotFinder, name, recording(name))
+    for owner, name in STEPS:
+        setattr(owner, name, recording(name))
     try:
         ranger.range_zone(0, PAN, 0.0, groups)
     finally:
-        for name in STEPS:
-            setattr(SpotFinder, name, originals[name])
+        for owner, name in STEPS:
+            setattr(owner, name, originals[name])
 
     def each(name: str) -> Callable[[], object]:
-        return lambda: [originals[name](finder, *a, **k) for a, k in calls[name]]
+        return lambda: [originals[name](*a, **k) for a, k in calls[name]]
 
     found = finder.find(group.on, group.off, group.lasers)
     tracks = ranger._tracks(groups)
@@ -120,9 +123,9 @@ def stages(ranger: Ranger, groups: list[FrameGroup], repeats: int) -> None:
     rows: list[tuple[str, Callable[[], object]]] = [
         ("range_zone, the whole", lambda: ranger.range_zone(0, PAN, 0.0, groups)),
         ("  SpotFinder.find", lambda: finder.find(group.on, group.off, group.lasers)),
-        ("    gather strips and background (on, off)", each("_gather")),
+        ("    gather strips and background (on, off)", each("gather")),
         ("    noise texture", each("_texture")),
-        ("    local noise and matched filter", each("_local")),
+        ("    local noise and matched filter", each("local_noise")),
         (f"    seeds ({len(calls['_seeds'])} paths)", each("_seeds")),
         (f"    place spots ({len(calls['_refine'])} windows)", each("_refine")),
         ("  deblend", lambda: ranger._deblend(group, {k: list(v) for k, v in found.items()})),

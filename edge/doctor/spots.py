@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edge.paths import FAR_FACTOR, NEAR_FACTOR
 from edge.rig import Rig
-from edge.vision import FAR_FACTOR, NEAR_FACTOR, SpotFinder
+from edge.vision import SpotFinder
 
 MIN_SNR = 8.0  # a spot's (3 × 3 mean) peak over the difference image's noise
 # A spot shows again in a second pair of frames: within REPEAT_PX of where it was, at REPEAT_SNR
