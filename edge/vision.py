@@ -41,6 +41,7 @@ from edge.paths import Strips, full_scale
 from edge.redsites import SiteLook
 from edge.rig import Rig
 from edge.spotshape import border_index, border_level, fit_gaussian, fit_sites, fit_unsaturated, window_kit
+from edge.stuck import lit_in_off
 
 # What a colour frame's spot is read from, as weights of its B, G, R channels. `red` suits raw or
 # lossless frames of a red pointer; `luma` suits JPEG (MJPEG webcams), which keeps only luminance
@@ -220,54 +221,8 @@ class SpotFinder:
         return image[..., 2] if image.ndim == 3 else image
 
     def lit_in_off(self, off: np.ndarray, laser: str, near: tuple[float, float] | None = None) -> bool:
-        """Whether `laser`'s spot shows in a laser-off frame (a laser that does not go off): a
-        compact peak of red excess (red over the mean of green and blue; grey frames: brightness)
-        along its path, well above the path's level and above the path a few spot widths either
-        side of it. `near` (u, v): only a peak there counts (where the laser-on frames put its spot).
-
-        Compact, against the room: a warm wall, a worktop or a red curtain on the path stands above
-        the rest of the path as a plateau, and JPEG and a display gamma lift it further; a spot
-        stands above the path beside it too."""
-        band = self.bands[laser]
-        if off.ndim == 3:
-            img = off.astype(np.float32)
-            excess = img[..., 2] - 0.5 * (img[..., 0] + img[..., 1])
-        else:
-            excess = off.astype(np.float32)
-        profile = excess[band.v, band.u].max(axis=1).astype(np.float64)  # (L,) along the path
-        level = float(np.median(profile))
-        spread = 1.4826 * float(np.median(np.abs(profile - level)))
-        beside = self._beside(profile, band.step, level)
-        if near is not None:
-            reach = max(3.0, self.max_spot_px)
-            close = np.hypot(band.path[:, 0] - near[0], band.path[:, 1] - near[1]) <= reach
-            if not close.any():
-                return False
-            profile, beside = profile[close], beside[close]
-        # Both: well above the path's own level, and well above the path beside it. (A stuck
-        # spot's red excess, smeared by JPEG's half-resolution chroma, stood 0.13 of full scale
-        # above a warm wall that it lay on, and the wall 0.04 above the path beside it.)
-        full = self.full_scale(off)
-        above = (profile - level > max(8.0 * spread, 0.15 * full)) & (profile - beside > 0.08 * full)
-        return bool(above.any())
-
-    def _beside(self, profile: np.ndarray, step_px: float, level: float) -> np.ndarray:
-        """Per sample of a path's profile, the higher of its means over 2.5–4 largest spot widths
-        before it and after it (one side where the path ends; `level` where it has neither)."""
-        n = profile.size
-        near = max(1, math.ceil(2.5 * self.max_spot_px / max(step_px, 1e-6)))
-        far = max(near, math.ceil(4.0 * self.max_spot_px / max(step_px, 1e-6)))
-        sums = np.concatenate(([0.0], np.cumsum(profile)))
-        k = np.arange(n)
-
-        def side(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:  # (means where hi >= lo; masked below)
-            lo, hi = np.clip(lo, 0, n - 1), np.clip(hi, 0, n - 1)
-            return (sums[hi + 1] - sums[lo]) / np.maximum(hi - lo + 1, 1)
-
-        before = np.where(k - near >= 0, side(k - far, k - near), -np.inf)
-        after = np.where(k + near <= n - 1, side(k + near, k + far), -np.inf)
-        both = np.maximum(before, after)
-        return np.where(np.isfinite(both), both, level)
+        """Whether `laser`'s spot shows in a laser-off frame (`edge.stuck.lit_in_off` along its strip)."""
+        return lit_in_off(self.bands[laser], off, self.max_spot_px, near)
 
     def delivered(self, frame: np.ndarray) -> None:
         """Told, before the first frames of a sweep are found in, a frame as the camera delivered

@@ -24,6 +24,7 @@ CORE = (
     "rig.py",
     "vision.py",
     "paths.py",
+    "stuck.py",
     "spotshape.py",
     "framenoise.py",
     "redsites.py",
