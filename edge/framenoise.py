@@ -73,7 +73,7 @@ def noise_by_level(levels: np.ndarray, deviation: np.ndarray, noise: float, leas
     Shot noise grows with the light, and JPEG keeps less of a dark region's noise, so a spot on a
     dark surface stands above far less noise than the picture's median (tuning-18: 0.0058 against
     0.0108). A bin is no noisier than `noise`, the picture's (a bright region's own noise is
-    `_local`'s to measure), nor quieter than `least`, nor than a darker bin; a bin with too few
+    `local_noise`'s to measure), nor quieter than `least`, nor than a darker bin; a bin with too few
     samples to tell takes the next brighter one's that can, else the picture's. None when no bin
     can tell. (Eight numbers: plain Python, cheaper than numpy's calls on them.)"""
     index = level_bins(levels)

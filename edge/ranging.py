@@ -36,6 +36,7 @@ from edge.fusion import (
 from edge.rig import Laser, Rig
 from edge.schema import require
 from edge.tone import linear_table, require_gamma
+from edge.tracks import FrameGroup, Track, follow, in_every_view, pooled_frames
 from edge.triangulation import LaserMeasurement, measure
 from edge.vision import Candidate, SpotFinder
 
@@ -57,10 +58,6 @@ SHOULDER_RATIO = 4.0
 # Another laser's spot this near (px) may have merged with a spot and pulled it (the centre and
 # parallel spots are 4 px apart at 5 m).
 MERGE_PX = 6.0
-# Sightings in different frame groups are one spot if they are this many σ of their placing apart
-# (and at least 1.5 px, at most TRACK_JOIN_MAX_PX).
-TRACK_JOIN_SIGMAS = 2.5
-TRACK_JOIN_MAX_PX = 3.0
 # Another laser's spot this far from the reference's (m) may be on another surface: the sloped
 # laser's is 17 cm per metre of range away, the parallel's 4 cm. A faint reference seen in some
 # views is not confirmed by such a far one alone (tuning-75, tuning-111: 11 % and 17 % off).
@@ -217,8 +214,8 @@ def _steady(refs: list[LaserMeasurement], sightings: Mapping[int, tuple[int, int
     return [m for m in refs if sightings[id(m)][0] >= sightings[id(m)][1] or m.snr > best]
 
 
-def _moved_to(spot: LaserMeasurement, refs: Sequence[tuple[_Track, LaserMeasurement]],
-              tracks: Mapping[str, Sequence[_Track]]) -> float | None:
+def _moved_to(spot: LaserMeasurement, refs: Sequence[tuple[Track, LaserMeasurement]],
+              tracks: Mapping[str, Sequence[Track]]) -> float | None:
     """How far (px) the reference's bright `spot`, missing from some of the zone's views, sits
     from a bright spot of the reference in just those views; None if there is none. The unit is
     nudged between views, which moves no spot of a beam fixed to the camera unless the surface it
@@ -285,26 +282,6 @@ def _miss(spot: LaserMeasurement, other: LaserMeasurement, slopes_y: Sequence[fl
     return min(abs(other.depth_m - spot.depth_m - g * dy) for g in slopes_y)
 
 
-def _pool(groups: Sequence[FrameGroup], name: str
-          ) -> tuple[list[np.ndarray], list[np.ndarray], set[tuple[float, float]]] | None:
-    """The laser-on and laser-off frames of every frame group where `name` was on, and their
-    views; None where it was on in none."""
-    mine = [g for g in groups if name in g.lasers]
-    if not mine:
-        return None
-    return [f for g in mine for f in g.on], [f for g in mine for f in g.off], {g.view for g in mine}
-
-
-def _in_every_view(spots: Sequence[LaserMeasurement], groups: Sequence[FrameGroup]) -> dict[int, tuple[int, int]]:
-    """The sightings (shown, of how many) of `spots` found in the zone's frame groups pooled: one
-    sighting of every group where their laser was on."""
-    out = {}
-    for m in spots:
-        shown = sum(m.laser in g.lasers for g in groups)
-        out[id(m)] = (shown, shown)
-    return out
-
-
 def _agreeing_others(others: Mapping[str, Sequence[LaserMeasurement]]) -> bool:
     """Do at least two of the other lasers have spots that lie on one surface?"""
     found = [ms for ms in others.values() if ms]
@@ -320,86 +297,6 @@ def _spotted(cands: Mapping[str, Sequence[LaserMeasurement]]) -> frozenset[str]:
 
 
 # --- the estimator -----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class FrameGroup:
-    """Frames of one pose: laser-on frames (all with the same lasers on) and laser-off frames."""
-
-    on: Sequence[np.ndarray]
-    off: Sequence[np.ndarray]
-    lasers: tuple[str, ...]
-    view: tuple[float, float] = (0.0, 0.0)  # (pan, tilt) the frames were taken at
-
-
-@dataclass
-class _Track:
-    """One spot of one laser followed across frame groups."""
-
-    laser: str
-    found: list[Candidate]
-    views: set[tuple[float, float]]
-    seen: list[tuple[float, float]] = field(default_factory=list)  # each sighting's view, where told
-    # The frame groups it was found in (their indices in the zone), where told: two blobs of one
-    # group that join one track are one sighting, not two.
-    groups: set[int] = field(default_factory=set)
-
-    def shows_in(self) -> int:
-        """In how many of the zone's frame groups the spot was found."""
-        return len(self.groups) if self.groups else len(self.found)
-
-    def pixel(self, speckle_px: float = 0.0) -> np.ndarray:
-        """Weighted mean position; each sighting's weight counts its speckle too, which dominates
-        a bright spot's error and is the same for every sighting."""
-        if len(self.found) == 1:
-            return self.found[0].pixel
-        return self._mean(self._weights(speckle_px))
-
-    def _weights(self, speckle_px: float) -> list[float]:
-        return [1.0 / (max(c.sigma_px, 1e-4) ** 2 + speckle_px**2) for c in self.found]
-
-    def _mean(self, w: list[float]) -> np.ndarray:
-        total = sum(w)
-        return np.array([
-            sum(wi * float(c.pixel[0]) for wi, c in zip(w, self.found)) / total,
-            sum(wi * float(c.pixel[1]) for wi, c in zip(w, self.found)) / total,
-        ])
-
-    def placed(self, speckle_px: float) -> tuple[np.ndarray, float, tuple[float, float, float] | None]:
-        """Where the spot is (`pixel`), its σ (px) and its covariance (None where no sighting has
-        one): pixel noise is each sighting's own, speckle (`speckle_px` a view) is shared by the
-        sightings of one view and averages only over distinct views.
-
-        The variance is that of `pixel`'s weighted mean, not of a plain mean: a sighting that JPEG
-        placed only to its 8 px block weighs next to nothing in the mean, and must not loosen what
-        the other views placed well (tuning-81 zone 15: σ 5.3 % of the range instead of 2.7 %)."""
-        views = len(self.views)
-        if len(self.found) == 1:  # (one view, or views pooled into one sighting: `Ranger._pooled`)
-            c = self.found[0]
-            spread = speckle_px**2 / views
-            cov = None if c.cov_px is None else (c.cov_px[0] + spread, c.cov_px[1] + spread, c.cov_px[2])
-            return c.pixel, math.sqrt(c.sigma_px**2 + spread), cov
-        shared = speckle_px if views > 1 else 0.0  # (one view: speckle moves every sighting alike)
-        w = self._weights(shared)
-        total = sum(w)
-        by_view: dict[tuple[float, float], float] = {}
-        for wi, view in zip(w, self.seen):
-            by_view[view] = by_view.get(view, 0.0) + wi
-        # (Lists, not generators: the same sums, with less overhead for a sighting or two.)
-        spread = speckle_px**2 * sum([x * x for x in by_view.values()]) / total**2
-        # Where the spot falls on the pixel grid moves every sighting alike (Candidate.locked_px):
-        # that part is the weighted mean's of it, not averaged down.
-        locked = [min(c.locked_px, c.sigma_px) for c in self.found]
-        spread += (sum([wi * lk for wi, lk in zip(w, locked)]) / total) ** 2
-        noise = sum([wi * wi * (c.sigma_px**2 - lk * lk) for wi, c, lk in zip(w, self.found, locked)]) / total**2
-        cov = None
-        if any([c.cov_px is not None for c in self.found]):
-            # Each axis on its own: speckle moves a spot alike in every direction.
-            parts = [c.cov_px or (c.sigma_px**2, c.sigma_px**2, 0.0) for c in self.found]
-            uu, vv, uv = [sum([wi * wi * (p[k] - (lk * lk if k < 2 else 0.0)) for wi, p, lk in zip(w, parts, locked)])
-                          / total**2 for k in range(3)]
-            cov = (uu + spread, vv + spread, uv)
-        return self._mean(w), math.sqrt(noise + spread), cov
 
 
 class Ranger:
@@ -459,13 +356,13 @@ class Ranger:
             # made it no weaker.
             if not refs or any(m.snr >= max(r.snr for r in refs) for m in self._believable(measured)):
                 tracks[ref], cands[ref] = pooled, measured
-                sightings.update(_in_every_view(measured, groups))
+                sightings.update(in_every_view(measured, groups))
                 refs = self._believable(measured)
         if not refs and self.finder.channel == "luma":
             # Luma holds a third of a red spot's light: a spot it shows nowhere may stand out in
             # red, which JPEG's half-resolution chroma places less well but which is there.
             refs = self._in_red(groups, ref)
-            sightings.update(_in_every_view(refs, groups))
+            sightings.update(in_every_view(refs, groups))
         if not refs:
             return self._result(index, pan_deg, tilt_deg, NO_SPOT, cands, detail=f"no spot of {ref}")
         others = {n: ms for n, ms in cands.items() if n != ref}
@@ -630,7 +527,7 @@ class Ranger:
         return spot.snr >= self.config.min_snr or spot.sigma_px <= FAINT_MAX_SIGMA_PX
 
     def _comes_and_goes(self, spot: LaserMeasurement, groups: Sequence[FrameGroup],
-                        tracks: Mapping[str, Sequence[_Track]]) -> bool:
+                        tracks: Mapping[str, Sequence[Track]]) -> bool:
         """Is a bright spot, missing from some of the zone's frame groups, really not there in
         them? The unit is nudged between groups (for new speckle); a beam on a depth edge then
         lights a near surface in one view and a far one, or nothing the camera sees, in the next.
@@ -655,41 +552,14 @@ class Ranger:
         lasers = {n: ms[0] for n, ms in cands.items() if len(ms) == 1}
         return ZoneResult(index, pan, tilt, status, lasers=lasers, detail=detail, spotted=_spotted(cands))
 
-    def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[_Track]]:
-        names = self._lasers  # the rig's laser names, in order (rig.laser_names builds a tuple each time)
-        tracks: dict[str, list[_Track]] = {name: [] for name in names}
-        expected: dict[str, int] = {name: 0 for name in names}
-        for k, group in enumerate(groups):
+    def _tracks(self, groups: Sequence[FrameGroup]) -> dict[str, list[Track]]:
+        """Each laser's spots, found in each frame group (and deblended), followed across them."""
+        found = []
+        for group in groups:
             strays: list[Candidate] = []
-            found = self._deblend(group, self.finder.find(group.on, group.off, group.lasers, strays=strays), strays)
-            for name, cands in found.items():
-                expected[name] += 1
-                for cand in cands:
-                    cu, cv = cand.pixel.item(0), cand.pixel.item(1)  # (plain floats: cheaper than numpy's)
-                    for track in tracks[name]:
-                        p = track.pixel()
-                        # The same spot, if as near as the two placings' noise allows (JPEG can
-                        # place a faint spot 1.5 px apart in two views), within a spot's size.
-                        sure = min(c.sigma_px for c in track.found)
-                        near = min(max(1.5, TRACK_JOIN_SIGMAS * math.hypot(cand.sigma_px, sure)), TRACK_JOIN_MAX_PX)
-                        if math.hypot(p.item(0) - cu, p.item(1) - cv) < near:
-                            track.found.append(cand)
-                            track.views.add(group.view)
-                            track.seen.append(group.view)
-                            track.groups.add(k)
-                            break
-                    else:
-                        tracks[name].append(_Track(name, [cand], {group.view}, [group.view], {k}))
-        # A laser's spot shows in (nearly) every group where the laser was on; a blob that shows
-        # once in several groups is flicker, a blinking light or noise.
-        out = {}
-        for name, ts in tracks.items():
-            need = max(1, math.ceil(expected[name] / 2))
-            kept = [t for t in ts if t.shows_in() >= need]
-            if len(kept) > 1:
-                kept.sort(key=lambda t: -sum(c.snr for c in t.found) / len(t.found))
-            out[name] = kept[:3]
-        return out
+            found.append((group, self._deblend(group, self.finder.find(group.on, group.off, group.lasers,
+                                                                          strays=strays), strays)))
+        return follow(found, self._lasers)
 
     def _looked_for(self, groups: Sequence[FrameGroup], chosen: LaserMeasurement,
                     others: Mapping[str, Sequence[LaserMeasurement]], known: Sequence[float]
@@ -710,15 +580,15 @@ class Ranger:
         pooled_in: dict[int, tuple[int, int]] = {}
         for name, laser in self._lasers.items():
             span = None if name == chosen.laser else _expected(laser, chosen, known)
-            pool = _pool(groups, name)
+            pool = pooled_frames(groups, name)
             if span is None or pool is None:
                 continue
             on, off, views = pool
             found = self.finder.find(on, off, [name], near={name: span}, threshold=LOOK_THRESHOLD).get(name, [])
-            new = [self._measure(_Track(name, [c], set(views))) for c in found]
+            new = [self._measure(Track(name, [c], set(views))) for c in found]
             if new:
                 grown.setdefault(name, []).extend(new)
-                pooled_in.update(_in_every_view(new, groups))
+                pooled_in.update(in_every_view(new, groups))
         if not pooled_in:
             return None
         fusion = best_fusion(self.rig, chosen, grown, self.config.surface_sigma_per_m, known)
@@ -781,7 +651,7 @@ class Ranger:
             return []  # (grey frames have no red: the same search again would find the same)
         return self._believable([self._measure(t) for t in self._pooled(groups, name, channel="red")])
 
-    def _pooled(self, groups: Sequence[FrameGroup], name: str, channel: str | None = None) -> list[_Track]:
+    def _pooled(self, groups: Sequence[FrameGroup], name: str, channel: str | None = None) -> list[Track]:
         """`name`'s spots in the zone's frame groups pooled, where no group alone showed one to believe
         (`channel`: read from that channel for this search, vision.SpotFinder.find).
 
@@ -791,12 +661,12 @@ class Ranger:
         difference, in which the room cancels, and a spot too faint for any one group stands
         √groups higher above the noise. Each spot found so is one sighting for all the groups.
         (One group pooled is that group, searched already, unless in another channel.)"""
-        pool = _pool(groups, name)
+        pool = pooled_frames(groups, name)
         if pool is None or (channel is None and sum(name in g.lasers for g in groups) < 2):
             return []
         on, off, views = pool
         found = self.finder.find(on, off, [name], channel=channel).get(name, [])
-        return [_Track(name, [c], set(views)) for c in found][:3]
+        return [Track(name, [c], set(views)) for c in found][:3]
 
     def _deblend(self, group: FrameGroup, found: dict[str, list[Candidate]],
                  strays: Sequence[Candidate] = ()) -> dict[str, list[Candidate]]:
@@ -897,7 +767,7 @@ class Ranger:
             return None
         return pair
 
-    def _measure(self, track: _Track) -> LaserMeasurement:
+    def _measure(self, track: Track) -> LaserMeasurement:
         views = len(track.views)
         pixel, sigma_px, cov = track.placed(self.config.speckle_px)
         snr = sum([c.snr for c in track.found]) / len(track.found)

@@ -1,7 +1,7 @@
 """A Bayer filter that colour frames' noise does not show, told by bright spots' red bends.
 
 JPEG at high quality keeps too little of a dim room's noise for a filter's pattern to show in it
-(`SpotFinder._noise_texture` looks there first); the spots themselves still show it, for
+(`edge.framenoise.noise_texture` looks there first); the spots themselves still show it, for
 demosaicing interpolates red linearly between the filter's red pixels. Pure numpy: the finder
 hands its bright spots and the frames to a `SiteLook` it keeps.
 """

@@ -862,7 +862,7 @@ class SpotFinder:
             told = [*self._chroma_lag2, *([] if rho is None else [rho])]
             if told:
                 weights = self._auto_weights(told)
-        # `_gather` and `_texture` read the channel from the finder: this pair's, and back after.
+        # `_difference` and `_texture` read the channel from the finder: this pair's, and back after.
         kept, self._weights = self._weights, weights
         try:
             diff = self._difference([first], [second])[0]

@@ -30,6 +30,7 @@ CORE = (
     "redsites.py",
     "ranging.py",
     "triangulation.py",
+    "tracks.py",
     "fusion.py",
     "mapping.py",
     "grid.py",

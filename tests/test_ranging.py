@@ -26,11 +26,11 @@ from edge.ranging import (
     FrameGroup,
     Ranger,
     RangingConfig,
-    _Track,
 )
 from edge.rig import CAMERA_MODELS, CameraModel, Laser, Rig, default_rig
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
+from edge.tracks import Track
 from edge.triangulation import LaserMeasurement, measure, triangulate
 from edge.vision import Candidate, SpotFinder
 
@@ -896,7 +896,7 @@ def test_a_spot_seen_in_several_views_is_placed_as_well_as_its_sigma_says(sighti
         found = [Candidate("center", np.array([320.0, 240.0]) + shift[view] + locked * grid
                            + rng.normal(0.0, math.sqrt(sigma**2 - locked**2), 2), sigma, 30.0, 1.0, 0.5, 0.0,
                            locked_px=locked) for view, sigma, locked in sightings]
-        track = _Track("center", found, {(0.05 * view, 0.0) for view in views},
+        track = Track("center", found, {(0.05 * view, 0.0) for view in views},
                        [(0.05 * view, 0.0) for view, _, _ in sightings])
         pixel, sigma_px, _ = track.placed(speckle)
         errors.append(pixel[0] - 320.0)
