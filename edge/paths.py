@@ -112,10 +112,9 @@ class Strips:
         for name, b in self.bands.items():
             self.rows[name] = slice(start, start + b.v.shape[0])
             start += b.v.shape[0]
-        # Each path sample's stretch of STRETCH samples (the last stretch takes the rest).
-        self.samples = start
+        # How many path samples each stretch of STRETCH has (the last takes the rest): `local_noise`'s.
         stretch = np.minimum(np.arange(start) // STRETCH, max(1, start // STRETCH) - 1)
-        self.stretch_counts = np.bincount(stretch)  # how many samples each stretch has
+        self.stretch_counts = np.bincount(stretch)
         start *= self.strip_width
         self.background = slice(start, start + self.bg_v.size)
         start += self.bg_v.size
