@@ -432,6 +432,25 @@ class Ranger:
                         detail=f"the {ref} spot is placed too loosely to range alone (± {chosen.sigma_m:.2f} m), "
                                f"and the {near.laser} laser's spot beside it says {near.depth_m:.2f} m",
                     )
+        doubt = self._doubt(chosen, fusion, others, sightings, groups, tracks, cands)
+        if doubt is not None:
+            status, detail = doubt
+            return self._result(index, pan_deg, tilt_deg, status, cands, detail=detail)
+        base = to_base.apply(fusion.point_m)
+        return ZoneResult(
+            index, pan_deg, tilt_deg, OK, fusion.range_m, fusion.sigma_m, fusion.point_m, base,
+            fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),
+        )
+
+    def _doubt(self, chosen: LaserMeasurement, fusion: Fusion, others: Mapping[str, Sequence[LaserMeasurement]],
+               sightings: Mapping[int, tuple[int, int]], groups: Sequence[FrameGroup],
+               tracks: Mapping[str, Sequence[Track]], cands: Mapping[str, Sequence[LaserMeasurement]]
+               ) -> tuple[str, str] | None:
+        """Why the zone's range, `fusion` through the reference spot `chosen`, is not to be believed:
+        (the status, the detail) of the first rule it breaks, each a way a wrong range looked right
+        on the tuning family; None where it breaks none. `others`: the other lasers' spots;
+        `sightings`: each spot's (groups it showed in, groups its laser was on in)."""
+        ref = self.rig.reference.name
         if len(fusion.used) == 1 and any(others.values()):
             # No other laser agrees with the reference spot. A strong spot may still be right (an
             # edge between the beams), but not if the others agree among themselves elsewhere,
@@ -439,15 +458,9 @@ class Ranger:
             agreeing = _agreeing_others(others)
             if agreeing or chosen.snr < self.config.lone_min_snr:
                 why = "the other lasers agree on another surface" if agreeing else f"it is weak (SNR {chosen.snr:.0f})"
-                return self._result(
-                    index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                    detail=f"no other laser confirms the {ref} spot and {why}",
-                )
+                return AMBIGUOUS, f"no other laser confirms the {ref} spot and {why}"
         if len(fusion.used) == 1 and not any(others.values()) and chosen.snr < self.config.alone_min_snr:
-            return self._result(
-                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                detail=f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found",
-            )
+            return AMBIGUOUS, f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found"
         if (len(fusion.used) == 2 and _rests_on_a_far_one(fusion) and self._too_loose_alone(chosen)
                 and fusion.sigma_m > FAR_PARTNER_SHARE * self.config.max_sigma_fraction * fusion.range_m):
             # Too loose to range alone, the reference takes its range from the one other laser that
@@ -455,58 +468,34 @@ class Ranger:
             # on another surface, which a loose reference cannot tell. Such a fusion must be sure
             # enough to leave room for that (tuning-286 zone 0: the sloped laser's spot 0.44 m
             # below, on a wall behind, made a ±8 % reference ±4.5 % and 14 % off).
-            return self._result(
-                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                detail=f"the {ref} spot is placed too loosely to range alone (± {chosen.sigma_m:.2f} m), "
-                       f"and only the {fusion.used[1].laser} laser's spot, {apart(*fusion.used):.2f} m away, "
-                       f"agrees with it: {fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m",
-            )
+            return AMBIGUOUS, (f"the {ref} spot is placed too loosely to range alone (± {chosen.sigma_m:.2f} m), "
+                               f"and only the {fusion.used[1].laser} laser's spot, {apart(*fusion.used):.2f} m away, "
+                               f"agrees with it: {fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m")
         seen, shown = sightings[id(chosen)]
         if seen < shown and chosen.snr < EDGE_MIN_SNR and (_rests_on_a_far_one(fusion) or all(
                 sightings[id(m)][0] < sightings[id(m)][1] for m in fusion.used[1:])):
             # A faint blob in one view, "confirmed" by others that show in that view alone: JPEG
             # turns a textured block's small change into a blob on every path through it, in
             # the one frame it changed in (tuning-42: at 0.27 m, the path's near end).
-            return self._result(
-                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                detail=f"the {ref} spot is faint (SNR {chosen.snr:.0f}) and shows, as does what confirms it, "
-                       f"in {seen} of the zone's {shown} views",
-            )
+            return AMBIGUOUS, (f"the {ref} spot is faint (SNR {chosen.snr:.0f}) and shows, as does what confirms "
+                               f"it, in {seen} of the zone's {shown} views")
         if seen < shown and self._comes_and_goes(chosen, groups, tracks):
-            return self._result(
-                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                detail=f"the {ref} spot shows in some of the zone's views and not in others: the beam is on an edge",
-            )
+            return AMBIGUOUS, (f"the {ref} spot shows in some of the zone's views and not in others: "
+                               "the beam is on an edge")
         moved = _moved_to(chosen, list(zip(tracks.get(ref, ()), cands.get(ref, ()))), tracks) if seen < shown else None
         if moved is not None:
-            return self._result(
-                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                detail=f"the {ref} spot moved {moved:.1f} px between the zone's views: the beam is on an edge",
-            )
+            return AMBIGUOUS, f"the {ref} spot moved {moved:.1f} px between the zone's views: the beam is on an edge"
         if len(fusion.used) == 1 and chosen.snr < self.config.min_snr:
             # Found by the matched filter alone, and no other laser on its surface: a dim spot
             # must be confirmed, for noise and glare make blobs as faint as it.
-            return self._result(
-                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                detail=f"the {ref} spot is faint (SNR {chosen.snr:.1f}) and no other laser confirms it",
-            )
-        lo, hi = rig.range_limits_m
+            return AMBIGUOUS, f"the {ref} spot is faint (SNR {chosen.snr:.1f}) and no other laser confirms it"
+        lo, hi = self.rig.range_limits_m
         if not lo <= fusion.range_m <= hi:
-            return self._result(
-                index, pan_deg, tilt_deg, OUT_OF_RANGE, cands,
-                detail=f"{fusion.range_m:.2f} m is outside the working range {lo}-{hi} m",
-            )
+            return OUT_OF_RANGE, f"{fusion.range_m:.2f} m is outside the working range {lo}-{hi} m"
         if fusion.sigma_m > self.config.max_sigma_fraction * fusion.range_m:
-            return self._result(
-                index, pan_deg, tilt_deg, AMBIGUOUS, cands,
-                detail=f"the {ref} spot is placed too loosely to range: "
-                       f"{fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m",
-            )
-        base = to_base.apply(fusion.point_m)
-        return ZoneResult(
-            index, pan_deg, tilt_deg, OK, fusion.range_m, fusion.sigma_m, fusion.point_m, base,
-            fusion.normal, {m.laser: m for m in fusion.used}, spotted=_spotted(cands),
-        )
+            return AMBIGUOUS, (f"the {ref} spot is placed too loosely to range: "
+                               f"{fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m")
+        return None
 
     def _too_loose_alone(self, spot: LaserMeasurement) -> bool:
         """Is `spot` placed too loosely to range on its own (σ over `max_sigma_fraction` of its depth)?"""
