@@ -175,6 +175,11 @@ class FrameKind:
     area: float  # how far that noise is spread over neighbouring pixels (1: white; a centroid's variance × it)
 
 
+# A seed of a spot (`SpotFinder._seeds`): its pixel (u, v), peak, strip row, matched-filter SNR and the
+# pixel noise there.
+Seed = tuple[int, int, float, int, float, float]
+
+
 class SpotFinder:
     """Spot detection for one rig and frame size; build once, call :meth:`find` per group."""
 
@@ -376,6 +381,24 @@ class SpotFinder:
         shot = noise**2 / (2.0 * max(off_level, 1e-3))
         texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
         self._demosaiced = texture.demosaiced
+        seeds = self._detect(diff, off_vals, deviation, noise, quantum, names, near, threshold, on, off, gain,
+                             max_candidates)
+        refined = self._place(seeds, on, off, gain, shot, texture, strays)
+        if texture.bayer is not None:  # (only then are spots placed by their red pixels)
+            self._place_again(refined)
+        elif self._sites.looking and on[0].ndim == 3 and not self._aside:
+            told = self._sites.look([c for out in refined.values() for _, c in out], on, off, gain)
+            if told and self._auto:  # (then red is read, if the channel is `auto`'s to choose)
+                self._weights = CHANNEL_WEIGHTS["red"]
+        return {name: [self._unsnapped(c) for _, c in out] for name, out in refined.items()}
+
+    def _detect(self, diff: np.ndarray, off_vals: np.ndarray, deviation: np.ndarray, noise: float, quantum: float,
+                names: Sequence[str], near: Mapping[str, tuple[float, float]] | None, threshold: float,
+                on: Sequence[np.ndarray], off: Sequence[np.ndarray], gain: float, max_candidates: int
+                ) -> dict[str, list[Seed]]:
+        """`find`'s seeds: on each of `names`' paths, the peaks of the difference `diff` (`_difference`,
+        with the laser-off values `off_vals`) that stand above the noise where they lie, strongest
+        first (`_seeds`). `deviation` and `noise` are `_spread`'s, `quantum` the values' step."""
         # Every strip has the same width: one reduction finds each path sample's brightest pixel.
         layout = self.strips
         background, width = layout.background, layout.strip_width
@@ -411,6 +434,13 @@ class SpotFinder:
                 self.bands[name], rows.start, mine, score, bright, dim, strips, box, profile, local_pix,
                 matched, on, off, gain, max_candidates,
             ) if mine.size else []
+        return seeds
+
+    def _place(self, seeds: Mapping[str, Sequence[Seed]],
+               on: Sequence[np.ndarray], off: Sequence[np.ndarray], gain: float, shot: float, texture: Texture,
+               strays: list[Candidate] | None) -> dict[str, list[tuple[Callable[..., Candidate | None], Candidate]]]:
+        """`find`'s spots: each seed placed by `_refine`, with the call that placed it (`_place_again`
+        calls it again); blobs off their path go to `strays` where it is given."""
         # Every seed of every laser: a neighbouring spot, whichever laser's, must not pull a
         # spot's centroid (the centre and parallel spots are 4 px apart at 5 m).
         everywhere = [(u, v) for ss in seeds.values() for u, v, _, _, _, _ in ss]
@@ -433,13 +463,7 @@ class SpotFinder:
                 else:
                     out.append((refine, cand))
             refined[name] = out
-        if texture.bayer is not None:  # (only then are spots placed by their red pixels)
-            self._place_again(refined)
-        elif self._sites.looking and on[0].ndim == 3 and not self._aside:
-            told = self._sites.look([c for out in refined.values() for _, c in out], on, off, gain)
-            if told and self._auto:  # (then red is read, if the channel is `auto`'s to choose)
-                self._weights = CHANNEL_WEIGHTS["red"]
-        return {name: [self._unsnapped(c) for _, c in out] for name, out in refined.items()}
+        return refined
 
     def _place_again(self, refined: dict[str, list[tuple[Callable[..., Candidate | None], Candidate]]]) -> None:
         """Behind a Bayer filter: each spot that its red pixels placed, placed again (in `refined`,
@@ -593,7 +617,7 @@ class SpotFinder:
         return texture
 
     def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, pixel_noise, matched, on, off,
-               gain, max_candidates) -> list[tuple[int, int, float, int, float, float]]:
+               gain, max_candidates) -> list[Seed]:
         """The peaks (`peaks`: path samples of all strips, those of `band`'s path, which starts at
         sample `start`) strongest first, one per blob: (u, v, peak, strip row, matched-filter SNR,
         the noise there). `strips` is (width, path samples), `box` its matched filter (the box's
@@ -602,7 +626,7 @@ class SpotFinder:
         (1: at the threshold), `score` the larger."""
         if peaks.size > 1:
             peaks = peaks[score[peaks].argsort()[::-1]][: 4 * max_candidates]  # (np.argsort, without its wrapper)
-        seeds: list[tuple[int, int, float, int, float, float]] = []
+        seeds: list[Seed] = []
         # (Values read with .item(): plain Python numbers, which compare and convert far faster than
         # numpy's scalars; float32 to float is exact, so every comparison is as before.)
         for i in peaks.tolist():
