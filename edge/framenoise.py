@@ -134,13 +134,11 @@ BAYER_LOW_CONTRAST = 0.75
 class Texture:
     """How the difference image's noise is structured (`noise_texture`)."""
 
-    area: float  # Σ of its correlation over neighbouring pixels: a centroid's variance grows by it
-    sites: float  # the same over a Bayer filter's red pixels alone (2 px apart)
-    bayer: int | None  # the (row, column) parity of red pixels, 2·row + column; None: no filter seen
+    # (The defaults: white noise, no Bayer filter.)
+    area: float = 1.0  # Σ of its correlation over neighbouring pixels: a centroid's variance grows by it
+    sites: float = 1.0  # the same over a Bayer filter's red pixels alone (2 px apart)
+    bayer: int | None = None  # the (row, column) parity of red pixels, 2·row + column; None: no filter seen
     demosaiced: bool = False  # red read from a colour frame whose red noise is spread over neighbours
-
-
-WHITE = (1.0, 1.0, None)  # a Texture's fields where the noise shows no structure
 
 
 def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour: bool,
@@ -154,7 +152,7 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
     `parity`: the block's rows that give each (row, column) parity, a one-hot matrix of each of
     their values' parity, and each parity's count (`edge.paths.Strips`)."""
     if not block.size or noise <= 0.0:
-        return Texture(*WHITE)
+        return Texture()
     lim = 5.0 * noise
     block = block.reshape(1 + len(NEIGHBOURS), -1) - centre
     samples = np.minimum(np.maximum(block, -lim, out=block), lim, out=block)
@@ -162,7 +160,7 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
     dots = samples.dot(d0)  # (6,): the variance, then each neighbour's covariance
     var0 = float(dots[0])
     if var0 <= 0.0:
-        return Texture(*WHITE)
+        return Texture()
     rho = dict(zip(NEIGHBOURS, (dots[1:] / var0).tolist()))
     along_u = 1.0 + 2.0 * rho[(1, 0)] + 2.0 * rho[(2, 0)]
     along_v = 1.0 + 2.0 * rho[(0, 1)] + 2.0 * rho[(0, 2)]
@@ -189,16 +187,16 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
 STRETCH = 48
 
 
-def local_noise(strips: np.ndarray, noise: float, floor: np.ndarray | None = None,
-                counts: Sequence[int] | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def local_noise(strips: np.ndarray, noise: float, floor: np.ndarray | None,
+                counts: Sequence[int] | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Along every path, in stretches of STRETCH samples (about 24 px): the level and noise (mean
     absolute deviation) of the strip's pixels and of a box filter of 3 columns × 5 samples (about
     a spot's size: a matched filter). A textured surface leaves more of JPEG's and the room's
     noise in the difference than the flat background does, and a bright window's glare more
     still: each stretch is judged by its own. `strips` is (width, path samples); `floor`, per
     path sample, the least noise there (`noise_by_level`: less where the room is dark), else
-    `noise`, the picture's; `counts`, how many samples each stretch has (the last takes the rest;
-    worked out here where not given). Returns, per path sample, the pixel noise (at least the
+    `noise`, the picture's; `counts`, how many samples each stretch has (the last takes the rest:
+    `edge.paths.Strips.stretch_counts`). Returns, per path sample, the pixel noise (at least the
     floor) and the box's SNR at its best column; and the box filter (width − 2, path samples)."""
     width, n = strips.shape
     box = spot_box(strips)
@@ -223,8 +221,6 @@ def local_noise(strips: np.ndarray, noise: float, floor: np.ndarray | None = Non
     box_noise = np.add.reduce(np.minimum(dev, 4.0 * box_floor, out=dev), axis=(0, 2)) * (1.2533 / per)
     # Each stretch's value repeated over its samples: the same as .take() of each sample's
     # stretch, for half the instructions (a run of copies, not an index read per sample).
-    if counts is None:
-        counts = np.bincount(np.minimum(np.arange(n) // block, nb - 1), minlength=nb)
     # Halfway (geometrically) between the flat background's noise and the stretch's: enough to
     # keep JPEG's ghosts on a textured surface below the threshold, not so much that a spot's
     # own neighbourhood hides it.

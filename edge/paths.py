@@ -125,10 +125,10 @@ class Strips:
         phase = (self.bg_v[first:] % 2) * 2 + self.bg_u[first:] % 2
         flips = ((0, 0), (1, NEIGHBOURS.index((1, 0)) + 1), (2, NEIGHBOURS.index((0, 1)) + 1),
                  (3, NEIGHBOURS.index((1, 1)) + 1))
-        self.parity_rows = [row for _, row in flips]
         parity = np.concatenate([phase ^ flip for flip, _ in flips])
-        self.parity_onehot = (parity[:, None] == np.arange(4)[None, :]).astype(np.float32)
-        self.parity_count = [max(float(c), 1.0) for c in self.parity_onehot.sum(axis=0)]
+        onehot = (parity[:, None] == np.arange(4)[None, :]).astype(np.float32)
+        # (rows, one-hot matrix, counts): `noise_texture`'s `parity`, made once here.
+        self.parity = ([row for _, row in flips], onehot, [max(float(c), 1.0) for c in onehot.sum(axis=0)])
         self._flat: dict[tuple[int, tuple[float, ...]], list[tuple[np.ndarray, float]]] = {}
 
     def near_samples(self) -> tuple[np.ndarray, np.ndarray]:

@@ -27,7 +27,6 @@ import numpy as np
 from edge.framenoise import (
     NEIGHBOURS,
     NOISE_FLOOR_FRACTION,
-    WHITE,
     Texture,
     jpeg_blockiness,
     kth,
@@ -610,8 +609,7 @@ class SpotFinder:
         where the noise shows no Bayer filter."""
         strips = self.strips
         texture = noise_texture(diff[strips.near_block], centre, noise,
-                                colour and self._weights == CHANNEL_WEIGHTS["red"],
-                                (strips.parity_rows, strips.parity_onehot, strips.parity_count))
+                                colour and self._weights == CHANNEL_WEIGHTS["red"], strips.parity)
         if texture.bayer is None and self._sites.parity is not None and colour:
             texture.bayer, texture.demosaiced = self._sites.parity, True
         return texture
@@ -711,7 +709,7 @@ class SpotFinder:
         `scales` and `planes` are `_scales` and `_planes` of the frames, which `find` works out
         once for all its windows (None: work them out here). `reach`: how far from the path a
         spot may lie and be kept (default `path_tolerance`; `find`'s strays go farther)."""
-        texture = texture or Texture(*WHITE)
+        texture = texture or Texture()
         cam = self.rig.camera
         r = self._radius
         cu, cv = float(seed[0]), float(seed[1])
