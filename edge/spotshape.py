@@ -188,6 +188,130 @@ def fit_unsaturated(signal: np.ndarray, unsaturated: np.ndarray, r: int, floor: 
     return None if fit is None else gaussian_centre(fit[0])
 
 
+def fit_round(above: np.ndarray, use: np.ndarray | None, var: np.ndarray, powers: np.ndarray,
+              start: tuple[float, float, float], steps: int = 4) -> tuple[float, float, float, np.ndarray] | None:
+    """A round Gaussian A·exp(−r²/2s²) fitted by weighted least squares to the pixels `use` of
+    `above` (every pixel where None), each weighed by 1/`var`, from `start` (du, dv, s²): its
+    centre (du, dv) from the window's centre, χ² per degree of freedom, and the centre's
+    covariance (2, 2; px², from the noise `var` alone). `powers` is the window's `window_powers`.
+    None where it leaves a spot (its centre more than a pixel from the start, a width out of
+    0.3-6 px, no light).
+
+    Where a centroid weighs every pixel over its threshold alike and drops the rest, this fit
+    weighs each by its noise, and its χ² tells a spot whose shape a Gaussian does not explain
+    (JPEG's blocks and ringing, speckle, another light in the window). Gauss–Newton steps in the
+    amplitude, the centre and s², the amplitude solved exactly after each (it is linear), at most
+    `steps` of them. (The design from the window's powers by one product, and the 3 × 3 algebra
+    in plain floats: numpy's calls, not the arithmetic on a few dozen pixels, are what a step
+    costs.)"""
+    u, v, s2 = start
+    if use is None:
+        pw = powers
+        val = above.ravel().astype(np.float64)
+        w = 1.0 / var.ravel().astype(np.float64)
+    else:
+        idx = use.ravel().nonzero()[0]
+        pw = powers.take(idx, axis=1)
+        val = above.ravel().take(idx).astype(np.float64)
+        w = 1.0 / var.ravel().take(idx).astype(np.float64)
+    n = val.size
+    if n < 12:
+        return None
+    wv = w * val
+    # Rows: the Jacobian (amplitude, u, v, s²), then the residual: one product gives the normal
+    # equations and their right-hand side.
+    rows = np.empty((5, n))
+
+    def shape(u: float, v: float, s2: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+        # (x − u)/s², (y − v)/s² and r²/2s⁴ from the powers (1, x, x², y, y²) by one product:
+        # times the model, the derivatives by u, v and s²; then the Gaussian and its amplitude.
+        k, h = 1.0 / s2, 0.5 / (s2 * s2)
+        d = np.array([[-u * k, k, 0.0, 0.0, 0.0], [-v * k, 0.0, 0.0, k, 0.0],
+                      [(u * u + v * v) * h, -2.0 * u * h, h, -2.0 * v * h, h]]).dot(pw)
+        g = np.exp(d[2] * -s2)
+        wg = w * g
+        gg = float(wg.dot(g))
+        amp = float(wv.dot(g)) / gg if gg > 0.0 else 0.0
+        if amp <= 0.0:
+            return None
+        return d, g, amp
+
+    def normal(d: np.ndarray, g: np.ndarray, amp: float) -> np.ndarray:
+        m = amp * g
+        rows[0] = g
+        np.multiply(d, m, out=rows[1:4])
+        np.subtract(val, m, out=rows[4])
+        return (rows[:4] * w).dot(rows.T)  # (4, 5): JᵀWJ and JᵀW·residual
+
+    start_u, start_v = u, v
+    got = shape(u, v, s2)
+    if got is None:
+        return None
+    for _ in range(steps):
+        reduced = _reduced(normal(*got))
+        if reduced is None:
+            return None
+        su, sv, ss = _solve3(*reduced)
+        su, sv = min(max(su, -0.5), 0.5), min(max(sv, -0.5), 0.5)
+        grown = min(max(s2 + ss, 0.5 * s2), 2.0 * s2)
+        # (A hundredth of a pixel: far below any spot's σ.)
+        settled = abs(su) < 0.01 and abs(sv) < 0.01 and abs(grown - s2) < 0.01 * s2
+        u, v, s2 = u + su, v + sv, grown
+        got = shape(u, v, s2)
+        if got is None:
+            return None
+        if settled:
+            break
+    if not 0.09 < s2 < 36.0 or abs(u - start_u) > 1.0 or abs(v - start_v) > 1.0:
+        return None
+    reduced = _reduced(normal(*got))
+    if reduced is None:
+        return None
+    cov = _centre_cov(reduced[0])
+    if cov is None:
+        return None
+    res = rows[4]
+    return u, v, float((w * res).dot(res)) / (n - 4), cov
+
+
+def _reduced(both: np.ndarray) -> tuple[list[list[float]], list[float]] | None:
+    """The normal equations (4, 5: JᵀWJ | JᵀW·residual, the amplitude first) with the amplitude
+    eliminated: the 3 × 3 system of the centre and s² (its Schur complement), exactly the same
+    step for them. (Plain floats: numpy's solve costs more to call than this arithmetic.)"""
+    m = both.tolist()
+    a = m[0][0]
+    if a <= 0.0:
+        return None
+    b, ra = m[0][1:4], m[0][4]
+    matrix = [[m[i + 1][j + 1] - b[i] * b[j] / a for j in range(3)] for i in range(3)]
+    rhs = [m[i + 1][4] - b[i] * ra / a for i in range(3)]
+    return matrix, rhs
+
+
+def _solve3(matrix: list[list[float]], rhs: list[float]) -> tuple[float, float, float]:
+    """x of matrix · x = rhs (3 × 3, by Cramer's rule; a singular one gives no step)."""
+    (a, b, c), (d, e, f), (g, h, i) = matrix
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if det == 0.0:
+        return 0.0, 0.0, 0.0
+    p, q, r = rhs
+    x = (p * (e * i - f * h) - b * (q * i - f * r) + c * (q * h - e * r)) / det
+    y = (a * (q * i - f * r) - p * (d * i - f * g) + c * (d * r - q * g)) / det
+    z = (a * (e * r - q * h) - b * (d * r - q * g) + p * (d * h - e * g)) / det
+    return x, y, z
+
+
+def _centre_cov(matrix: list[list[float]]) -> np.ndarray | None:
+    """The centre's (2, 2) block of the inverse of the reduced normal matrix (`_reduced`): the
+    centre's covariance, the amplitude and s² free. None where the matrix is singular."""
+    (a, b, c), (d, e, f), (g, h, i) = matrix
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if det == 0.0:
+        return None
+    return np.array([[(e * i - f * h) / det, (c * h - b * i) / det],
+                     [(f * g - d * i) / det, (a * i - c * g) / det]])
+
+
 @functools.lru_cache(maxsize=16)
 def window_offsets(r: int) -> np.ndarray:
     """A window's offsets from its centre, −r … r (float32)."""

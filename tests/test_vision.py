@@ -406,7 +406,10 @@ def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red
     before = _placed(renderer, views, "auto")
     assert _share_and_rms(before)[0] == 0.0 and _share_and_rms(looked)[0] >= 0.5
     assert within(looked) >= 0.8 and within(before) <= 0.6
-    assert _share_and_rms(looked)[1] <= _share_and_rms(before)[1]
+    # Unlooked, JPEG's spots are placed by a Gaussian fitted over the window (not the centroid
+    # locked onto a red pixel), about as well (0.40 px RMS against 0.41): what the looks bring
+    # is a σ that holds the errors.
+    assert _share_and_rms(looked)[1] <= 1.1 * _share_and_rms(before)[1]
     again = _placed(*_small_jpeg_spots("none"), "auto")
     assert [(e.tolist(), s) for e, s, _ in plain] == [(e.tolist(), s) for e, s, _ in again]
 
@@ -650,3 +653,34 @@ def test_a_patch_one_level_up_in_coarse_frames_is_no_spot(monkeypatch: pytest.Mo
     assert blob.snr > 100
     taken = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
     assert taken.status == "ok" and taken.range_m == pytest.approx(0.45, abs=0.01)
+
+
+def test_jpeg_frames_spots_are_placed_by_a_gaussian_fitted_over_the_window(monkeypatch) -> None:
+    """JPEG keeps a spot as a few blocks' coarse frequencies and rings about them: the centroid of
+    what stands over the threshold follows the blocks. The Gaussian weighed pixel by pixel over the
+    window (`spotshape.fit_round`) places the office's JPEG spots 0.16 px off per axis on average
+    where the centroid put them 0.26 px off, and the σ it gives still holds every one at 2σ."""
+
+    def placed() -> list[tuple[float, float]]:
+        out = []
+        for quality in (55, 70):
+            renderer = _renderer(load_scene("office"), jpeg_quality=quality, jpeg_chroma="4:2:0")
+            finder = SpotFinder(renderer.rig, channel="auto")
+            for k, pan in enumerate(np.arange(-180.0, 180.0, 45.0)):
+                on, off = _pair(renderer, pan=float(pan), seed=k)
+                truth = renderer.spots(float(pan), 0.0)
+                for name, cands in finder.find([on], [off]).items():
+                    if name in truth and cands:
+                        off_by = float(np.linalg.norm(cands[0].pixel - truth[name].pixel))
+                        if off_by < 3.0:  # the spot, not another blob
+                            out.append((off_by / math.sqrt(2.0), cands[0].sigma_px))
+        return out
+
+    fitted = placed()
+    monkeypatch.setattr(vision, "fit_round", lambda *args, **kwargs: None)  # the centroid, as before
+    centroid = placed()
+    assert len(fitted) >= 30 and len(centroid) >= 30
+    mean_fitted = float(np.mean([e for e, _ in fitted]))
+    mean_centroid = float(np.mean([e for e, _ in centroid]))
+    assert mean_fitted < 0.85 * mean_centroid, (mean_fitted, mean_centroid)
+    assert all(e <= 2.0 * s for e, s in fitted)
