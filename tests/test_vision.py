@@ -235,24 +235,30 @@ def test_auto_channel_without_chroma_noise_stays_red() -> None:
     assert finder.channel == "red"  # JPEG quantised the noise away: no evidence, no change
 
 
+def _office_jpeg_spots(qualities: tuple[int, ...], pan_step: float) -> list[tuple[float, float, float]]:
+    """(misfit, σ px, error px per axis) of each laser's first spot in the office through JPEG 4:2:0
+    at `qualities`, a view every `pan_step`° (spots over 3 px off are another blob, left out)."""
+    spots = []
+    for quality in qualities:
+        renderer = _renderer(load_scene("office"), jpeg_quality=quality, jpeg_chroma="4:2:0")
+        finder = SpotFinder(renderer.rig, channel="auto")
+        for k, pan in enumerate(np.arange(-180.0, 180.0, pan_step)):
+            on, off = _pair(renderer, pan=float(pan), seed=k)
+            truth = renderer.spots(float(pan), 0.0)
+            for name, cands in finder.find([on], [off]).items():
+                if name in truth and cands:
+                    off_by = float(np.linalg.norm(cands[0].pixel - truth[name].pixel))
+                    if off_by < 3.0:
+                        spots.append((cands[0].misfit, cands[0].sigma_px, off_by / math.sqrt(2.0)))
+    return spots
+
+
 def test_a_jpeg_spot_that_a_gaussian_fits_badly_is_not_placed_far_more_loosely_than_it_is() -> None:
     """JPEG's blocks distort a spot's shape far more than they move its centre: a misfit (χ²/dof)
     of 30 grew σ 5.5 ×, and such spots were off by a third of their σ (RMS) or less, which left a
     reference `ambiguous` (too loose) or let a far laser on another surface pass the χ² test. Here
     σ stays within 2.4 × the RMS error for misfits over 4, and still covers every spot at 2σ."""
-    spots = []
-    for quality in (55, 65):
-        renderer = _renderer(load_scene("office"), jpeg_quality=quality, jpeg_chroma="4:2:0")
-        finder = SpotFinder(renderer.rig, channel="auto")
-        for k, pan in enumerate(np.arange(-180.0, 180.0, 30.0)):
-            on, off = _pair(renderer, pan=float(pan), seed=k)
-            truth = renderer.spots(float(pan), 0.0)
-            for name, cands in finder.find([on], [off]).items():
-                if name not in truth or not cands:
-                    continue
-                off_by = float(np.linalg.norm(cands[0].pixel - truth[name].pixel))
-                if off_by < 3.0:  # the spot, not another blob
-                    spots.append((cands[0].misfit, cands[0].sigma_px, off_by / np.sqrt(2.0)))  # per axis
+    spots = _office_jpeg_spots((55, 65), 30.0)
     misfits = [(s, e) for m, s, e in spots if m > 4.0]
     assert len(misfits) >= 10 and len(spots) >= 50
     assert np.sqrt(np.mean([(e / s) ** 2 for s, e in misfits])) > 1 / 2.4
@@ -661,26 +667,11 @@ def test_jpeg_frames_spots_are_placed_by_a_gaussian_fitted_over_the_window(monke
     window (`spotshape.fit_round`) places the office's JPEG spots 0.16 px off per axis on average
     where the centroid put them 0.26 px off, and the σ it gives still holds every one at 2σ."""
 
-    def placed() -> list[tuple[float, float]]:
-        out = []
-        for quality in (55, 70):
-            renderer = _renderer(load_scene("office"), jpeg_quality=quality, jpeg_chroma="4:2:0")
-            finder = SpotFinder(renderer.rig, channel="auto")
-            for k, pan in enumerate(np.arange(-180.0, 180.0, 45.0)):
-                on, off = _pair(renderer, pan=float(pan), seed=k)
-                truth = renderer.spots(float(pan), 0.0)
-                for name, cands in finder.find([on], [off]).items():
-                    if name in truth and cands:
-                        off_by = float(np.linalg.norm(cands[0].pixel - truth[name].pixel))
-                        if off_by < 3.0:  # the spot, not another blob
-                            out.append((off_by / math.sqrt(2.0), cands[0].sigma_px))
-        return out
-
-    fitted = placed()
+    fitted = _office_jpeg_spots((55, 70), 45.0)
     monkeypatch.setattr(vision, "fit_round", lambda *args, **kwargs: None)  # the centroid, as before
-    centroid = placed()
+    centroid = _office_jpeg_spots((55, 70), 45.0)
     assert len(fitted) >= 30 and len(centroid) >= 30
-    mean_fitted = float(np.mean([e for e, _ in fitted]))
-    mean_centroid = float(np.mean([e for e, _ in centroid]))
+    mean_fitted = float(np.mean([e for _, _, e in fitted]))
+    mean_centroid = float(np.mean([e for _, _, e in centroid]))
     assert mean_fitted < 0.85 * mean_centroid, (mean_fitted, mean_centroid)
-    assert all(e <= 2.0 * s for e, s in fitted)
+    assert all(e <= 2.0 * s for _, s, e in fitted)
