@@ -251,7 +251,11 @@ def fit_round(above: np.ndarray, use: np.ndarray | None, var: np.ndarray, powers
         reduced = _reduced(normal(*got))
         if reduced is None:
             return None
-        su, sv, ss = _solve3(*reduced)
+        inverse = _inverse3(reduced[0])
+        if inverse is None:
+            return None
+        p, q, r = reduced[1]
+        su, sv, ss = (row[0] * p + row[1] * q + row[2] * r for row in inverse)
         su, sv = min(max(su, -0.5), 0.5), min(max(sv, -0.5), 0.5)
         grown = min(max(s2 + ss, 0.5 * s2), 2.0 * s2)
         # (A hundredth of a pixel: far below any spot's σ.)
@@ -264,20 +268,21 @@ def fit_round(above: np.ndarray, use: np.ndarray | None, var: np.ndarray, powers
             break
     if not 0.09 < s2 < 36.0 or abs(u - start_u) > 1.0 or abs(v - start_v) > 1.0:
         return None
+    # The centre's covariance: its block of the inverse of the normal matrix at the fit, the
+    # amplitude and s² free.
     reduced = _reduced(normal(*got))
-    if reduced is None:
-        return None
-    cov = _centre_cov(reduced[0])
-    if cov is None:
+    inverse = None if reduced is None else _inverse3(reduced[0])
+    if inverse is None:
         return None
     res = rows[4]
-    return u, v, float((w * res).dot(res)) / (n - 4), cov
+    return u, v, float((w * res).dot(res)) / (n - 4), np.array([inverse[0][:2], inverse[1][:2]])
 
 
 def _reduced(both: np.ndarray) -> tuple[list[list[float]], list[float]] | None:
     """The normal equations (4, 5: JᵀWJ | JᵀW·residual, the amplitude first) with the amplitude
     eliminated: the 3 × 3 system of the centre and s² (its Schur complement), exactly the same
-    step for them. (Plain floats: numpy's solve costs more to call than this arithmetic.)"""
+    step for them. (Plain floats: numpy's solve costs more to call than this arithmetic.) None
+    where the amplitude's own term is not positive."""
     m = both.tolist()
     a = m[0][0]
     if a <= 0.0:
@@ -288,28 +293,16 @@ def _reduced(both: np.ndarray) -> tuple[list[list[float]], list[float]] | None:
     return matrix, rhs
 
 
-def _solve3(matrix: list[list[float]], rhs: list[float]) -> tuple[float, float, float]:
-    """x of matrix · x = rhs (3 × 3, by Cramer's rule; a singular one gives no step)."""
+def _inverse3(matrix: list[list[float]]) -> list[list[float]] | None:
+    """The inverse of a 3 × 3 matrix by its adjugate (plain floats); None where it is singular."""
     (a, b, c), (d, e, f), (g, h, i) = matrix
-    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
-    if det == 0.0:
-        return 0.0, 0.0, 0.0
-    p, q, r = rhs
-    x = (p * (e * i - f * h) - b * (q * i - f * r) + c * (q * h - e * r)) / det
-    y = (a * (q * i - f * r) - p * (d * i - f * g) + c * (d * r - q * g)) / det
-    z = (a * (e * r - q * h) - b * (d * r - q * g) + p * (d * h - e * g)) / det
-    return x, y, z
-
-
-def _centre_cov(matrix: list[list[float]]) -> np.ndarray | None:
-    """The centre's (2, 2) block of the inverse of the reduced normal matrix (`_reduced`): the
-    centre's covariance, the amplitude and s² free. None where the matrix is singular."""
-    (a, b, c), (d, e, f), (g, h, i) = matrix
-    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    ei, di, dh = e * i - f * h, d * i - f * g, d * h - e * g
+    det = a * ei - b * di + c * dh
     if det == 0.0:
         return None
-    return np.array([[(e * i - f * h) / det, (c * h - b * i) / det],
-                     [(f * g - d * i) / det, (a * i - c * g) / det]])
+    return [[ei / det, (c * h - b * i) / det, (b * f - c * e) / det],
+            [-di / det, (a * i - c * g) / det, (c * d - a * f) / det],
+            [dh / det, (b * g - a * h) / det, (a * e - b * d) / det]]
 
 
 @functools.lru_cache(maxsize=16)
