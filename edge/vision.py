@@ -61,6 +61,21 @@ CHROMA_LAG2 = 0.4
 DEMOSAIC_PX = 0.25
 DEMOSAIC_SNAP_PX = 0.55
 DEMOSAIC_SNAP_SIZE_PX = 0.6
+# Colour frames read in luma (JPEG 4:2:0, and 4:4:4 whose chroma JPEG quantised coarsely: `auto`)
+# come from behind a Bayer filter, as every colour webcam's and Pi camera's do, though JPEG keeps too
+# little of the noise for `noise_texture` to show it. The luma of a red spot is mostly its red,
+# interpolated between the filter's red pixels, and carries red's shift: LUMA_DEMOSAIC_PX, all of
+# it locked to the pixel grid (a nudged view keeps it). That explains part of what JPEG_COMMON_PX
+# stood for in such frames, whose lasers' spots then share LUMA_JPEG_COMMON_PX. On the tuning
+# family's JPEG colour frames (tuning 320-959, 280 conditions; the rest do not change): `ok` zones
+# outside 2σ 25 → 18, conditions under 90 % within 2σ 12 → 10, wrong `ok` 4 → 3, |error| ÷ floor
+# 2.41 → 2.28, coverage 2140 → 2148 of 2747; tuning 960-1151: 6 → 5 conditions, 2.43 → 2.27,
+# coverage 613 → 611 of 783. The term alone, with JPEG_COMMON_PX kept, cost coverage (2086, 598);
+# with a common term of 0.10 and 0.12 px: 2130 and 2120, 9 and 7 conditions. Red's own term for
+# small spots' snap (`_grid_px`) cost more coverage and caught no more; the term unlocked, or
+# locked and not added, did not catch them.
+LUMA_DEMOSAIC_PX = DEMOSAIC_PX
+LUMA_JPEG_COMMON_PX = 0.08
 # A spot placed by its pixels' own values behind a Bayer filter, red's and green's (raw frames;
 # `fit_sites`), keeps this share of DEMOSAIC_PX, and all of the snap: no interpolation moves those
 # values, but a small spot's wings on them still pull it. On tuning 0-95's raw Bayer frames, such
@@ -381,7 +396,7 @@ class SpotFinder:
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
         shot = noise**2 / (2.0 * max(off_level, 1e-3))
-        texture = self._texture(diff, centre, noise, colour=on[0].ndim == 3)
+        texture = self._texture(diff, centre, noise, on[0].ndim == 3, bool(self._jpeg))
         self._demosaiced = texture.demosaiced
         seeds = self._detect(diff, off_vals, deviation, noise, quantum, names, near, threshold, on, off, gain,
                              max_candidates)
@@ -538,16 +553,25 @@ class SpotFinder:
             shift -= (1.0 - SITE_GRID_SHARE) * DEMOSAIC_PX
         return shift, snap * (DEMOSAIC_SNAP_PX - DEMOSAIC_PX)
 
-    def grid_px(self, size: float) -> tuple[float, float]:
-        """`_grid_px` of a spot in the frames of the last `find` (0, 0 where they were not
-        demosaiced): for spots placed outside it (edge.deblend)."""
-        return self._grid_px(size) if self._demosaiced else (0.0, 0.0)
+    def grid_px(self, size: float, own_values: bool = False) -> tuple[float, float]:
+        """What demosaicing adds to the σ of a spot of RMS radius `size` in the frames of the last
+        `find`, and its part locked to the pixel grid (`_grid_px`; LUMA_DEMOSAIC_PX, all locked,
+        for colour frames read in luma; 0, 0 where they were not demosaiced): for `find`'s own
+        spots, and for spots placed outside it (edge.deblend)."""
+        if not self._demosaiced:
+            return 0.0, 0.0
+        if self._weights == CHANNEL_WEIGHTS["luma"]:
+            return LUMA_DEMOSAIC_PX, LUMA_DEMOSAIC_PX
+        return self._grid_px(size, own_values)
 
     @property
     def common_px(self) -> float:
         """The part of every spot's position error that the frames' pipeline shares among the
-        lasers' spots (px): JPEG_COMMON_PX in JPEG frames, 0 in others (or before any frame)."""
-        return JPEG_COMMON_PX if self._jpeg else 0.0
+        lasers' spots (px): JPEG_COMMON_PX in JPEG frames (LUMA_JPEG_COMMON_PX in colour ones read
+        in luma), 0 in others (or before any frame)."""
+        if not self._jpeg:
+            return 0.0
+        return LUMA_JPEG_COMMON_PX if self._demosaiced and self._weights == CHANNEL_WEIGHTS["luma"] else JPEG_COMMON_PX
 
     @property
     def spot_radius_px(self) -> float:
@@ -606,15 +630,18 @@ class SpotFinder:
         var = float(c[0] @ c[0])
         return float(c[0] @ c[1]) / var if var > 0 else None
 
-    def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool) -> Texture:
+    def _texture(self, diff: np.ndarray, centre: float, noise: float, colour: bool, jpeg: bool) -> Texture:
         """`noise_texture` of the difference at the background samples and their neighbours, with
         the red pixels' parity that bright spots told (`edge.redsites.SiteLook`)
-        where the noise shows no Bayer filter."""
+        where the noise shows no Bayer filter; colour frames that were JPEG (`jpeg`) read in luma
+        are taken as demosaiced (LUMA_DEMOSAIC_PX)."""
         strips = self.strips
         texture = noise_texture(diff[strips.near_block], centre, noise,
                                 colour and self._weights == CHANNEL_WEIGHTS["red"], strips.parity)
         if texture.bayer is None and self._sites.parity is not None and colour:
             texture.bayer, texture.demosaiced = self._sites.parity, True
+        elif colour and jpeg and self._weights == CHANNEL_WEIGHTS["luma"]:
+            texture.demosaiced = True  # (JPEG hides the filter that luma's red carries: LUMA_DEMOSAIC_PX)
         return texture
 
     def _seeds(self, band, start, peaks, score, bright, dim, strips, box, profile, pixel_noise, matched, on, off,
@@ -860,7 +887,7 @@ class SpotFinder:
                             + shot * max(mxx - 2.0 * du * mx + du * du * mass, 0.0))
             var_v = grow * (noise2 * max(nyy - 2.0 * dv * ny + dv * dv * n0, 0.0)
                             + shot * max(myy - 2.0 * dv * my + dv * dv * mass, 0.0))
-        demosaic, locked = (self._grid_px(size, own_values=site_width is not None and not self._jpeg)
+        demosaic, locked = (self.grid_px(size, own_values=site_width is not None and not self._jpeg)
                             if texture.demosaiced else (0.0, 0.0))
         var_u += demosaic**2
         var_v += demosaic**2
@@ -910,7 +937,7 @@ class SpotFinder:
             diff = self._difference([first], [second])[0]
             centre, _, noise = self._spread(diff)
             # (The texture as find measures it, with the noise floored at the values' step.)
-            texture = self._texture(diff, centre, max(noise, self._quantum(first, second)), colour)
+            texture = self._texture(diff, centre, max(noise, self._quantum(first, second)), colour, jpeg)
         finally:
             self._weights = kept
         channel = "grey" if not colour else "luma" if weights == CHANNEL_WEIGHTS["luma"] else "red"

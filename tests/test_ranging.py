@@ -185,17 +185,20 @@ def test_a_wall_seen_obliquely_is_fused_within_sigma_when_a_laser_hits_aside() -
 
 def test_jpeg_frames_keep_what_their_blocks_pull_in_common_out_of_the_fused_sigma() -> None:
     """The lasers' spots lie in one column of JPEG's blocks, which pull them alike: fusing them
-    does not average that part. Lossless frames have none."""
-    from edge.vision import JPEG_COMMON_PX
+    does not average that part. Lossless frames have none. (Colour frames read in luma carry a
+    demosaicing shift of their own, locked to each spot, and share less: vision.LUMA_JPEG_COMMON_PX.)"""
+    from edge.vision import JPEG_COMMON_PX, LUMA_JPEG_COMMON_PX
 
-    config = load_config(None, ["sim.sensor.jpeg_quality=70"])
-    renderer = Renderer(flat_target_scene(2.0), config.rig.build(), config.sim)
-    ranger = Ranger(renderer.rig)
-    result = ranger.range_zone(0, 0.0, 0.0, _render_groups(renderer))
-    assert result.status == OK and len(result.lasers) == 3
-    ref = result.lasers["center"]
-    assert ranger.finder.common_px == JPEG_COMMON_PX
-    assert result.sigma_m >= JPEG_COMMON_PX * ref.sigma_m / ref.sigma_px
+    for colour, shared in ((False, JPEG_COMMON_PX), (True, LUMA_JPEG_COMMON_PX)):
+        config = load_config(None, ["sim.sensor.jpeg_quality=70", f"sim.sensor.colour={str(colour).lower()}",
+                                    "ranging.channel=luma"])
+        renderer = Renderer(flat_target_scene(2.0), config.rig.build(), config.sim)
+        ranger = Ranger(renderer.rig, config.ranging)
+        result = ranger.range_zone(0, 0.0, 0.0, _render_groups(renderer))
+        assert result.status == OK and len(result.lasers) == 3
+        ref = result.lasers["center"]
+        assert ranger.finder.common_px == shared
+        assert result.sigma_m >= shared * ref.sigma_m / ref.sigma_px
     lossless = Ranger(_wall(2.0).rig)
     lossless.range_zone(0, 0.0, 0.0, _render_groups(_wall(2.0)))
     assert lossless.finder.common_px == 0.0
