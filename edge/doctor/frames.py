@@ -56,7 +56,7 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
 
     from edge.framenoise import jpeg_blockiness
     from edge.ranging import FrameGroup, Ranger
-    from edge.vision import JPEG_BLOCKINESS
+    from edge.vision import JPEG_BLOCKINESS, LUMA_DEMOSAIC_PX
 
     if len(frames) < 2:
         raise ValueError("the frames line needs two laser-off frames or more")
@@ -89,6 +89,9 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
     if channel == "red" and not grey:
         words.append(_demosaiced(kinds))
     words.append(_channel(channel, config.ranging.channel, [k.chroma_lag2 for k in kinds]))
+    if channel == "luma" and not grey and _most(k.demosaiced for k in kinds):
+        words.append(f"taken as behind a Bayer filter, as colour webcams are: each spot carries its "
+                     f"{LUMA_DEMOSAIC_PX:g} px")
     full = finder.full_scale(seen[0])
     level = f"{noise * full:.1f} levels of {full:.0f}" if noise * full >= 0.05 else "under a level"
     if config.ranging.frame_gamma != 1.0:
