@@ -404,7 +404,8 @@ def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red
     demosaiced centroid, locked onto the nearest red pixel a few tenths of a pixel off, and claimed a
     tenth of a pixel (tuning-371: two zones 11 % off, `ok` at 4.5-4.8 % σ). Demosaicing bends red
     only at the red pixels, which bright spots show: the finder learns the filter from the first
-    few, reads red, and places the later spots by their red pixels, with a σ that holds their errors.
+    few, reads red, and places the later spots by their red pixels, with a σ that holds their errors
+    (as luma's σ now does before they are told: it carries red's demosaicing shift).
     Without a filter spots show no such bends: the looks change nothing."""
 
     def within(placed: list[tuple[np.ndarray, float, bool]]) -> float:
@@ -421,7 +422,7 @@ def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red
     assert within(looked) >= 0.8 and within(before) >= 0.8
     # Unlooked, JPEG's spots are placed by a Gaussian fitted over the window (not the centroid
     # locked onto a red pixel), about as well (0.40 px RMS against 0.41): what the looks bring
-    # is a σ that holds the errors.
+    # is red read, and spots placed by its own pixels.
     assert _share_and_rms(looked)[1] <= 1.1 * _share_and_rms(before)[1]
     again = _placed(*_small_jpeg_spots("none"), "auto")
     assert [(e.tolist(), s) for e, s, _ in plain] == [(e.tolist(), s) for e, s, _ in again]
