@@ -14,7 +14,7 @@ import pytest
 
 from edge.accuracy import conditions as cond
 from edge.accuracy.floor import OBSERVABLE_SNR, spot_profile
-from edge.accuracy.score import Figures, ZoneOutcome, targets
+from edge.accuracy.score import Figures, ZoneOutcome, failing_by_chance, targets
 from edge.config import load_config
 from edge.ranging import OK, ZoneResult
 
@@ -356,3 +356,16 @@ def test_coverage_counts_the_zones_observable_in_their_frames() -> None:
     assert seen.observable_model and not seen.observable
     figures = Figures.of([seen, replace(seen, index=1, frame_snr=None)])
     assert (figures.observable, figures.observable_model) == (1, 2)
+
+
+def test_honest_sigma_fails_small_conditions_by_chance() -> None:
+    # Each zone outside 2σ with probability p = 4.55 %: a condition of 5 zones fails on one miss,
+    # 1 − (1 − p)^5; one of 10 takes one miss (90 %) and fails on two; 0 zones count for nothing.
+    p = math.erfc(2.0 / math.sqrt(2.0))
+    assert p == pytest.approx(0.0455, abs=1e-4)
+    assert failing_by_chance([5]) == pytest.approx(1 - (1 - p) ** 5)
+    assert failing_by_chance([10]) == pytest.approx(1 - (1 - p) ** 10 - 10 * p * (1 - p) ** 9)
+    assert failing_by_chance([5, 10, 0]) == pytest.approx(failing_by_chance([5]) + failing_by_chance([10]))
+    # Honest σ over many small conditions: about a fifth of 5-zone conditions fail.
+    assert 0.2 < failing_by_chance([5] * 100) / 100 < 0.21
+    assert failing_by_chance([10], outside=0.0) == 0.0

@@ -21,7 +21,9 @@ The figures of ``edge bench accuracy``, and the issue's targets:
   the floor leaves out, but is no bound: the estimator can beat it where the noise is not white
   and even.
 - **within 2σ**: the share of ``ok`` zones whose |error| ≤ 2 × the σ they claim (target ≥ 90 % in
-  every condition; geometry.md asks about 95 %).
+  every condition; geometry.md asks about 95 %). Beside it, how many conditions honest Gaussian σ
+  would leave under 90 % by chance, given each condition's count of ``ok`` zones
+  (:func:`failing_by_chance`): a condition of fewer than 10 fails on a single zone.
 - **wrong ok**: ``ok`` zones more than 10 % off, or ``ok`` where the camera cannot see the reference
   spot at all (whatever was ranged, it was not the reference laser's spot). Target: none.
 
@@ -214,6 +216,25 @@ class Figures:
             ratio_beside_oracle=_mean([r for r, _ in paired]),
             oracle_ratio=_mean([o for _, o in paired]),
         )
+
+
+# The share of a Gaussian's draws beyond 2σ: what honest σ leaves outside 2σ.
+GAUSS_OUTSIDE_2SIGMA = math.erfc(2.0 / math.sqrt(2.0))
+
+
+def failing_by_chance(scored: Sequence[int], least: float = 0.90, outside: float = GAUSS_OUTSIDE_2SIGMA) -> float:
+    """How many of conditions with `scored` ok zones each would fall under `least` within 2σ by
+    chance alone, were every σ honest and Gaussian (each zone outside with probability
+    `outside`): the sum of each condition's binomial tail. With few zones one miss is enough (a
+    condition of 9 zones or fewer fails on one), so even honest σ fails some conditions."""
+    total = 0.0
+    for n in scored:
+        if n <= 0:
+            continue
+        allowed = math.floor((1.0 - least) * n + 1e-9)  # misses a condition can take and still pass
+        passing = sum(math.comb(n, k) * outside**k * (1.0 - outside) ** (n - k) for k in range(allowed + 1))
+        total += 1.0 - passing
+    return total
 
 
 @dataclass(frozen=True)
