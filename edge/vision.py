@@ -186,7 +186,9 @@ class FrameKind:
     # CHROMA_LAG2: chroma at half resolution); None where none was measured (another channel set,
     # or `auto` already decided) or the chroma shows no noise to tell by.
     chroma_lag2: float | None
-    demosaiced: bool  # red interpolated between a colour filter's pixels: spots carry DEMOSAIC_PX
+    # red interpolated between a colour filter's pixels: spots carry DEMOSAIC_PX (colour JPEG frames
+    # read in luma are taken to be: LUMA_DEMOSAIC_PX)
+    demosaiced: bool
     bayer_red: tuple[int, int] | None  # (row, column) parity of a Bayer filter's red pixels; None: none seen
     noise: float  # pixel noise (robust σ) of the two frames' difference, full-scale units; 0: none
     area: float  # how far that noise is spread over neighbouring pixels (1: white; a centroid's variance × it)
