@@ -562,9 +562,15 @@ class SpotFinder:
         spots, and for spots placed outside it (edge.deblend)."""
         if not self._demosaiced:
             return 0.0, 0.0
-        if self._weights == CHANNEL_WEIGHTS["luma"]:
+        if self._luma_demosaiced:
             return LUMA_DEMOSAIC_PX, LUMA_DEMOSAIC_PX
         return self._grid_px(size, own_values)
+
+    @property
+    def _luma_demosaiced(self) -> bool:
+        """Were the last `find`'s frames colour JPEG read in luma, taken as demosaiced (`_texture`)?
+        Their spots carry LUMA_DEMOSAIC_PX and share LUMA_JPEG_COMMON_PX."""
+        return self._demosaiced and self._weights == CHANNEL_WEIGHTS["luma"]
 
     @property
     def common_px(self) -> float:
@@ -573,7 +579,7 @@ class SpotFinder:
         in luma), 0 in others (or before any frame)."""
         if not self._jpeg:
             return 0.0
-        return LUMA_JPEG_COMMON_PX if self._demosaiced and self._weights == CHANNEL_WEIGHTS["luma"] else JPEG_COMMON_PX
+        return LUMA_JPEG_COMMON_PX if self._luma_demosaiced else JPEG_COMMON_PX
 
     @property
     def spot_radius_px(self) -> float:

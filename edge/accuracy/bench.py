@@ -28,7 +28,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from edge.accuracy.conditions import Condition
-from edge.accuracy.score import PLACEABLE_FRACTION, Figures, ZoneOutcome, failing_by_chance, targets
+from edge.accuracy.score import (
+    PLACEABLE_FRACTION,
+    WITHIN_2SIGMA_LEAST,
+    Figures,
+    ZoneOutcome,
+    failing_by_chance,
+    targets,
+)
 from edge.config import Config, load_config
 from edge.ranging import FrameGroup, Ranger, ZoneResult
 from edge.recording import Recording, ZoneRecord
@@ -370,6 +377,7 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
     lines += notes
     per = [r.figures for r in runs]
     pooled = Figures.of([z for r in runs for z in r.outcomes])
+    scored = [f for f in per if f.scored]  # conditions with ok zones to judge their σ by
     missed = ", ".join(f"{s} {n}" for s, n in sorted(pooled.missed.items(), key=lambda kv: -kv[1])) or "none"
     lines += [
         "",
@@ -383,10 +391,9 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
         f"|error| ÷ floor mean {_num(pooled.ratio_beside_oracle)}, the oracle's {_num(pooled.oracle_ratio)}: "
         f"{_num(pooled.over_oracle)} × the oracle's",
         f"  within 2σ: {_pct(pooled.within_2sigma)} of {pooled.scored} ok zones with truth "
-        f"(worst condition {_pct(min((f.within_2sigma for f in per if f.scored), default=math.nan))}); "
-        f"{sum(f.scored > 0 and f.within_2sigma < 0.90 for f in per)} of {sum(f.scored > 0 for f in per)} "
-        f"conditions under 90 %, where honest Gaussian σ would leave "
-        f"{failing_by_chance([f.scored for f in per]):.1f} by chance",
+        f"(worst condition {_pct(min((f.within_2sigma for f in scored), default=math.nan))}); "
+        f"{sum(f.within_2sigma < WITHIN_2SIGMA_LEAST for f in scored)} of {len(scored)} conditions under 90 %, "
+        f"where honest Gaussian σ would leave {failing_by_chance([f.scored for f in scored]):.1f} by chance",
         f"  observable zones not ok: {missed}",
         *([f"  observable zones the oracle places to {PLACEABLE_FRACTION:.0%} of their range in the same frames: "
            f"{pooled.placeable}, {pooled.covered_placeable} of them ok (coverage "

@@ -218,11 +218,14 @@ class Figures:
         )
 
 
+# The target's share of a condition's ok zones within their claimed 2σ.
+WITHIN_2SIGMA_LEAST = 0.90
 # The share of a Gaussian's draws beyond 2σ: what honest σ leaves outside 2σ.
 GAUSS_OUTSIDE_2SIGMA = math.erfc(2.0 / math.sqrt(2.0))
 
 
-def failing_by_chance(scored: Sequence[int], least: float = 0.90, outside: float = GAUSS_OUTSIDE_2SIGMA) -> float:
+def failing_by_chance(scored: Sequence[int], least: float = WITHIN_2SIGMA_LEAST,
+                      outside: float = GAUSS_OUTSIDE_2SIGMA) -> float:
     """How many of conditions with `scored` ok zones each would fall under `least` within 2σ by
     chance alone, were every σ honest and Gaussian (each zone outside with probability
     `outside`): the sum of each condition's binomial tail. With few zones one miss is enough (a
@@ -250,7 +253,7 @@ def targets(per_condition: Sequence[Figures], pooled: Figures) -> list[Target]:
     return [
         Target("wrong ok = 0", pooled.wrong_ok, pooled.wrong_ok == 0),
         Target("within 2σ ≥ 90 % in every condition (worst)", worst_within,
-               not math.isnan(worst_within) and worst_within >= 0.90),
+               not math.isnan(worst_within) and worst_within >= WITHIN_2SIGMA_LEAST),
         Target("coverage ≥ 90 % of observable zones", pooled.coverage,
                not math.isnan(pooled.coverage) and pooled.coverage >= 0.90),
         Target(f"mean |error| ÷ floor ≤ 1.5 (at the floor: {EFFICIENT_RATIO:.2f})", pooled.mean_ratio,
