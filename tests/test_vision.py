@@ -683,3 +683,21 @@ def test_jpeg_frames_spots_are_placed_by_a_gaussian_fitted_over_the_window(monke
     mean_centroid = float(np.mean([e for _, _, e in centroid]))
     assert mean_fitted < 0.85 * mean_centroid, (mean_fitted, mean_centroid)
     assert all(e <= 2.0 * s for _, s, e in fitted)
+
+
+@pytest.mark.parametrize(("sensor", "carried"), [
+    ({"jpeg_quality": 70}, vision.LUMA_DEMOSAIC_PX),  # colour JPEG: a webcam's, behind a filter
+    ({}, 0.0),  # lossless colour frames show their filter (or none) in their own noise
+    ({"jpeg_quality": 70, "colour": False}, 0.0),  # grey frames have no colour filter
+])
+def test_only_colour_jpeg_read_in_luma_is_taken_as_demosaiced(sensor: dict, carried: float) -> None:
+    """JPEG hides a Bayer filter from the noise, and luma of a red spot is its interpolated red:
+    such spots carry red's demosaicing shift, all of it locked to the pixel grid, in their σ.
+    Frames that can show their filter, and grey ones, are not taken as demosaiced."""
+    renderer = _renderer(load_scene("office"), **sensor)
+    finder = SpotFinder(renderer.rig, channel="luma")
+    on, off = _pair(renderer, pan=-90.0, seed=3)  # a wall about 1.3 m away
+    found = finder.find([on], [off])["center"]
+    assert found and found[0].locked_px == carried
+    assert found[0].sigma_px >= carried
+    assert finder.frame_kind(off, _pair(renderer, pan=-90.0, seed=4)[1]).demosaiced == (carried > 0.0)
