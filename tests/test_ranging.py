@@ -731,6 +731,39 @@ def test_a_faint_reference_in_some_views_is_not_confirmed_by_a_far_laser_alone()
         assert abs(result.range_m - 2.0) <= 2 * result.sigma_m
 
 
+def test_a_faint_reference_that_the_views_pooled_hold_is_ranged(monkeypatch) -> None:
+    """The reference spot faint, found in one of the zone's two views; the other view holds it at
+    two-thirds of that light, too faint there for the finder (speckle dims a spot from one view to
+    the next), and only the far laser confirms it. Pooled, the two views show it as high above
+    their noise as the one did: it is ranged. The same spot in one view alone is not (a blob that
+    one frame holds sinks when pooled), nor with the pooled views asked for more than they show."""
+    import edge.ranging
+
+    renderer = _wall(2.0)
+    rig = renderer.rig
+
+    def zone(powers: tuple[float, float], seed: int):
+        groups = []
+        for k, power in enumerate(powers):
+            rng = np.random.default_rng([seed, k])
+            view = 0.0514 * k
+            lasers = {"sloped": 1.0} | ({"center": power} if power else {})
+            on = renderer.render(view, 0.0, lasers, 0.0, rng)
+            off = renderer.render(view, 0.0, {}, 0.0, rng)
+            groups.append(FrameGroup([on], [off], rig.laser_names, (view, 0.0)))
+        return Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+
+    for seed in (1, 3):
+        held = zone((0.05, 0.0325), seed)
+        assert held.status == OK, (seed, held.detail)
+        assert abs(held.range_m - 2.0) <= 2 * held.sigma_m
+        once = zone((0.05, 0.0), seed)
+        assert once.status == AMBIGUOUS and "1 of the zone's 2 views" in once.detail, (seed, once.detail)
+    monkeypatch.setattr(edge.ranging, "POOLED_RISE", 1.5)
+    asked_more = zone((0.05, 0.0325), 1)
+    assert asked_more.status == AMBIGUOUS and "1 of the zone's 2 views" in asked_more.detail
+
+
 @pytest.mark.slow  # one condition of the accuracy bench's tuning family, 24 zones
 def test_a_loose_blob_beside_the_spot_that_gives_the_same_range_is_no_ambiguity(tmp_path) -> None:
     """Tuning-31 (640 px, Bayer, JPEG 85), zone 9: beside a bright spot at 0.96 m, a faint blob
