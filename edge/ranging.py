@@ -51,13 +51,14 @@ LOOSE_WINNER_PX = 1.0
 # the others with at least this share of its light, or the beam is on an edge (Ranger._comes_and_goes).
 EDGE_MIN_SNR = 10.0
 EDGE_LIGHT_RATIO = 0.3
-# A faint reference spot that shows in some of the zone's views and not in others counts only where
-# those views pooled show it at least this share of its SNR in the view that showed it
-# (Ranger._pooled_holds). What one frame alone holds (JPEG's blocks changing) pools to about 1/√2 of
-# its SNR; a spot that the other view holds a quarter as bright or more, to about 0.9 or more. On
-# the tuning family (tuning 320-959) this ranged 15 more of the observable zones, none wrong and none
-# outside 2σ; the one blob of a single frame among them pooled to 0.72 (tuning-691 zone 5, 82 % off).
-# On tuning 960-1151, 5 more, likewise.
+# Faint reference blobs that some of the zone's views lack give way to the spot the views pooled
+# show where it keeps at least this share of the brightest one's SNR (Ranger.range_zone). Pooled,
+# what one frame alone holds (JPEG's blocks changing) sinks to about 1/√2 of its SNR (tuning-691
+# zone 5, a blob 82 % off: 0.72); a spot that the other view holds a quarter as bright or more,
+# too faint there for the finder (speckle dims a spot from one view to the next), keeps about 0.9
+# or more. With 1.0, "no weaker", such spots stayed `ambiguous` (seen in one view): 0.9 ranged 14
+# more observable zones of tuning 320-959 (wrong `ok` and zones outside 2σ as before) and 5 more of
+# tuning 960-1151 (none wrong; one more outside 2σ, not observable).
 POOLED_RISE = 0.9
 # A blob on the reference's path this near (px: one JPEG block) to one this many times as bright is
 # that spot's shoulder (_no_shoulders). Tuning 448-575: 6-10 px and 3-5 × pick the same zones.
@@ -359,10 +360,10 @@ class Ranger:
             # view stay where pooling finds nothing to believe.
             pooled = self._pooled(groups, ref)
             measured = [self._measure(t) for t in pooled]
-            # Pooling raises a spot that every view holds (by √views) and lowers one that a
-            # view alone holds (by as much): a faint blob of one view is kept only if pooling
-            # made it no weaker.
-            if not refs or any(m.snr >= max(r.snr for r in refs) for m in self._believable(measured)):
+            # Pooling raises a spot that every view holds (by up to √views) and lowers one that
+            # a view alone holds (to about 1/√views): a faint blob of one view is kept only if
+            # pooling left it under POOLED_RISE of its SNR.
+            if not refs or any(m.snr >= POOLED_RISE * max(r.snr for r in refs) for m in self._believable(measured)):
                 tracks[ref], cands[ref] = pooled, measured
                 sightings.update(in_every_view(measured, groups))
                 refs = self._believable(measured)
@@ -481,8 +482,7 @@ class Ranger:
                                f"agrees with it: {fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m")
         seen, shown = sightings[id(chosen)]
         if seen < shown and chosen.snr < EDGE_MIN_SNR and (_rests_on_a_far_one(fusion) or all(
-                sightings[id(m)][0] < sightings[id(m)][1] for m in fusion.used[1:])) and not self._pooled_holds(
-                chosen, groups):
+                sightings[id(m)][0] < sightings[id(m)][1] for m in fusion.used[1:])):
             # A faint blob in one view, "confirmed" by others that show in that view alone: JPEG
             # turns a textured block's small change into a blob on every path through it, in
             # the one frame it changed in (tuning-42: at 0.27 m, the path's near end).
@@ -505,23 +505,6 @@ class Ranger:
             return AMBIGUOUS, (f"the {ref} spot is placed too loosely to range: "
                                f"{fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m")
         return None
-
-    def _pooled_holds(self, spot: LaserMeasurement, groups: Sequence[FrameGroup]) -> bool:
-        """Does a faint `spot`, seen in some of the zone's views and not in others, stand out at
-        least POOLED_RISE × as far above the noise in all its laser's views pooled (`pooled_frames`)
-        as in the view that showed it? A spot in every view, too faint in some for the finder to
-        see, holds its SNR or rises by pooling (by up to √views, where it is as bright in each);
-        what one frame alone holds (JPEG's blocks changing) sinks, to about 1/√views."""
-        pool = pooled_frames(groups, spot.laser)
-        if pool is None or len(pool[2]) < 2:
-            return False
-        on, off, _ = pool
-        give = 3.0 * spot.sigma_m
-        span = 1.0 / (spot.depth_m + give), 1.0 / max(spot.depth_m - give, 0.05)
-        found = self.finder.find(on, off, [spot.laser], near={spot.laser: span}).get(spot.laser, [])
-        reach = self.finder.spot_radius_px
-        return any(c.snr >= POOLED_RISE * spot.snr and math.dist(c.pixel.tolist(), spot.pixel.tolist()) <= reach
-                   for c in found)
 
     def _too_loose_alone(self, spot: LaserMeasurement) -> bool:
         """Is `spot` placed too loosely to range on its own (σ over `max_sigma_fraction` of its depth)?"""

@@ -734,9 +734,10 @@ def test_a_faint_reference_in_some_views_is_not_confirmed_by_a_far_laser_alone()
 def test_a_faint_reference_that_the_views_pooled_hold_is_ranged(monkeypatch) -> None:
     """The reference spot faint, found in one of the zone's two views; the other view holds it at
     two-thirds of that light, too faint there for the finder (speckle dims a spot from one view to
-    the next), and only the far laser confirms it. Pooled, the two views show it as high above
-    their noise as the one did: it is ranged. The same spot in one view alone is not (a blob that
-    one frame holds sinks when pooled), nor with the pooled views asked for more than they show."""
+    the next), and only the far laser confirms it. Pooled, the two views show it at 0.9 or more of
+    the SNR the one view did (POOLED_RISE; "no weaker" refused it): it is ranged. The same spot in
+    one view alone is not (a blob that one frame holds sinks when pooled), nor with the pooled
+    views asked for more than they show."""
     import edge.ranging
 
     renderer = _wall(2.0)
