@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from edge.calibration.file import FORMAT, Calibration, read_calibration, write_calibration
-from edge.calibration.fit import Blob, assign_spots, fit_calibration
+from edge.calibration.fit import assign_spots, fit_calibration
+from edge.calibration.spots import Blob
 from edge.cli.calibrate import add_parser
 from edge.config import load_config
 from edge.errors import CalibrationError, UsageError

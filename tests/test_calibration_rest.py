@@ -283,7 +283,7 @@ def test_spots_a_few_pixels_apart_are_located_together(apart):
     """The `center` and `parallel` spots of a rig built a few tenths of a degree off come this
     close at 3-4 m; below about 3.5 px the smoothed picture shows them as one spot (below about
     2.5 px even the sharper one does: they are then one blob, which assignment leaves out)."""
-    from edge.calibration.fit import located_spots
+    from edge.calibration.spots import located_spots
 
     truth = [(80.3, 60.2), (80.3 + 0.3 * apart, 60.2 + 0.954 * apart)]
     off, on = _frames(truth)
@@ -318,7 +318,7 @@ def _speckled_pair(apart: float, seed: int) -> tuple[np.ndarray, list[np.ndarray
 
 def test_spots_fitted_together_settle_from_seeds_a_third_of_a_pixel_off():
     """Undamped Gauss-Newton ran away in about one fit in five of speckled spots 2-6 px apart."""
-    from edge.calibration.fit import _located_together
+    from edge.calibration.spots import _located_together
 
     rng = np.random.default_rng(4)
     failed, errors = 0, []
@@ -338,7 +338,7 @@ def test_clipped_spots_are_located_to_a_few_hundredths_of_a_pixel(tmp_path):
     """Near targets clip the sensor, and the windowed centroid of the clipped plateau is pulled
     towards the pixel grid; the fit's spots are corrected for it. No speckle: what is left is the
     locating error."""
-    from edge.calibration.fit import find_spots, zone_blobs
+    from edge.calibration.spots import find_spots, zone_blobs
     from edge.replay import zone_groups
 
     config = load_config(None, ["sweep.nudge_deg=0", "sim.seed=2", "sim.beam.speckle=0"])
@@ -361,7 +361,7 @@ def test_check_locates_spots_that_merge_from_where_the_calibration_puts_them(tmp
     """A rig whose parallel spot comes 2 px from the center one at 4 m: the whole-frame search
     sees one blob, half a pixel from either spot (about 0.4 m at 4 m); --check locates them
     together from where the calibration puts them."""
-    from edge.calibration.fit import zone_blobs
+    from edge.calibration.spots import zone_blobs
 
     config = load_config(None, ["sweep.nudge_deg=0", "sim.seed=5"])
     rig = config.rig.build()
@@ -459,7 +459,7 @@ def test_a_clipped_spot_is_one_spot(tmp_path):
     """The sloped spot at 0.4 m of a rig built as issue 15's rig 106 clips the sensor over a
     plateau 5 px across, flat but for the laser-off frames' noise; that noise's maxima are not
     spots of their own (they once split it in two, 2.8 px apart, and the fit lost the distance)."""
-    from edge.calibration.fit import zone_blobs
+    from edge.calibration.spots import zone_blobs
 
     config = load_config(None, ["sweep.nudge_deg=0", "sim.seed=106"])
     truth = mis_built(config.rig.build(), 106)

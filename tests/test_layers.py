@@ -36,6 +36,7 @@ CORE = (
     "grid.py",
     "cloud.py",
     "calibration/fit.py",
+    "calibration/spots.py",
     "modes/guard.py",
     "modes/blindaid/logic.py",
     "laserhealth.py",

@@ -1,5 +1,6 @@
 """Calibration of the rig's lasers (and camera) from flat-target captures.
 
+- :mod:`edge.calibration.spots`: the board's spots in a recording's zones, found and placed;
 - :mod:`edge.calibration.fit`: the least-squares fit itself (pure: spots in, rays out);
 - :mod:`edge.calibration.file`: the fit's result, :class:`~edge.calibration.file.Calibration`, and
   its file format ``edge-calibration/1`` (read, write);

@@ -1,8 +1,8 @@
 """How well a calibration ranges a recording it was not fitted to (``edge calibrate --check``).
 
 Zone i of the check recording shows a flat target squarely at distances_m[i], as a calibration
-recording does. Each laser's spot is found and assigned as the fit does it (:mod:`edge.calibration.fit`),
-but predicted by the calibrated rig; spots the calibrated rig puts within DEBLEND_PX of each other
+recording does. Each laser's spot is found as the fit finds it (:mod:`edge.calibration.spots`) and
+assigned as the fit does it (:mod:`edge.calibration.fit`), but predicted by the calibrated rig; spots the calibrated rig puts within DEBLEND_PX of each other
 are located together from where it puts them (as ranging, which knows the rig, does: two spots 2 px
 apart show as one blob, which the whole-frame search cannot split, and that blob's centre is half a
 pixel from either); its depth is the calibrated beam's point nearest to the camera
@@ -19,16 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge.calibration.file import Calibration
-from edge.calibration.fit import (
-    DEBLEND_PX,
-    SPLIT_PX,
-    assign_spots,
-    closest_gap,
-    clusters,
-    located_together,
-    one_per_zone,
-    zone_blobs,
-)
+from edge.calibration.fit import assign_spots, one_per_zone
+from edge.calibration.spots import DEBLEND_PX, SPLIT_PX, closest_gap, clusters, located_together, zone_blobs
 from edge.recording import Recording
 from edge.rig import Rig
 from edge.triangulation import triangulate

@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from edge.calibration.file import Calibration
-from edge.calibration.fit import FIRST_GATE_PX, find_spots, fit_calibration
+from edge.calibration.fit import FIRST_GATE_PX, fit_calibration
+from edge.calibration.spots import find_spots
 from edge.capture import Capture
 from edge.errors import CalibrationError, HardwareError
 from edge.ranging import FAULT, FrameGroup, Ranger, ZoneResult
