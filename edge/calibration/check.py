@@ -2,12 +2,13 @@
 
 Zone i of the check recording shows a flat target squarely at distances_m[i], as a calibration
 recording does. Each laser's spot is found as the fit finds it (:mod:`edge.calibration.spots`) and
-assigned as the fit does it (:mod:`edge.calibration.fit`), but predicted by the calibrated rig; spots the calibrated rig puts within DEBLEND_PX of each other
-are located together from where it puts them (as ranging, which knows the rig, does: two spots 2 px
-apart show as one blob, which the whole-frame search cannot split, and that blob's centre is half a
-pixel from either); its depth is the calibrated beam's point nearest to the camera
-ray through the spot (:func:`edge.triangulation.triangulate`), and its error is that depth minus the
-tape-measured distance. Pure: a recording and a calibration in, numbers out.
+assigned as the fit does it (:mod:`edge.calibration.fit`), but predicted by the calibrated rig;
+spots the calibrated rig puts within DEBLEND_PX of each other are located together from where it
+puts them (as ranging, which knows the rig, does: two spots 2 px apart show as one blob, which the
+whole-frame search cannot split, and that blob's centre is half a pixel from either); its depth is
+the calibrated beam's point nearest to the camera ray through the spot
+(:func:`edge.triangulation.triangulate`), and its error is that depth minus the tape-measured
+distance. Pure: a recording and a calibration in, numbers out.
 """
 
 from __future__ import annotations
