@@ -39,6 +39,15 @@ from edge.framenoise import (
 from edge.paths import Strips, full_scale
 from edge.redsites import SiteLook
 from edge.rig import Rig
+from edge.spoterror import (
+    BLOCK_SIGMA_PX,
+    JPEG_COMMON_PX,
+    LUMA_DEMOSAIC_PX,
+    LUMA_JPEG_COMMON_PX,
+    block_snapped,
+    demosaic_px,
+    misfit_grow,
+)
 from edge.spotshape import border_index, border_level, fit_gaussian, fit_round, fit_sites, fit_unsaturated, window_kit
 from edge.stuck import lit_in_off
 
@@ -52,57 +61,11 @@ CHANNELS = (*CHANNEL_WEIGHTS, "auto")
 # minus green correlated 2 px apart (0.45-0.85 measured, higher at lower quality); full-resolution
 # chroma (raw, PNG, a demosaiced Bayer filter) leaves it near 0.1 or below, JPEG 4:4:4 0.3-0.65.
 CHROMA_LAG2 = 0.4
-# A spot's position error from demosaicing (1 σ, px) that red read from a demosaiced frame carries,
-# and what it grows to for a spot hardly bigger than one red pixel (demosaiced RMS radius
-# DEMOSAIC_SNAP_SIZE_PX or less): such a spot snaps to the red pixel it falls on, anywhere within
-# ±1 px of it (red pixels are 2 px apart: RMS 0.58 px); a site fit cannot undo that, for the red
-# pixels beside it saw nothing. On the tuning family, spots of radius 0.6 px were off by 0.4-0.85
-# px, radius 1 px by 0.2-0.45 px.
-DEMOSAIC_PX = 0.25
-DEMOSAIC_SNAP_PX = 0.55
-DEMOSAIC_SNAP_SIZE_PX = 0.6
-# Colour frames read in luma (JPEG 4:2:0, and 4:4:4 whose chroma JPEG quantised coarsely: `auto`)
-# come from behind a Bayer filter, as every colour webcam's and Pi camera's do, though JPEG keeps too
-# little of the noise for `noise_texture` to show it. The luma of a red spot is mostly its red,
-# interpolated between the filter's red pixels, and carries red's shift: LUMA_DEMOSAIC_PX, all of
-# it locked to the pixel grid (a nudged view keeps it). That explains part of what JPEG_COMMON_PX
-# stood for in such frames, whose lasers' spots then share LUMA_JPEG_COMMON_PX. On the tuning
-# family's JPEG colour frames (tuning 320-959, 280 conditions; the rest do not change): `ok` zones
-# outside 2σ 25 → 18, conditions under 90 % within 2σ 12 → 10, wrong `ok` 4 → 3, |error| ÷ floor
-# 2.41 → 2.28, coverage 2140 → 2148 of 2747; tuning 960-1151: 6 → 5 conditions, 2.43 → 2.27,
-# coverage 613 → 611 of 783. The term alone, with JPEG_COMMON_PX kept, cost coverage (2086, 598);
-# with a common term of 0.10 and 0.12 px: 2130 and 2120, 9 and 7 conditions. Red's own term for
-# small spots' snap (`_grid_px`) cost more coverage and caught no more; the term unlocked, or
-# locked and not added, did not catch them.
-LUMA_DEMOSAIC_PX = DEMOSAIC_PX
-LUMA_JPEG_COMMON_PX = 0.08
-# A spot placed by its pixels' own values behind a Bayer filter, red's and green's (raw frames;
-# `fit_sites`), keeps this share of DEMOSAIC_PX, and all of the snap: no interpolation moves those
-# values, but a small spot's wings on them still pull it. On tuning 0-95's raw Bayer frames, such
-# spots' errors along the rows were 0.35-0.7 of their σ (RMS) with all of the term, 0.9-1.2
-# without it, and 0.56-0.88 with this (97-99 % within 2σ, brightest to faintest); the whole
-# term's share at 0.4 or 0.6 made a zone 11 % off `ok` (tuning-292 zone 3), this did not.
-SITE_GRID_SHARE = 0.4
 # `auto` decides from this many frame groups (the median of their chroma correlations), then keeps it.
 AUTO_GROUPS = 8
 # JPEG frames: steps across the 8 × 8 blocks' boundaries this many times those inside blocks (1.27-16
 # for qualities 51-89 on the tuning family, at most 1.02 for frames never compressed, and for 90).
 JPEG_BLOCKINESS = 1.15
-# A spot placed within this of a block's centre line (px) is taken as snapped there, and placed only
-# to the block's width: 8/√12 px. (Uncompressed, a spot lands there by chance once in 200.)
-SNAP_PX = 0.02
-BLOCK_SIGMA_PX = 8.0 / math.sqrt(12.0)
-# What JPEG's blocks pull a spot by in common with the other lasers' spots (1 σ, px): the lasers sit
-# in one column of the image, so in one column of blocks, and their errors along the rows correlate
-# (0.2-0.36 on the tuning family, about 0.1-0.18 px in common); lossless frames' do not (below 0.02).
-JPEG_COMMON_PX = 0.15
-# A spot's misfit (χ² per degree of freedom of a Gaussian fitted to it) grows its variance as it is
-# up to this, and by its square root beyond, in JPEG frames: there the misfit is mostly the blocks'
-# rounding of the spot's shape, which moves its centre far less than it distorts it. Per spot on
-# tuning seeds 128-191, JPEG spots of misfit 1.5-4 and 4-10 were off by 0.88 and 0.79 of their σ
-# (RMS), of misfit 10-30 and over 30 by 0.59 and 0.36: σ 2-3 × too large, so that such a reference
-# came out `ambiguous` (placed too loosely) or let a far laser on another surface pass the χ² test.
-JPEG_MISFIT_KNEE = 4.0
 
 
 # A spot whose detection needs this matched-filter SNR (box filter about a spot's size, against the
@@ -515,12 +478,6 @@ class SpotFinder:
         mean = sum(w * t for w, (_, t, _) in zip(weights, told)) / sum(weights)
         return mean, _SHARED_WIDTH_SPREAD
 
-    def _misfit_grow(self, misfit: float) -> float:
-        """What a spot's variance is multiplied by for its fit's `misfit` (see JPEG_MISFIT_KNEE)."""
-        if not self._jpeg or misfit <= JPEG_MISFIT_KNEE:
-            return misfit
-        return JPEG_MISFIT_KNEE * math.sqrt(misfit / JPEG_MISFIT_KNEE)
-
     def _unsnapped(self, cand: Candidate) -> Candidate:
         """JPEG frames: a spot placed on an 8 × 8 block's centre line is one whose light JPEG kept
         only as the block's mean along that axis, and where in the block it was is lost: its σ
@@ -528,43 +485,23 @@ class SpotFinder:
         from the truth, snapped to u = 179.5 and claiming 0.2 px, made a range 10 % off.)"""
         if not self._jpeg:
             return cand
-        snapped = [abs((x - 3.5 + 4.0) % 8.0 - 4.0) < SNAP_PX for x in cand.pixel.tolist()]
+        snapped = block_snapped(cand.pixel.tolist())
         if not any(snapped):
             return cand
         # Per axis: a spot snapped across its laser's path is placed as well as ever along it.
         var_u, var_v = (max(cand.sigma_px, BLOCK_SIGMA_PX) ** 2 if s else cand.sigma_px**2 for s in snapped)
         return replace(cand, sigma_px=max(cand.sigma_px, BLOCK_SIGMA_PX), cov_px=(var_u, var_v, 0.0))
 
-    @staticmethod
-    def _grid_px(size: float, own_values: bool = False) -> tuple[float, float]:
-        """What demosaicing adds to the σ of a spot of RMS radius `size` (px), and the part of it
-        that is locked to the pixel grid (see Candidate.locked_px); `own_values`: for a spot that
-        the pixels keeping their own values placed (`fit_sites`, lossless frames), which no
-        interpolation moves: SITE_GRID_SHARE of the DEMOSAIC_PX base, and all of the snap.
-
-        Red interpolated from a Bayer filter's red pixels 2 px apart: the interpolation shifts a
-        small spot by up to a few tenths of a pixel, depending on the method and where the spot
-        falls (OpenCV's edge-aware one by 0.2-0.4 px on average), and a spot of about one red
-        pixel's size snaps to it. The snap is where the spot falls on the red pixels' grid, which
-        a nudged view keeps: its part is common to the zone's views (measured on tuning 0-191
-        behind a Bayer filter: 0.24 px common at a spot size of 0.75 px, 0.15 at 0.9, 0.08 at
-        1.1, none at 1.4; this gives 0.23, 0.15, 0.08, 0)."""
-        snap = min(max((2.0 * DEMOSAIC_SNAP_SIZE_PX - size) / DEMOSAIC_SNAP_SIZE_PX, 0.0), 1.0)
-        shift = DEMOSAIC_PX + snap * (DEMOSAIC_SNAP_PX - DEMOSAIC_PX)
-        if own_values:
-            shift -= (1.0 - SITE_GRID_SHARE) * DEMOSAIC_PX
-        return shift, snap * (DEMOSAIC_SNAP_PX - DEMOSAIC_PX)
-
     def grid_px(self, size: float, own_values: bool = False) -> tuple[float, float]:
         """What demosaicing adds to the σ of a spot of RMS radius `size` in the frames of the last
-        `find`, and its part locked to the pixel grid (`_grid_px`; LUMA_DEMOSAIC_PX, all locked,
+        `find`, and its part locked to the pixel grid (`demosaic_px`; LUMA_DEMOSAIC_PX, all locked,
         for colour frames read in luma; 0, 0 where they were not demosaiced): for `find`'s own
         spots, and for spots placed outside it (edge.deblend)."""
         if not self._demosaiced:
             return 0.0, 0.0
         if self._luma_demosaiced:
             return LUMA_DEMOSAIC_PX, LUMA_DEMOSAIC_PX
-        return self._grid_px(size, own_values)
+        return demosaic_px(size, own_values)
 
     @property
     def _luma_demosaiced(self) -> bool:
@@ -830,7 +767,7 @@ class SpotFinder:
                 site_width = (log_width, var_log_width)
                 misfit = max(misfit, 1.0)
                 cu, cv = u0 + du, v0 + dv
-                cov = cov * texture.sites * self._misfit_grow(misfit)
+                cov = cov * texture.sites * misfit_grow(misfit, self._jpeg)
         else:
             # The spot's core only: a neighbouring spot's wing (the centre and parallel spots are
             # 4 px apart at 5 m) is not this spot's misfit. (u² + v² − 2·du·u − 2·dv·v, from the
@@ -877,7 +814,7 @@ class SpotFinder:
                     cu, cv = u0 + du, v0 + dv
                     misfit = max(misfit, chi2_round)
                     if float(np.trace(cov_round)) < 1.0 and min(np.diag(cov_round)) > 0.0:
-                        cov = cov_round * texture.area * self._misfit_grow(misfit)
+                        cov = cov_round * texture.area * misfit_grow(misfit, self._jpeg)
         if cov is not None:
             var_u, var_v = float(cov[0, 0]), float(cov[1, 1])
         else:
@@ -888,7 +825,7 @@ class SpotFinder:
             # The same sums over the pixels used (signal ≥ 0: its sign is 1 there, 0 elsewhere;
             # sums of small integers, exact however they are added).
             n0, nx, nxx, ny, nyy = kit.powers.dot(np.sign(weights)).tolist()
-            grow = texture.area * self._misfit_grow(misfit) / mass**2
+            grow = texture.area * misfit_grow(misfit, self._jpeg) / mass**2
             # Σ (x − x̄)² w, ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
             noise2 = noise**2
             var_u = grow * (noise2 * max(nxx - 2.0 * du * nx + du * du * n0, 0.0)

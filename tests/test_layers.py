@@ -26,6 +26,7 @@ CORE = (
     "paths.py",
     "stuck.py",
     "spotshape.py",
+    "spoterror.py",
     "framenoise.py",
     "redsites.py",
     "ranging.py",

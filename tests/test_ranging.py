@@ -186,8 +186,8 @@ def test_a_wall_seen_obliquely_is_fused_within_sigma_when_a_laser_hits_aside() -
 def test_jpeg_frames_keep_what_their_blocks_pull_in_common_out_of_the_fused_sigma() -> None:
     """The lasers' spots lie in one column of JPEG's blocks, which pull them alike: fusing them
     does not average that part. Lossless frames have none. (Colour frames read in luma carry a
-    demosaicing shift of their own, locked to each spot, and share less: vision.LUMA_JPEG_COMMON_PX.)"""
-    from edge.vision import JPEG_COMMON_PX, LUMA_JPEG_COMMON_PX
+    demosaicing shift of their own, locked to each spot, and share less: spoterror.LUMA_JPEG_COMMON_PX.)"""
+    from edge.spoterror import JPEG_COMMON_PX, LUMA_JPEG_COMMON_PX
 
     for colour, shared in ((False, JPEG_COMMON_PX), (True, LUMA_JPEG_COMMON_PX)):
         config = load_config(None, ["sim.sensor.jpeg_quality=70", f"sim.sensor.colour={str(colour).lower()}",
@@ -1076,7 +1076,8 @@ def test_a_jpeg_spot_snapped_across_its_laser_s_path_is_placed_as_well_as_ever_a
     the spot to the block's centre row and loses where in the block it was, across. The centre
     laser's path runs along a row: its depth is in u alone, which the snap does not touch. Such a
     spot was placed only to the block's width (2.3 px) on both axes."""
-    from edge.vision import SNAP_PX, SpotFinder
+    from edge.spoterror import SNAP_PX
+    from edge.vision import SpotFinder
 
     config = load_config()
     rig = config.rig.build()

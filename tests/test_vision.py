@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge import framenoise, redsites, vision
+from edge import framenoise, redsites, spoterror, vision
 from edge.config import load_config
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
@@ -262,7 +262,7 @@ def test_a_jpeg_spot_that_a_gaussian_fits_badly_is_not_placed_far_more_loosely_t
     σ stays within 2.4 × the RMS error for misfits over 4, and still covers every spot at 2σ.
 
     Through a Bayer filter, as a colour JPEG webcam's frames come (luma carries red's demosaicing
-    shift: vision.LUMA_DEMOSAIC_PX); a colour sensor without one would be placed about 3 × looser."""
+    shift: spoterror.LUMA_DEMOSAIC_PX); a colour sensor without one would be placed about 3 × looser."""
     spots = _office_jpeg_spots((55, 65), 30.0, bayer="bilinear")
     misfits = [(s, e) for m, s, e in spots if m > 4.0]
     assert len(misfits) >= 10 and len(spots) >= 50
@@ -376,7 +376,7 @@ def test_a_spot_placed_by_its_own_pixels_values_is_not_held_to_the_demosaicing_s
                          if by_sites])
 
     tighter = z()
-    monkeypatch.setattr(vision, "SITE_GRID_SHARE", 1.0)  # all of the interpolation's shift
+    monkeypatch.setattr(spoterror, "SITE_GRID_SHARE", 1.0)  # all of the interpolation's shift
     before = z()
     assert np.mean(np.abs(tighter) <= 2.0) >= 0.95
     assert np.sqrt(np.mean(tighter**2)) > 1.2 * np.sqrt(np.mean(before**2))
@@ -418,7 +418,7 @@ def test_a_bayer_filter_that_jpeg_hides_from_the_noise_is_found_by_the_spots_red
     before = _placed(renderer, views, "auto")
     assert _share_and_rms(before)[0] == 0.0 and _share_and_rms(looked)[0] >= 0.5
     # Unlooked, luma's σ holds them too now, for it carries red's demosaicing shift (it did not:
-    # 0.6 or fewer within 2σ; vision.LUMA_DEMOSAIC_PX).
+    # 0.6 or fewer within 2σ; spoterror.LUMA_DEMOSAIC_PX).
     assert within(looked) >= 0.8 and within(before) >= 0.8
     # Unlooked, JPEG's spots are placed by a Gaussian fitted over the window (not the centroid
     # locked onto a red pixel), about as well (0.40 px RMS against 0.41): what the looks bring
@@ -686,7 +686,7 @@ def test_jpeg_frames_spots_are_placed_by_a_gaussian_fitted_over_the_window(monke
 
 
 @pytest.mark.parametrize(("sensor", "carried"), [
-    ({"jpeg_quality": 70}, vision.LUMA_DEMOSAIC_PX),  # colour JPEG: a webcam's, behind a filter
+    ({"jpeg_quality": 70}, spoterror.LUMA_DEMOSAIC_PX),  # colour JPEG: a webcam's, behind a filter
     ({}, 0.0),  # lossless colour frames show their filter (or none) in their own noise
     ({"jpeg_quality": 70, "colour": False}, 0.0),  # grey frames have no colour filter
 ])

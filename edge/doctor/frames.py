@@ -56,7 +56,8 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
 
     from edge.framenoise import jpeg_blockiness
     from edge.ranging import FrameGroup, Ranger
-    from edge.vision import JPEG_BLOCKINESS, LUMA_DEMOSAIC_PX
+    from edge.spoterror import LUMA_DEMOSAIC_PX
+    from edge.vision import JPEG_BLOCKINESS
 
     if len(frames) < 2:
         raise ValueError("the frames line needs two laser-off frames or more")
