@@ -25,7 +25,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from edge.commands import COMMANDS
-from edge.mqtt import MAX_TOPIC_BYTES
+from edge.topics import MAX_TOPIC_BYTES
 
 DEVICE = "fz1"
 P = f"edge/{DEVICE}"

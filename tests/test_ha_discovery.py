@@ -28,11 +28,11 @@ import pytest
 
 from edge.commands import parse_command
 from edge.config import MqttConfig, load_config
+from edge.discovery import discovery_payloads
 from edge.modes import MODES
 from edge.modes.blindaid.logic import Cue
 from edge.modes.guard import Track
 from edge.modes.rangefinder import Filtered, range_payload
-from edge.mqtt import discovery_payloads
 from edge.ranging import OK, ZoneResult
 from edge.service.homeassistant import HomeAssistantFeed
 

@@ -22,9 +22,11 @@ from broker import Mosquitto, Subscriber, publish
 
 from edge.commands import parse_command, request_id_of
 from edge.config import MqttConfig, TlsConfig
+from edge.discovery import discovery_payloads
 from edge.errors import CommandError, ConfigError
-from edge.mqtt import SNAPSHOT_INTERVAL_S, MqttLink, Topics, discovery_payloads, encode, utc_timestamp
+from edge.mqtt import SNAPSHOT_INTERVAL_S, MqttLink
 from edge.outbox import Outbox
+from edge.topics import Topics, encode, utc_timestamp
 
 log = logging.getLogger(__name__)
 

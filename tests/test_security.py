@@ -32,7 +32,8 @@ from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 
 from edge.config import MqttConfig, TlsConfig
-from edge.mqtt import MqttLink, discovery_payloads
+from edge.discovery import discovery_payloads
+from edge.mqtt import MqttLink
 from edge.outbox import Outbox
 
 REPO = Path(__file__).resolve().parents[1]

@@ -52,7 +52,8 @@ def check_broker(config: Config) -> str:
         raise Skip("mqtt.enabled = false: the device runs without a broker")
     import paho.mqtt.client as paho
 
-    from edge.mqtt import Topics, read_password, set_credentials
+    from edge.mqtt import read_password, set_credentials
+    from edge.topics import Topics
 
     where = _where(config)
     try:
