@@ -506,8 +506,10 @@ class SpotFinder:
     @property
     def _luma_demosaiced(self) -> bool:
         """Were the last `find`'s frames colour JPEG read in luma, taken as demosaiced (`_texture`)?
-        Their spots carry LUMA_DEMOSAIC_PX and share LUMA_JPEG_COMMON_PX."""
-        return self._demosaiced and self._weights == CHANNEL_WEIGHTS["luma"]
+        Their spots carry LUMA_DEMOSAIC_PX and share LUMA_JPEG_COMMON_PX. (Lossless frames read in
+        luma are demosaiced only where the spots told a filter, whose pixels' own values then place
+        them: `demosaic_px`'s term, as in red.)"""
+        return bool(self._jpeg) and self._demosaiced and self._weights == CHANNEL_WEIGHTS["luma"]
 
     @property
     def common_px(self) -> float:

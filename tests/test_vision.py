@@ -701,3 +701,20 @@ def test_only_colour_jpeg_read_in_luma_is_taken_as_demosaiced(sensor: dict, carr
     assert found and found[0].locked_px == carried
     assert found[0].sigma_px >= carried
     assert finder.frame_kind(off, _pair(renderer, pan=-90.0, seed=4)[1]).demosaiced == (carried > 0.0)
+
+
+def test_lossless_frames_read_in_luma_keep_red_s_term_once_the_spots_tell_their_filter() -> None:
+    """Read in luma (`channel = "luma"`), lossless colour frames behind a Bayer filter show it in no
+    noise the finder looks at; bright spots' red bends tell it, and the later spots are placed by
+    the pixels that keep their own values. Those carry `demosaic_px`'s own-values term (the snap of
+    a small spot, locked), as in red, not JPEG's luma term (spoterror.LUMA_DEMOSAIC_PX), which is for
+    frames that keep no pixel's own value."""
+    renderer, views = _small_bayer_spots()
+    finder = SpotFinder(renderer.rig, channel="luma")
+    by_sites = []
+    for (on, off), _ in views:
+        by_sites += [c for cs in finder.find([on], [off]).values() for c in cs if c.site_width is not None]
+    assert len(by_sites) >= 10
+    for c in by_sites:
+        assert c.locked_px == pytest.approx(spoterror.demosaic_px(c.size_px, own_values=True)[1])
+        assert c.locked_px < spoterror.LUMA_DEMOSAIC_PX
