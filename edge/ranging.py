@@ -363,7 +363,8 @@ class Ranger:
             # Pooling raises a spot that every view holds (by up to √views) and lowers one that
             # a view alone holds (to about 1/√views): a faint blob of one view is kept only if
             # pooling left it under POOLED_RISE of its SNR.
-            if not refs or any(m.snr >= POOLED_RISE * max(r.snr for r in refs) for m in self._believable(measured)):
+            strongest = max((r.snr for r in refs), default=0.0)
+            if not refs or any(m.snr >= POOLED_RISE * strongest for m in self._believable(measured)):
                 tracks[ref], cands[ref] = pooled, measured
                 sightings.update(in_every_view(measured, groups))
                 refs = self._believable(measured)
