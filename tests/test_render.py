@@ -378,3 +378,42 @@ def test_a_display_gamma_brightens_the_shadows_and_undoes_exactly() -> None:
     flat, bent = linear.digitise(e, None).astype(float), curved.digitise(e, None).astype(float)
     assert np.abs(255.0 * tone_curve((flat / 255.0).astype(np.float32), 2.2) - bent).max() <= 1.5
     assert bent.mean() > flat.mean() * 1.3  # the room's mid-tones lifted
+
+
+# The IMX219's colour matrix at 4650 K (libcamera's src/ipa/rpi/vc4/data/imx219.json), rows R', G', B'.
+IMX219_CCM_4650K = (2.18174, -0.70887, -0.47287, -0.70196, 2.76426, -1.06231, -0.25157, -0.71978, 1.97135)
+
+
+@pytest.mark.parametrize("gamma", [1.0, 2.2])
+def test_an_isps_colour_matrix_mixes_the_channels_in_linear_light_and_clips_at_black(gamma: float) -> None:
+    from edge.tone import linear_light
+
+    plain_wall = ("sim.surfaces.texture_scale=0", "sim.beam.speckle=0", f"sim.sensor.gamma={gamma}")
+    ccm = "sim.sensor.colour_matrix=[" + ", ".join(map(str, IMX219_CCM_4650K)) + "]"
+    plain, mixed = _small(*plain_wall), _small(ccm, *plain_wall)
+    e = plain.render_electrons(0.0, 0.0, {"center": 1.0})
+    before, after = plain.digitise(e, None).astype(float), mixed.digitise(e, None).astype(float)
+    # Each pixel's (R, G, B) in linear light through the matrix, clipped to the frame's range (BGR frames).
+    rgb = linear_light(before[..., ::-1] / 255.0, gamma) @ np.array(IMX219_CCM_4650K).reshape(3, 3).T
+    expected = np.clip(rgb, 0.0, 1.0)[..., ::-1]
+    assert np.abs(linear_light(after / 255.0, gamma) - expected).max() < 0.02
+    # Red rises at a red spot, and its green and blue fall: the wall's own colours are taken away.
+    dim = ("sim.beam.e_per_ms_at_1m=3000", *plain_wall)
+    lit = _small(*dim).digitise(e := _small(*dim).render_electrons(0.0, 0.0, {"center": 1.0}), None).astype(float)
+    lit_mixed = _small(ccm, *dim).digitise(e, None).astype(float)
+    u, v = (int(round(c)) for c in plain.spots(0.0, 0.0)["center"].pixel)
+    lit, lit_mixed = (linear_light(x[v, u] / 255.0, gamma) for x in (lit, lit_mixed))
+    assert lit_mixed[2] > 1.5 * lit[2] and lit_mixed[0] < 0.5 * lit[0]
+    # Grey stays grey (each row sums to 1), and light beyond the range clips.
+    from edge.sim.render import _colour_corrected
+
+    grey = np.full((1, 3, 3), 100, np.uint8)
+    grey[0, 1], grey[0, 2] = (0, 0, 200), (0, 255, 0)  # pure red, pure green (BGR)
+    out = _colour_corrected(grey, IMX219_CCM_4650K, 1.0, 255.0)
+    assert out[0, 0].tolist() == [100, 100, 100]
+    assert out[0, 1].tolist() == [0, 0, 255] and out[0, 2].tolist() == [0, 255, 0]
+    # No matrix, and a grey sensor's frames, pass as they were.
+    grey_sensor = ("sim.sensor.colour=false", *plain_wall)
+    grey, grey_mixed = _small(*grey_sensor), _small(ccm, *grey_sensor)
+    e = grey.render_electrons(0.0, 0.0, {"center": 1.0})
+    assert np.array_equal(grey.digitise(e, None), grey_mixed.digitise(e, None))

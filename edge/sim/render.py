@@ -28,7 +28,7 @@ from edge.sim import optics
 from edge.sim.materials import TEXTURE_FLOOR
 from edge.sim.scene import Scene, SceneGeometry
 from edge.sim.settings import RigErrorConfig, SimConfig
-from edge.tone import tone_curve
+from edge.tone import linear_light, tone_curve
 
 # Shade of room light by surface orientation: floors get most of a ceiling light, ceilings least.
 _AMBIENT_BY_NORMAL_Z = (0.8, 0.2)  # factor = a + b · n_z
@@ -488,6 +488,8 @@ class Renderer:
             out = cv2.cvtColor(out, _DEMOSAIC[sensor.bayer])
         elif out.shape[-1] == 1:
             out = out[..., 0]
+        if sensor.colour_matrix and out.ndim == 3:
+            out = _colour_corrected(out, sensor.colour_matrix, sensor.gamma, full)
         if sensor.jpeg_quality:
             # 8-bit only: the config refuses jpeg_quality with 16-bit output.
             params = [cv2.IMWRITE_JPEG_QUALITY, sensor.jpeg_quality]
@@ -499,6 +501,24 @@ class Renderer:
                 raise CameraError(f"simulated camera: OpenCV could not round-trip a {out.shape} frame through JPEG")
             out = decoded
         return out
+
+
+def _colour_corrected(out: np.ndarray, matrix: tuple[float, ...], gamma: float, full: float) -> np.ndarray:
+    """A demosaiced BGR frame through an ISP's colour correction `matrix` (rows R', G', B' of
+    columns R, G, B), in linear light, clipped to the frame's range: what leaves a camera's ISP.
+    (The delivered values are rounded once more here; an ISP rounds once, from more bits.)"""
+    x = out.astype(np.float32) * np.float32(1.0 / full)
+    if gamma != 1.0:
+        x = linear_light(x, gamma).astype(np.float32)
+    # BGR frames: the matrix's rows and columns in reverse order.
+    m = np.array(matrix, dtype=np.float32).reshape(3, 3)[::-1, ::-1]
+    x = x @ m.T
+    np.clip(x, 0.0, 1.0, out=x)
+    if gamma != 1.0:
+        x = tone_curve(x, gamma)
+    x *= np.float32(full)
+    np.rint(x, out=x)
+    return x.astype(out.dtype)
 
 
 def _mosaic(bgr: np.ndarray) -> np.ndarray:

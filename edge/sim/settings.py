@@ -36,9 +36,18 @@ class SensorConfig:
     # 1.8-2.4 is a camera's display gamma (an ISP's, a webcam's), value ∝ light^(1/gamma) with a
     # linear toe. A Pi camera's ISP applies one unless its tuning file says otherwise.
     gamma: float = 1.0
+    # The colour correction matrix an ISP applies after demosaicing, rows R', G', B' of columns
+    # R, G, B (libcamera's rpi.ccm order, 9 numbers); empty: none. A camera's own mixes the channels
+    # with large negative terms (the IMX219's at 2860 K takes 2.12 R − 0.52 G − 0.60 B for red), and a
+    # webcam applies one that nobody can turn off; edge turns the Pi's off (edge.hw.camera). Grey
+    # frames have no colours to mix and pass unchanged (so that one `--set` serves a whole family).
+    colour_matrix: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         require(self.full_well_e > 0, "full_well_e", "must be positive")
+        require(len(self.colour_matrix) in (0, 9), "colour_matrix",
+                f"must be 9 numbers (rows R', G', B' of columns R, G, B) or empty, got {len(self.colour_matrix)}")
+        require(all(math.isfinite(x) for x in self.colour_matrix), "colour_matrix", "must be finite numbers")
         require_gamma(self.gamma, "gamma")
         require(self.read_noise_e >= 0, "read_noise_e", "must be >= 0")
         require(8 <= self.adc_bits <= 16, "adc_bits", f"must be 8-16, got {self.adc_bits}")
