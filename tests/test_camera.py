@@ -117,9 +117,27 @@ class _FakePicamera2:
 
     last: _FakePicamera2 | None = None
 
+    # The stages edge changes, as libcamera's own IMX219 file has them (src/ipa/rpi/vc4/data/imx219.json;
+    # its tone curve shortened; the Pi 5's file has the same colour matrices and "rpi.dpc": {"strength": 1}).
     tuning_files = {"imx219.json": {"version": 2.0, "algorithms": [
         {"rpi.black_level": {"black_level": 4096}},
+        {"rpi.dpc": {}},
         {"rpi.contrast": {"ce_enable": 1, "gamma_curve": [0, 0, 1024, 5040, 65535, 65535]}},
+        {"rpi.ccm": {"ccms": [
+            {"ct": 2860, "ccm": [
+                2.12089, -0.52461, -0.59629, -0.85342, 2.80445, -0.95103, -0.26897, -1.14788, 2.41685]},
+            {"ct": 2960, "ccm": [
+                2.26962, -0.54174, -0.72789, -0.77008, 2.60271, -0.83262, -0.26036, -1.51254, 2.77289]},
+            {"ct": 3603, "ccm": [
+                2.18644, -0.66148, -0.52496, -0.77828, 2.69474, -0.91645, -0.25239, -0.83059, 2.08298]},
+            {"ct": 4650, "ccm": [
+                2.18174, -0.70887, -0.47287, -0.70196, 2.76426, -1.06231, -0.25157, -0.71978, 1.97135]},
+            {"ct": 5858, "ccm": [
+                2.32392, -0.88421, -0.43971, -0.63821, 2.58348, -0.94527, -0.28541, -0.54112, 1.82653]},
+            {"ct": 7580, "ccm": [
+                2.21175, -0.53242, -0.67933, -0.57875, 3.07922, -1.50047, -0.27709, -0.73338, 2.01048]},
+        ]}},
+        {"rpi.sharpen": {"threshold": 0.75, "limit": 0.5, "strength": 1.0}},
     ]}}
 
     def __init__(self, camera_num: int = 0, tuning: dict | None = None) -> None:
@@ -221,6 +239,33 @@ def test_picamera2_holds_a_focus_motors_lens_where_it_is_told(fake_picamera2, mo
     assert controls["AfMode"] == 0 and controls["LensPosition"] == 2.5  # 0: libcamera's Manual
     with pytest.raises(HardwareError, match=r"camera.lens_dioptres: 20 is beyond this lens's 0-15 dioptres"):
         Picamera2Camera(CameraSettings(lens_dioptres=20.0), (640, 480))
+
+
+def test_picamera2_frames_keep_their_colours_apart_and_their_pixels_as_measured(fake_picamera2):
+    """The ISP's colour matrix would make ranging's red 2.18 R − 0.71 G − 0.47 B, and its defective-pixel
+    correction pulls a small spot's peak red pixel back to its neighbours: both off, by the tuning file."""
+    from edge.hw.camera import IDENTITY_CCM
+
+    Picamera2Camera(CameraSettings(), (640, 480))
+    tuning = fake_picamera2.last.tuning
+    find = fake_picamera2.find_tuning_algo
+    ccm = find(tuning, "rpi.ccm")
+    assert [entry["ccm"] for entry in ccm["ccms"]] == [list(IDENTITY_CCM)] and "saturation" not in ccm
+    assert find(tuning, "rpi.dpc") == {"strength": 0}
+    assert find(tuning, "rpi.sharpen") == {"threshold": 0.75, "limit": 0.5, "strength": 1.0}  # the rest kept
+    # The sensor's own file is not changed: the next camera opened reads it as it was.
+    assert len(find(fake_picamera2.tuning_files["imx219.json"], "rpi.ccm")["ccms"]) == 6
+
+
+def test_picamera2_opens_with_a_tuning_file_that_has_no_colour_stages(fake_picamera2, monkeypatch):
+    """A mono sensor's file has no colour matrix, an old one may have no DPC: nothing to turn off."""
+    grey = {"version": 2.0, "algorithms": [{"rpi.black_level": {"black_level": 4096}},
+                                           {"rpi.contrast": {"ce_enable": 1, "gamma_curve": [0, 0, 65535, 65535]}}]}
+    monkeypatch.setattr(fake_picamera2, "tuning_files", {"imx219.json": grey})
+    cam = Picamera2Camera(CameraSettings(), (640, 480))
+    assert cam.closed is False
+    assert [next(iter(stage)) for stage in fake_picamera2.last.tuning["algorithms"]] == ["rpi.black_level",
+                                                                                        "rpi.contrast"]
 
 
 def test_picamera2_frames_come_through_the_configured_tone_curve(fake_picamera2, monkeypatch, caplog):

@@ -54,6 +54,9 @@ def test_the_simulated_rig_is_all_ok_and_exits_0(broker):
     ('sim.ptu_faults=[{kind="garbled"}]', "pan-tilt unit", "garbled"),
     ('sim.rig_error={laser_angle_deg=0.5, seed=3}', "laser parallel", "from where the rig says"),
     ('sim.camera_faults=[{kind="stall", at_s=0, seconds=60}]', "camera", "no frame within 1 s"),
+    # The IMX219's own colour matrix at 4650 K (libcamera's tuning file), which edge's tuning file replaces.
+    ("sim.sensor.colour_matrix=[2.18174, -0.70887, -0.47287, -0.70196, 2.76426, -1.06231, -0.25157, -0.71978, "
+     "1.97135]", "camera", "the ISP mixes the colours: its colour matrix takes 2.18 R -0.71 G -0.47 B for red"),
 ])
 def test_each_simulated_fault_fails_its_own_line_with_a_remedy(fault, line, words):
     result = examine(None, [*NO_BROKER, fault])
@@ -61,7 +64,8 @@ def test_each_simulated_fault_fails_its_own_line_with_a_remedy(fault, line, word
     assert _by_status(result, "fail") == [line]
     failed = next(x for x in result.checks.lines if x.check == line)
     assert words in failed.detail and failed.remedy
-    # A stalled camera leaves the lasers unseen: not run (and said why), not failed.
+    # A camera line that fails (a stall, mixed colours) leaves the lasers unseen: not run (and said
+    # why), not failed.
     unseen = ["laser center", "laser parallel", "laser sloped", "frames", "tone curve"] if line == "camera" else []
     assert _by_status(result, "not run") == unseen
 
@@ -160,6 +164,24 @@ def test_the_camera_line_tells_where_a_focus_motor_holds_the_lens_and_fails_if_i
     with pytest.raises(Problem, match="the lens moved to 1.00–1.80 dioptres, not held at 1") as moved:
         _lens(frames(1.0, 1.8), 1.0)
     assert "AfMode = Manual" in moved.value.remedy
+
+
+def test_the_camera_line_passes_the_colour_matrix_edge_asked_for_and_fails_a_cameras_own():
+    from edge.doctor.rig import _colours_kept_apart
+    from edge.hw.base import Frame
+
+    image = np.zeros((4, 4, 3), np.uint8)
+
+    def frames(matrix):
+        return [Frame(image, i, 1000.0, 0, i, {"ColourCorrectionMatrix": matrix}) for i in range(2)]
+
+    _colours_kept_apart([Frame(image, 0, 1000.0, 0, 0)])  # a webcam tells none: nothing to judge
+    # Identity, as libcamera reports it once its saturation step (Y'CbCr there and back) has rounded it.
+    _colours_kept_apart(frames(((1.0, -0.0004, 0.0004), (0.0003, 1.0004, -0.0007), (-0.0003, 0.0008, 0.9995))))
+    with pytest.raises(Problem, match=r"takes 2\.12 R -0\.52 G -0\.60 B for red") as mixed:
+        _colours_kept_apart(frames((2.12089, -0.52461, -0.59629, -0.85342, 2.80445, -0.95103, -0.26897, -1.14788,
+                                    2.41685)))
+    assert "tuning file" in mixed.value.remedy
 
 
 def test_a_spots_light_is_weighed_in_frames_lit_for_part_of_their_exposure(office):

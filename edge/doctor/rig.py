@@ -39,6 +39,9 @@ LIT_AFTER_FRAMES = 3  # a frame this many after the first lit one saw the laser 
 TIMING_MIN_SNR = 30.0
 TIMING_SWITCHES = 2  # switchings whose light is averaged for the timing (see RigChecks.laser)
 LENS_TOLERANCE = 0.05  # dioptres: a focus motor reports back where it is, to its step
+# An identity colour matrix comes back within 0.001 of it (libcamera's saturation step rounds);
+# a camera's own mixes by 0.4-1.5.
+COLOUR_MATRIX_TOLERANCE = 0.02
 TONE_FRAMES = 8  # frames averaged at each exposure for the tone curve (flicker averages out)
 TURN_FRAMES = 4  # laser-off frames averaged at each of the two aims that tell a spot that stays put
 KIND_FRAMES = 4  # laser-off frames taken one after another for the frames line: 6 pairs of pure noise
@@ -254,6 +257,7 @@ class RigChecks:
                               f"{settings.analogue_gain:g}", "the camera must take a fixed AnalogueGain: "
                               "update picamera2 (sudo apt full-upgrade)")
             gain = f", gain {g:.2f}"
+        _colours_kept_apart(frames)
         median = statistics.median(intervals)
         return (f"{config.camera.backend} {shape[1]}x{shape[0]}: {len(frames)} frames every {median:.1f} ms "
                 f"({1e3 / median:.1f} fps; {settings.frame_rate_hz:g} configured), exposure {got:.0f} µs fixed "
@@ -475,6 +479,24 @@ class RigChecks:
         means = [np.mean([f.image for f in part], axis=0, dtype=np.float64) / top
                  for part in (frames[:half], frames[half:])]
         return means, float(np.mean([f.exposure_us for f in frames]))
+
+
+def _colours_kept_apart(frames: list[Frame]) -> None:
+    """A Problem where the ISP mixed the colours: a colour matrix (libcamera's ColourCorrectionMatrix,
+    rows R', G', B') other than none in a frame's metadata. Ranging reads a red spot from red; mixed,
+    red carries the other channels' noise and their demosaicing, which edge's simulator and tuning
+    never saw. (A webcam tells nothing of its matrix, and takes none from us.)"""
+    import numpy as np
+
+    for f in frames:
+        if "ColourCorrectionMatrix" not in f.metadata:
+            continue
+        m = np.asarray(f.metadata["ColourCorrectionMatrix"], dtype=float).ravel()
+        if m.size == 9 and float(np.abs(m - np.eye(3).ravel()).max()) > COLOUR_MATRIX_TOLERANCE:
+            raise Problem(f"the ISP mixes the colours: its colour matrix takes {m[0]:.2f} R {m[1]:+.2f} G "
+                          f"{m[2]:+.2f} B for red", "edge asks for none through the sensor's tuning file: look "
+                          "for the camera's warning that it could not read it, and update libcamera's tuning "
+                          "files (sudo apt full-upgrade)")
 
 
 def _lens(frames: list[Frame], dioptres: float) -> str:

@@ -7,7 +7,9 @@ a frame that was being exposed while the lasers switched shows them half on.
 
 Exposure and gain are fixed (a zone's laser-on and laser-off frames must differ by the lasers
 alone), and anything that mixes frames is off: on a Pi 5 any noise reduction mode but Off turns on
-temporal denoise, which blends the previous frame into the next — laser-on into laser-off.
+temporal denoise, which blends the previous frame into the next — laser-on into laser-off. So is
+what reshapes a spot or mixes the colours it is read from: sharpening, and (through the sensor's
+tuning file) the colour matrix and defective-pixel correction.
 """
 
 from __future__ import annotations
@@ -121,7 +123,7 @@ class Picamera2Camera:
         self.closed = False
         self._first_t: int | None = None
         self._flush = True  # picamera2 picks frames by timestamp itself (capture_request(flush=))
-        tuning = _tuning_with_curve(Picamera2, camera_num, settings.gamma)
+        tuning = _tuning_for_ranging(Picamera2, camera_num, settings.gamma)
         try:
             self._cam = Picamera2(camera_num) if tuning is None else Picamera2(camera_num, tuning=tuning)
         except Exception as exc:
@@ -264,26 +266,55 @@ class Picamera2Camera:
         return Frame(image, t_start, exposure_us, readout_ns, sequence, metadata)
 
 
-def _tuning_with_curve(picamera2: Any, camera_num: int, gamma: float) -> dict | None:
-    """The camera's own tuning file (by its sensor's model) with its tone curve `gamma`'s
-    (:func:`edge.tone.tone_curve`) and adaptive contrast off; None, with a warning, where it
-    cannot be read (the ISP then applies its own curve, which ranging cannot undo exactly)."""
+# The colour matrix ranging asks the ISP for (rpi.ccm's rows R', G', B' of columns R, G, B): none.
+IDENTITY_CCM = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+
+
+def _tuning_for_ranging(picamera2: Any, camera_num: int, gamma: float) -> dict | None:
+    """The camera's own tuning file (by its sensor's model), changed where the ISP would reshape
+    what ranging measures; None, with a warning, where it cannot be read (the ISP then applies its
+    own curve, which ranging cannot undo exactly, and its own colour matrix).
+
+    - ``rpi.contrast``: `gamma`'s tone curve (:func:`edge.tone.tone_curve`), adaptive contrast off.
+    - ``rpi.ccm``: no colour mixing. The matrix mixes the channels with large negative terms (the
+      IMX219's at 4650 K takes 2.18 R − 0.71 G − 0.47 B for red): red then carries the other
+      channels' noise and their demosaicing, and a red spot drives green and blue below zero,
+      where they clip. One identity matrix at every colour temperature, and no fall of saturation
+      with the light (its lux table).
+    - ``rpi.dpc``: no defective-pixel correction (strength 0). It pulls a pixel that stands out
+      from its same-colour neighbours back to them, as a small spot's peak red pixel does;
+      a truly hot pixel is in the laser-off frame too, and the difference cancels it.
+
+    A stage that the file lacks is not run, so there is nothing to change there."""
     model = "?"
     try:
         model = str(picamera2.global_camera_info()[camera_num]["Model"])
         tuning = picamera2.load_tuning_file(f"{model}.json")
     except Exception as exc:
-        log.warning("camera: cannot read the %s tuning file to set its tone curve (%s); frames keep "
-                    "the ISP's own gamma curve", model, exc)
+        log.warning("camera: cannot read the %s tuning file to set its tone curve and colour matrix (%s); "
+                    "frames keep the ISP's own gamma curve and colour matrix", model, exc)
         return None
-    try:
-        contrast = picamera2.find_tuning_algo(tuning, "rpi.contrast")
-    except Exception:
-        contrast = None  # no contrast stage: its frames are linear, whatever gamma says
+
+    def stage(name: str) -> dict | None:
+        try:
+            found = picamera2.find_tuning_algo(tuning, name)
+        except Exception:
+            return None
+        return found if isinstance(found, dict) else None
+
+    contrast = stage("rpi.contrast")
+    if contrast is None:
         log.warning("camera: the %s tuning file has no tone curve (rpi.contrast): frames are linear", model)
-    if isinstance(contrast, dict):
+    else:
         contrast["ce_enable"] = 0
         contrast["gamma_curve"] = curve_points(gamma)
+    ccm = stage("rpi.ccm")
+    if ccm is not None:
+        ccm.pop("saturation", None)
+        ccm["ccms"] = [{"ct": 5000, "ccm": list(IDENTITY_CCM)}]
+    dpc = stage("rpi.dpc")
+    if dpc is not None:
+        dpc["strength"] = 0
     return tuning
 
 

@@ -266,6 +266,9 @@ class SimCamera:
             # Per laser: the least and most of an exposure any row saw it lit (truth, for tests).
             "laser_fraction_range": {n: (float(f.min()), float(f.max())) for n, f in fractions.items()},
         }
+        matrix = self.renderer.sim.sensor.colour_matrix
+        if matrix and self.renderer.channels == 3:
+            metadata["ColourCorrectionMatrix"] = matrix  # as libcamera tells the one its ISP applied
         return Frame(image, t_start, self.settings.exposure_us, self.readout_ns, k, metadata)
 
 
