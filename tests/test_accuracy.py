@@ -57,6 +57,30 @@ def test_conditions_cover_what_the_issue_asks_within_its_ranges() -> None:
         assert max(values) - min(values) > 0.5 * (hi - lo), f"{key} does not spread over its range"
     # Half-power points of the log-uniform scales: as many below 1 as above.
     assert 0.35 < np.mean([c.laser_power < 1 for c in family]) < 0.65
+    # A webcam (JPEG colour frames) mixes its channels as real sensors' matrices do, warm to cool;
+    # the Pi camera (lossless) and grey cameras do not.
+    webcams = [c for c in family if c.colour and c.jpeg_quality]
+    assert all(not c.colour_matrix for c in family if c not in webcams)
+    reds = []
+    for c in webcams:
+        m = np.array(c.colour_matrix).reshape(3, 3)
+        assert np.allclose(m.sum(axis=1), 1.0, atol=0.02)  # grey stays grey
+        reds.append(m[0, 0])
+        warm_cool = [np.array(pair).reshape(2, 3, 3) for pair in cond.SENSOR_COLOUR_MATRICES.values()]
+        assert any(np.all((m >= pair.min(axis=0) - 1e-3) & (m <= pair.max(axis=0) + 1e-3)) for pair in warm_cool)
+    assert min(reds) < 1.6 and max(reds) > 2.1
+
+
+def test_a_family_kept_before_the_colour_matrix_was_drawn_reads_as_without_one() -> None:
+    c = cond.condition("tuning", 321)
+    assert c.colour_matrix  # a JPEG colour condition
+    doc = json.loads(json.dumps(c.to_json()))
+    assert cond.Condition.from_json(doc) == c
+    del doc["colour_matrix"]
+    assert cond.Condition.from_json(doc) == replace(c, colour_matrix=())
+    del doc["seed"]
+    with pytest.raises(KeyError, match="seed"):
+        cond.Condition.from_json(doc)
 
 
 def test_a_condition_is_a_valid_configuration_of_what_it_says() -> None:
@@ -71,6 +95,7 @@ def test_a_condition_is_a_valid_configuration_of_what_it_says() -> None:
         assert config.sim.ambient.white_e_per_ms == pytest.approx(600.0 * c.room_light)
         assert config.sim.sensor.bayer == c.bayer and config.sim.sensor.jpeg_quality == c.jpeg_quality
         assert config.sim.surfaces.albedo_scale == c.albedo_scale
+        assert config.sim.sensor.colour_matrix == c.colour_matrix
         assert config.sweep.poses() == c.poses(5)
         white = 600.0 * c.room_light * config.camera.exposure_us / 1000.0  # e of a white wall
         assert 500.0 <= config.camera.exposure_us <= 30000.0

@@ -6,7 +6,9 @@ A condition draws, from its seed, everything the simulator can vary that real se
 - the camera: resolution (320 × 240 to 1280 × 720), field of view (50–75°), principal point and
   barrel distortion; the sensor's full well, read noise and ADC; grey or colour, with an ideal
   3-colour sensor or a Bayer filter and one of OpenCV's demosaicing methods; lossless frames
-  (8- or 16-bit) or JPEG of quality 50–95 with 4:2:0 or 4:4:4 chroma;
+  (8- or 16-bit) or JPEG of quality 50–95 with 4:2:0 or 4:4:4 chroma; JPEG colour frames (a
+  webcam's) through a colour matrix like a real sensor's, which a webcam's ISP applies and nobody
+  can turn off (lossless colour frames stand for the Pi camera, whose matrix edge turns off);
 - the light: laser power and room light each ¼–4 × the configured, and the exposure someone (or an
   auto-exposure) chose for the room: a white wall under its light fills 25–80 % of the full well,
   within 0.5–30 ms (a fixed exposure in a bright room would clip every wall: nothing to measure);
@@ -33,7 +35,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from typing import Literal
 
 import numpy as np
@@ -46,6 +48,24 @@ SCENES = ("office", "kitchen")
 RESOLUTIONS = ((320, 240), (352, 288), (640, 480), (800, 600), (1280, 720))
 RESOLUTION_WEIGHTS = (0.15, 0.15, 0.4, 0.15, 0.15)
 _SALT = 0xACC  # separates the conditions' draws from any other use of their seed
+# Real sensors' colour matrices at their tuning's lowest and highest colour temperature (about 2500-3000 K
+# and 7400-8000 K), rows R', G', B' of columns R, G, B: libcamera's Raspberry Pi tuning files
+# (src/ipa/rpi/vc4/data/<sensor>.json, rpi.ccm), rounded. A webcam's ISP mixes its channels as
+# strongly; a JPEG colour condition takes one sensor's matrix at a colour temperature between the two.
+SENSOR_COLOUR_MATRICES: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
+    "imx219": ((2.121, -0.525, -0.596, -0.853, 2.804, -0.951, -0.269, -1.148, 2.417),
+               (2.212, -0.532, -0.679, -0.579, 3.079, -1.5, -0.277, -0.733, 2.01)),
+    "imx477": ((1.975, -0.714, -0.26, -0.435, 2.098, -0.662, -0.048, -0.846, 1.895),
+               (2.307, -0.973, -0.334, -0.309, 2.328, -1.019, -0.178, -0.559, 1.737)),
+    "ov5647": ((1.882, -0.262, -0.619, -0.638, 2.115, -0.477, -0.135, -0.997, 2.133),
+               (2.066, -0.392, -0.674, -0.509, 2.275, -0.766, -0.14, -0.661, 1.801)),
+    "imx708": ((1.721, -0.46, -0.262, -0.3, 1.569, -0.269, 0.151, -1.133, 1.982),
+               (1.414, -0.211, -0.203, -0.176, 1.717, -0.541, 0.013, -0.631, 1.618)),
+    "imx296": ((1.951, -0.574, -0.376, -0.469, 1.867, -0.397, 0.08, -1.141, 2.061),
+               (2.375, -0.831, -0.545, -0.483, 2.843, -1.36, -0.212, -0.665, 1.877)),
+    "imx378": ((1.426, -0.205, -0.221, -0.477, 1.82, -0.343, 0.019, -0.86, 1.842),
+               (1.546, -0.204, -0.342, -0.317, 2.226, -0.908, -0.1, -0.659, 1.759)),
+}
 _POSES_SALT = 0x9053
 
 
@@ -86,6 +106,9 @@ class Condition:
     laser_angle_deg: float  # 1 σ, as sim.rig_error takes them
     laser_offset_m: float
     focal_scale: float
+    # An ISP's colour matrix (sim.sensor.colour_matrix; empty: none). Drawn last: families kept
+    # before it was drawn read as none.
+    colour_matrix: tuple[float, ...] = ()
 
     @property
     def name(self) -> str:
@@ -146,6 +169,7 @@ class Condition:
             f"sim.rig_error.laser_offset_m={self.laser_offset_m!r}",
             f"sim.rig_error.focal_scale={self.focal_scale!r}",
             f"sim.rig_error.seed={self.seed}",
+            f"sim.sensor.colour_matrix={list(self.colour_matrix)!r}",
             f"sweep.poses_deg={poses}",
         )
 
@@ -170,6 +194,8 @@ class Condition:
         """One short line of what matters most to ranging."""
         sensor = "grey" if not self.colour else ("3-colour" if self.bayer == "none" else f"bayer-{self.bayer}")
         frames = f"jpeg{self.jpeg_quality} {self.jpeg_chroma}" if self.jpeg_quality else f"png{self.output_bits}"
+        if self.colour_matrix:
+            frames += f" ccm {self.colour_matrix[0]:.2f}R{self.colour_matrix[1]:+.2f}G{self.colour_matrix[2]:+.2f}B"
         return (f"{self.scene} {self.width}x{self.height} {sensor} {frames}, laser ×{self.laser_power:.2g} "
                 f"light ×{self.room_light:.2g} fill {self.fill:.2f} albedo ×{self.albedo_scale:.2g} "
                 f"gloss +{self.extra_gloss:.2f} f/{self.f_number:.1f}@{self.focus_m:.1f}m speckle ×{self.speckle:.2g}")
@@ -179,8 +205,12 @@ class Condition:
 
     @classmethod
     def from_json(cls, doc: dict) -> Condition:
-        """The condition `to_json` wrote (a KeyError names a field it lacks)."""
-        return cls(**{f.name: doc[f.name] for f in fields(cls)})
+        """The condition `to_json` wrote (a KeyError names a field it lacks; a field drawn after it
+        was written takes its default, as the family then had it)."""
+        given = {f.name: doc[f.name] for f in fields(cls) if f.name in doc or f.default is MISSING}
+        if "colour_matrix" in given:
+            given["colour_matrix"] = tuple(given["colour_matrix"])
+        return cls(**given)
 
 
 def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -251,7 +281,19 @@ def condition(family: Family | str, index: int) -> Condition:
         laser_angle_deg=round(float(rng.uniform(0.0, 0.3)), 4),
         laser_offset_m=round(float(rng.uniform(0.0, 0.001)), 6),
         focal_scale=round(float(rng.uniform(0.0, 0.01)), 5),
+        colour_matrix=_colour_matrix(rng, colour and bool(jpeg_quality)),
     )
+
+
+def _colour_matrix(rng: np.random.Generator, webcam: bool) -> tuple[float, ...]:
+    """A webcam's colour matrix: one sensor's of SENSOR_COLOUR_MATRICES at a colour temperature
+    between its two (as libcamera interpolates them); empty for other cameras. (Drawn for every
+    condition, so that a knob drawn after it keeps its draws.)"""
+    warm, cool = SENSOR_COLOUR_MATRICES[str(rng.choice(sorted(SENSOR_COLOUR_MATRICES)))]
+    mix = float(rng.uniform(0.0, 1.0))
+    if not webcam:
+        return ()
+    return tuple(round(a + mix * (b - a), 4) for a, b in zip(warm, cool))
 
 
 def family(name: Family | str, count: int, start: int = 0) -> list[Condition]:
