@@ -266,9 +266,11 @@ class SimCamera:
             # Per laser: the least and most of an exposure any row saw it lit (truth, for tests).
             "laser_fraction_range": {n: (float(f.min()), float(f.max())) for n, f in fractions.items()},
         }
-        matrix = self.renderer.sim.sensor.colour_matrix
-        if matrix and self.renderer.channels == 3:
-            metadata["ColourCorrectionMatrix"] = matrix  # as libcamera tells the one its ISP applied
+        sensor = self.renderer.sim.sensor
+        if sensor.colour_matrix and self.renderer.channels == 3 and not sensor.jpeg_quality:
+            # As libcamera tells the matrix the Pi camera's ISP applied; a webcam's JPEG frames
+            # come with nothing of the kind (as the accuracy family takes its JPEG frames to be).
+            metadata["ColourCorrectionMatrix"] = sensor.colour_matrix
         return Frame(image, t_start, self.settings.exposure_us, self.readout_ns, k, metadata)
 
 
