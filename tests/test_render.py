@@ -417,3 +417,26 @@ def test_an_isps_colour_matrix_mixes_the_channels_in_linear_light_and_clips_at_b
     grey, grey_mixed = _small(*grey_sensor), _small(ccm, *grey_sensor)
     e = grey.render_electrons(0.0, 0.0, {"center": 1.0})
     assert np.array_equal(grey.digitise(e, None), grey_mixed.digitise(e, None))
+
+
+def test_defective_pixel_correction_takes_a_hot_pixel_and_a_small_spots_peak_alike() -> None:
+    from edge.sim.render import _defects_corrected
+
+    raw = np.full((12, 12), 100.0, np.float32)
+    raw[5, 5] = 400.0  # a hot pixel: all its same-colour neighbours 300 below
+    raw[8, 2] = 130.0  # within the threshold of them: kept
+    corrected = _defects_corrected(raw, 50.0)
+    assert corrected[5, 5] == 100.0 and corrected[8, 2] == 130.0
+    assert np.array_equal(np.delete(corrected.ravel(), 5 * 12 + 5), np.delete(raw.ravel(), 5 * 12 + 5))
+    # A spot narrower than the filter's 2-px pitch lights one red pixel far above the red pixels
+    # round it: the correction takes its peak for a hot pixel. A wide one it leaves be.
+    plain = ("sim.surfaces.texture_scale=0", "sim.beam.speckle=0", 'sim.sensor.bayer="bilinear"')
+    for psf, lost in ((0.4, True), (1.5, False)):
+        kept, corrected_frames = (_small(*plain, f"sim.optics.psf_sigma_px={psf}", *extra)
+                                  for extra in ((), ("sim.sensor.dpc=0.05",)))
+        e = kept.render_electrons(0.0, 0.0, {"center": 1.0})
+        u, v = (int(round(c)) for c in kept.spots(0.0, 0.0)["center"].pixel)
+        near = (slice(v - 3, v + 4), slice(u - 3, u + 4), 2)
+        before = kept.digitise(e, None)[near].astype(float)
+        after = corrected_frames.digitise(e, None)[near].astype(float)
+        assert (after.max() < 0.8 * before.max()) == lost, (psf, before.max(), after.max())

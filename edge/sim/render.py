@@ -472,6 +472,8 @@ class Renderer:
         e *= np.float32(self._dn_per_e)
         np.rint(e, out=e)
         np.clip(e, 0, top, out=e)
+        if mosaic and sensor.dpc:
+            e = _defects_corrected(e, sensor.dpc * top)
         # 16-bit PNGs hold the sensor's values scaled to the full 16-bit range (geometry.md).
         full = 255.0 if sensor.output_bits == 8 else 65535.0
         if sensor.gamma != 1.0:
@@ -519,6 +521,24 @@ def _colour_corrected(out: np.ndarray, matrix: tuple[float, ...], gamma: float, 
     x *= np.float32(full)
     np.rint(x, out=x)
     return x.astype(out.dtype)
+
+
+def _defects_corrected(raw: np.ndarray, threshold: float) -> np.ndarray:
+    """A raw Bayer frame's defective-pixel correction (sim.sensor.dpc): each pixel that differs from
+    all 8 of its same-colour neighbours, 2 px away, by over `threshold` takes the median of the 4
+    nearest of them (the frame's edges mirrored)."""
+    padded = np.pad(raw, 2, mode="reflect")
+    h, w = raw.shape
+
+    def at(dv: int, du: int) -> np.ndarray:
+        return padded[2 + dv: 2 + dv + h, 2 + du: 2 + du + w]
+
+    ring = [at(dv, du) for dv in (-2, 0, 2) for du in (-2, 0, 2) if dv or du]
+    odd = np.ones(raw.shape, bool)
+    for n in ring:
+        odd &= np.abs(n - raw) > threshold
+    axial = np.median(np.stack([at(-2, 0), at(2, 0), at(0, -2), at(0, 2)]), axis=0)
+    return np.where(odd, axial, raw).astype(raw.dtype)
 
 
 def _mosaic(bgr: np.ndarray) -> np.ndarray:

@@ -42,12 +42,19 @@ class SensorConfig:
     # webcam applies one that nobody can turn off; edge turns the Pi's off (edge.hw.camera). Grey
     # frames have no colours to mix and pass unchanged (so that one `--set` serves a whole family).
     colour_matrix: tuple[float, ...] = ()
+    # Defective-pixel correction on a Bayer sensor's raw values, as an ISP runs it before
+    # demosaicing: a pixel that differs from all 8 of its same-colour neighbours (2 px away) by over
+    # this share of full scale is taken for a hot or dead pixel and replaced by the median of the 4
+    # nearest of them; 0: none. (A generic rule, as open ISPs write it; the Pi's own is in its
+    # hardware. edge turns the Pi's off: edge.hw.camera.)
+    dpc: float = 0.0
 
     def __post_init__(self) -> None:
         require(self.full_well_e > 0, "full_well_e", "must be positive")
         require(len(self.colour_matrix) in (0, 9), "colour_matrix",
                 f"must be 9 numbers (rows R', G', B' of columns R, G, B) or empty, got {len(self.colour_matrix)}")
         require(all(math.isfinite(x) for x in self.colour_matrix), "colour_matrix", "must be finite numbers")
+        require(0.0 <= self.dpc < 1.0, "dpc", "must be in [0, 1): a share of full scale (0: no correction)")
         require_gamma(self.gamma, "gamma")
         require(self.read_noise_e >= 0, "read_noise_e", "must be >= 0")
         require(8 <= self.adc_bits <= 16, "adc_bits", f"must be 8-16, got {self.adc_bits}")
