@@ -484,8 +484,9 @@ class RigChecks:
 def _colours_kept_apart(frames: list[Frame]) -> None:
     """A Problem where the ISP mixed the colours: a colour matrix (libcamera's ColourCorrectionMatrix,
     rows R', G', B') other than none in a frame's metadata. Ranging reads a red spot from red; mixed,
-    red carries the other channels' noise and their demosaicing, which edge's simulator and tuning
-    never saw. (A webcam tells nothing of its matrix, and takes none from us.)"""
+    red carries the other channels' noise and their demosaicing (on the simulator, the IMX219's own
+    matrix ranged Bayer frames 1.7 × worse, with 4.5 × the 2σ tails). (A webcam tells nothing of its
+    matrix, and takes none from us.)"""
     import numpy as np
 
     for f in frames:
