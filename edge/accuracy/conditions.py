@@ -36,7 +36,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import MISSING, dataclass, fields
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -207,9 +207,8 @@ class Condition:
     def from_json(cls, doc: dict) -> Condition:
         """The condition `to_json` wrote (a KeyError names a field it lacks; a field drawn after it
         was written takes its default, as the family then had it)."""
-        given = {f.name: doc[f.name] for f in fields(cls) if f.name in doc or f.default is MISSING}
-        if "colour_matrix" in given:
-            given["colour_matrix"] = tuple(given["colour_matrix"])
+        given: dict[str, Any] = {f.name: tuple(doc[f.name]) if isinstance(doc.get(f.name), list) else doc[f.name]
+                                 for f in fields(cls) if f.name in doc or f.default is MISSING}  # (JSON's lists)
         return cls(**given)
 
 
