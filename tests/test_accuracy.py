@@ -101,6 +101,13 @@ def test_a_condition_is_a_valid_configuration_of_what_it_says() -> None:
         assert 500.0 <= config.camera.exposure_us <= 30000.0
         assert white == pytest.approx(c.fill * c.full_well_e, rel=1e-3) or config.camera.exposure_us in (500, 30000)
         assert c.name in c.describe() or c.scene in c.describe()
+    # A matrix given by `--set` reaches the cameras that draw none (the Pi camera's lossless frames);
+    # a webcam keeps its own.
+    lossless, webcam = cond.condition("tuning", 320), cond.condition("tuning", 321)
+    given = ["sim.sensor.colour_matrix=[2.0, -0.5, -0.5, -0.5, 2.0, -0.5, -0.5, -0.5, 2.0]"]
+    for c, matrix in ((lossless, (2.0, -0.5, -0.5, -0.5, 2.0, -0.5, -0.5, -0.5, 2.0)), (webcam, webcam.colour_matrix)):
+        extra = c.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones=5)
+        assert load_config(None, [*given, *extra]).sim.sensor.colour_matrix == matrix
     c = cond.condition("tuning", 0)
     assert c.poses(12)[:5] == c.poses(5)  # a short run is a prefix of a long one
     assert all(-180 <= p <= 180 and -30 <= t <= 15 for p, t in c.poses(50))

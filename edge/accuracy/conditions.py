@@ -169,7 +169,8 @@ class Condition:
             f"sim.rig_error.laser_offset_m={self.laser_offset_m!r}",
             f"sim.rig_error.focal_scale={self.focal_scale!r}",
             f"sim.rig_error.seed={self.seed}",
-            f"sim.sensor.colour_matrix={list(self.colour_matrix)!r}",
+            # (Only a webcam's own: other cameras keep the configuration's, which a `--set` may give.)
+            *([f"sim.sensor.colour_matrix={list(self.colour_matrix)!r}"] if self.colour_matrix else []),
             f"sweep.poses_deg={poses}",
         )
 
