@@ -14,7 +14,7 @@ import pytest
 
 from edge.accuracy import conditions as cond
 from edge.accuracy.floor import OBSERVABLE_SNR, spot_profile
-from edge.accuracy.score import Figures, ZoneOutcome, failing_by_chance, targets
+from edge.accuracy.score import Figures, ZoneOutcome, failing_by_chance, stricter, targets
 from edge.config import load_config
 from edge.ranging import OK, ZoneResult
 
@@ -205,6 +205,23 @@ def test_figures_and_targets_follow_the_rules() -> None:
     assert math.isnan(Figures.of([]).coverage)
 
 
+def test_a_surer_ok_is_read_off_the_claimed_sigmas() -> None:
+    zones = [
+        _zone(0, range_m=2.0, sigma_m=0.02),  # 1 %: ok at every share
+        _zone(1, range_m=2.21, sigma_m=0.09),  # 4.1 % of its range, and 10.5 % off: wrong
+        _zone(2, range_m=1.98, sigma_m=0.068),  # 3.4 %: ok at 3.5 % and over
+        _zone(3, status="no_spot"),  # observable, never ok
+        _zone(4, range_m=2.0, sigma_m=0.06, snr=OBSERVABLE_SNR - 1),  # 3 %, but not observable
+    ]
+    at = {round(x.fraction, 3): x for x in stricter(zones, (0.05, 0.04, 0.035, 0.03))}
+    assert all(x.observable == 4 for x in at.values())
+    assert [(at[f].covered, at[f].wrong_ok) for f in (0.05, 0.04, 0.035, 0.03)] == [(3, 1), (2, 0), (2, 0), (1, 0)]
+    assert at[0.04].coverage == pytest.approx(2 / 4)
+    # At the estimator's own share, it is the family's figures.
+    f = Figures.of(zones)
+    assert (at[0.05].covered, at[0.05].wrong_ok) == (f.covered, f.wrong_ok)
+
+
 # --- a tiny family, end to end ------------------------------------------------------------------
 
 
@@ -234,7 +251,7 @@ def test_a_tiny_family_is_recorded_replayed_and_reported(tmp_path: Path) -> None
                            "Bayer JPEG"}
     assert sum(line.startswith(kind) and "(1): coverage" in line for line in text.splitlines()) == 1
     for label in ("tuning-0", "family:", "coverage", "÷ floor", "the oracle's", "by kind of frames", "targets",
-                  "wrong ok = 0"):
+                  "wrong ok = 0", "a surer `ok`"):
         assert label in text
 
 

@@ -34,6 +34,7 @@ from edge.accuracy.score import (
     Figures,
     ZoneOutcome,
     failing_by_chance,
+    stricter,
     targets,
 )
 from edge.config import Config, load_config
@@ -395,6 +396,9 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
         f"{sum(f.within_2sigma < WITHIN_2SIGMA_LEAST for f in scored)} of {len(scored)} conditions under 90 %, "
         f"where honest Gaussian σ would leave {failing_by_chance([f.scored for f in scored]):.1f} by chance",
         f"  observable zones not ok: {missed}",
+        "  a surer `ok` (σ at most this share of the range) would have left: " + "; ".join(
+            f"{100 * x.fraction:g} %: coverage {_pct(x.coverage)}, {x.wrong_ok} wrong"
+            for x in stricter([z for r in runs for z in r.outcomes])),
         *([f"  observable zones the oracle places to {PLACEABLE_FRACTION:.0%} of their range in the same frames: "
            f"{pooled.placeable}, {pooled.covered_placeable} of them ok (coverage "
            f"{_pct(_share(pooled.covered_placeable, pooled.placeable))}; the others JPEG or demosaicing left "
