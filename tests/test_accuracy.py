@@ -193,6 +193,10 @@ def test_figures_and_targets_follow_the_rules() -> None:
     ]
     f = Figures.of(zones)
     assert (f.zones, f.observable, f.covered, f.ok, f.wrong_ok) == (6, 4, 3, 4, 2)
+    # Both wrong ones are blunders: 25 % off at ± 0.5 %, and a spot the camera cannot see.
+    assert f.blunders == 2 and zones[4].blunder and zones[5].blunder and not zones[1].blunder
+    tail = _zone(6, range_m=2.21, sigma_m=0.09)  # 10.5 % off at ± 4.1 %: 2.3σ, the tail honest σ leaves
+    assert tail.wrong and not tail.blunder
     assert f.coverage == pytest.approx(3 / 4)
     assert f.missed == {"no_spot": 1}
     assert f.mean_abs_m == pytest.approx((0.01 + 0.03 + 0.5) / 3)

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from edge.accuracy.conditions import Condition
 from edge.accuracy.score import (
+    BLUNDER_SIGMAS,
     PLACEABLE_FRACTION,
     WITHIN_2SIGMA_LEAST,
     Figures,
@@ -383,7 +384,8 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
     lines += [
         "",
         f"family: {pooled.zones} zones, {pooled.observable} observable, {pooled.covered} of them ok "
-        f"(coverage {_pct(pooled.coverage)}); {pooled.ok} ok in all, {pooled.wrong_ok} wrong",
+        f"(coverage {_pct(pooled.coverage)}); {pooled.ok} ok in all, {pooled.wrong_ok} wrong"
+        + (f" ({pooled.blunders} of them over {BLUNDER_SIGMAS:g}σ off)" if pooled.wrong_ok else ""),
         f"  |error| over covered zones: mean {_mm(pooled.mean_abs_m)} mm, median {_mm(pooled.median_abs_m)} mm, "
         f"mean {_num(100 * pooled.mean_rel)} % of range",
         f"  |error| ÷ floor: mean {_num(pooled.mean_ratio)}, median {_num(pooled.median_ratio)}; "

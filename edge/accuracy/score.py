@@ -42,6 +42,9 @@ from edge.accuracy.floor import EFFICIENT_RATIO, OBSERVABLE_SNR
 from edge.ranging import OK, ZoneResult
 
 WRONG_FRACTION = 0.10
+# A wrong `ok` this many of its claimed σ off is a blunder: no honest σ leaves one (4σ: 6 in 100 000
+# Gaussian draws). Fewer σ off, it is the tail that an honest σ of up to max_sigma_fraction leaves.
+BLUNDER_SIGMAS = 4.0
 # An observable zone is placeable where the oracle, told the spots' true pixels and shapes, ranges
 # it this near (of the range) in the same frames: JPEG at low quality can keep a spot's energy in a
 # block and erase where in the block it was; coverage of placeable zones says what is left beside it.
@@ -113,6 +116,15 @@ class ZoneOutcome:
         return not self.visible or e is None or abs(e) > WRONG_FRACTION * abs(self.truth_m or 0.0)
 
     @property
+    def blunder(self) -> bool:
+        """A wrong `ok` more than BLUNDER_SIGMAS of its claimed σ off (or of what the camera cannot see)."""
+        if not self.wrong:
+            return False
+        e = self.error_m
+        return (not self.visible or e is None or self.sigma_m is None
+                or abs(e) > BLUNDER_SIGMAS * self.sigma_m)
+
+    @property
     def within_2sigma(self) -> bool | None:
         e = self.error_m
         return None if e is None or self.sigma_m is None else abs(e) <= 2.0 * self.sigma_m
@@ -172,6 +184,7 @@ class Figures:
     oracle_scored: int = 0  # covered zones the oracle ranged too
     ratio_beside_oracle: float = math.nan  # mean |error| ÷ floor over those zones
     oracle_ratio: float = math.nan  # the oracle's, over the same zones
+    blunders: int = 0  # wrong ok zones over BLUNDER_SIGMAS of their claimed σ off
 
     @property
     def over_oracle(self) -> float:
@@ -215,6 +228,7 @@ class Figures:
             oracle_scored=len(paired),
             ratio_beside_oracle=_mean([r for r, _ in paired]),
             oracle_ratio=_mean([o for _, o in paired]),
+            blunders=sum(z.blunder for z in outcomes),
         )
 
 
