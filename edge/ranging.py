@@ -75,6 +75,13 @@ FAR_LASER_M = 0.1
 # max_sigma_fraction or surer (of tuning 0-319's 20 such fusions, the 3 over 10 % off claimed
 # 4.5-4.6 %; 15 of the 17 others 1.6-4.2 %).
 FAR_PARTNER_SHARE = 0.8
+# Nor is one placed looser than this many times max_sigma_fraction on its own, however sure the
+# fusion: its own 2σ then spans ±20 % of its depth, wide enough to hold the range of every known
+# surface through the far spot, so it cannot tell whether the far spot lies on its surface at all
+# (tuning-431 zone 10: a ± 12 % reference and the sloped laser's spot 0.9 m nearer, on another
+# surface, made 1.77 m ± 3.8 % where the reference's spot was 2.21 m away). On five tuning sets
+# (5 091 observable zones) it refused 2 observable zones that were right, and that one.
+FAR_LOOSE_REFERENCE = 2.0
 # A weak reference spot that no other laser's spot confirms is looked for where the others' spots
 # should be (Ranger._looked_for): a short stretch of each other path, around the depth a known
 # surface through the reference gives that beam, give or take this slope across their separation
@@ -472,12 +479,14 @@ class Ranger:
         if len(fusion.used) == 1 and not any(others.values()) and chosen.snr < self.config.alone_min_snr:
             return AMBIGUOUS, f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found"
         if (len(fusion.used) == 2 and _rests_on_a_far_one(fusion) and self._too_loose_alone(chosen)
-                and fusion.sigma_m > FAR_PARTNER_SHARE * self.config.max_sigma_fraction * fusion.range_m):
+                and (fusion.sigma_m > FAR_PARTNER_SHARE * self.config.max_sigma_fraction * fusion.range_m
+                     or chosen.sigma_m > FAR_LOOSE_REFERENCE * self.config.max_sigma_fraction * chosen.depth_m)):
             # Too loose to range alone, the reference takes its range from the one other laser that
             # agrees with it, and from the surface model between them: a spot that far away may be
             # on another surface, which a loose reference cannot tell. Such a fusion must be sure
             # enough to leave room for that (tuning-286 zone 0: the sloped laser's spot 0.44 m
-            # below, on a wall behind, made a ±8 % reference ±4.5 % and 14 % off).
+            # below, on a wall behind, made a ±8 % reference ±4.5 % and 14 % off), and the
+            # reference placed well enough to say whether it is (FAR_LOOSE_REFERENCE).
             return AMBIGUOUS, (f"the {ref} spot is placed too loosely to range alone (± {chosen.sigma_m:.2f} m), "
                                f"and only the {fusion.used[1].laser} laser's spot, {apart(*fusion.used):.2f} m away, "
                                f"agrees with it: {fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m")

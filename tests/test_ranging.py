@@ -544,6 +544,26 @@ def test_a_loose_reference_that_only_a_far_spot_confirms_must_be_ranged_surely(m
     assert lax.lasers["center"].sigma_m > 0.05 * 3.0 and lax.sigma_m > 0.04 * lax.range_m
 
 
+def test_a_reference_too_loose_to_tell_a_far_spots_surface_is_not_ranged_by_it(monkeypatch) -> None:
+    """The reference on a wall at 4 m, placed to ± 9 % of its depth; the sloped laser's spot, bright,
+    on a wall 40 cm behind. The fusion is sure (± 3.4 %), and `ok`. A reference looser than
+    FAR_LOOSE_REFERENCE × max_sigma_fraction cannot tell whether the far spot is on its surface at
+    all (tuning-431 zone 10: ± 12 %, 20 % short at ± 3.8 %): with the line at 1.5 × 5 % = 7.5 %,
+    this one is not ranged either."""
+    import edge.ranging
+
+    walls = {"center": _wall(4.0), "sloped": _wall(4.4)}
+    groups = [_lit_at({"center": 0.12, "sloped": 1.0}, 0.0514 * (k % 2), [4, k], walls) for k in range(4)]
+    sure = Ranger(walls["center"].rig).range_zone(0, 0.0, 0.0, groups)
+    assert sure.status == OK and set(sure.lasers) == {"center", "sloped"}, sure.detail
+    loose = sure.lasers["center"].sigma_m / sure.lasers["center"].depth_m
+    assert 0.075 < loose < edge.ranging.FAR_LOOSE_REFERENCE * 0.05 and sure.sigma_m < 0.04 * sure.range_m
+    monkeypatch.setattr(edge.ranging, "FAR_LOOSE_REFERENCE", 1.5)
+    refused = Ranger(walls["center"].rig).range_zone(0, 0.0, 0.0, groups)
+    assert refused.status == AMBIGUOUS and refused.range_m is None
+    assert "too loosely to range alone" in refused.detail and "only the sloped laser's spot" in refused.detail
+
+
 def test_faint_blobs_in_one_view_alone_do_not_confirm_each_other() -> None:
     """No laser lit; in one of the zone's two views, faint blobs where the `center` and `parallel`
     spots of one surface would be (as JPEG makes of a textured block that changed in that frame).
