@@ -404,6 +404,20 @@ def test_a_hidden_spot_beside_a_bright_one_is_not_observable_by_its_light() -> N
     assert snr < OBSERVABLE_SNR
 
 
+def test_a_kept_row_replays_as_observable_as_it_was_recorded() -> None:
+    """A zone's frame SNR is kept in its row and read back by `--replay`: one a hair under the
+    line (rounded to two places it was 6.00) must stay not observable."""
+    from edge.accuracy.bench import _row
+
+    truth = {"range_m": 2.0, "lasers": {"center": {"visible": True}},
+             "floor": {"sigma_m": 0.01, "lasers": {"center": {"snr": 20.0}}}}
+    result = ZoneResult(0, 0.0, 0.0, "no_spot")
+    recorded = ZoneOutcome.of(result, truth, "center", frame_snr=OBSERVABLE_SNR - 0.004)
+    row = json.loads(json.dumps(_row(cond.condition("tuning", 0), 0.0, 0.0, recorded, result, truth, "center")))
+    replayed = ZoneOutcome.of(result, truth, "center", frame_snr=row["frame_snr"])
+    assert not recorded.observable and replayed.observable == recorded.observable == row["observable"]
+
+
 def test_coverage_counts_the_zones_observable_in_their_frames() -> None:
     seen = ZoneOutcome(0, "no_spot", None, None, 2.0, True, 0.01, 30.0, frame_snr=3.0)
     assert seen.observable_model and not seen.observable

@@ -212,7 +212,8 @@ def _row(cond: Condition, pan: float, tilt: float, z: ZoneOutcome, result: ZoneR
         "condition": cond.name, "zone": z.index, "pan_deg": pan, "tilt_deg": tilt,
         "status": z.status, "detail": result.detail, "range_m": z.range_m, "sigma_m": z.sigma_m,
         "truth_m": z.truth_m, "error_m": z.error_m, "visible": z.visible, "observable": z.observable,
-        "wrong": z.wrong, "floor": floor, "frame_snr": None if z.frame_snr is None else round(z.frame_snr, 2),
+        # (frame_snr unrounded: a replay reads it back to judge the zone observable, at 6.0)
+        "wrong": z.wrong, "floor": floor, "frame_snr": z.frame_snr,
         "oracle_error_m": None if z.oracle_error_m is None else round(z.oracle_error_m, 7),
         "spot": None if mine is None else mine.to_json(),
     }
