@@ -180,6 +180,15 @@ def test_outcomes_read_the_truth_the_recording_carries() -> None:
     assert z.within_2sigma is True and not z.wrong
     blind = ZoneOutcome.of(ZoneResult(4, 0.0, 0.0, "no_spot"), {"range_m": None}, "center")
     assert not blind.observable and blind.snr == 0.0 and blind.error_m is None
+    # Hidden at the zone's pose, seen in its other view (the floor counts every view): seen.
+    nudged = {"range_m": 1.87, "lasers": {"center": {"visible": False, "why": "occluded"}},
+              "floor": {"sigma_m": 0.045, "lasers": {"center": {"snr": 59.25, "views": 1}}}}
+    z = ZoneOutcome.of(ZoneResult(5, 0.0, 0.0, OK, 1.885, 0.058), nudged, "center")
+    assert z.visible and z.observable and not z.wrong
+    hidden = {"range_m": 1.87, "lasers": {"center": {"visible": False, "why": "occluded"}},
+              "floor": {"sigma_m": 0.045, "lasers": {}}}
+    z = ZoneOutcome.of(ZoneResult(6, 0.0, 0.0, OK, 1.885, 0.058), hidden, "center")
+    assert not z.visible and z.wrong and z.blunder
 
 
 def test_figures_and_targets_follow_the_rules() -> None:
