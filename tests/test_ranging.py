@@ -564,6 +564,33 @@ def test_a_reference_too_loose_to_tell_a_far_spots_surface_is_not_ranged_by_it(m
     assert "too loosely to range alone" in refused.detail and "only the sloped laser's spot" in refused.detail
 
 
+def test_a_faint_loose_reference_that_only_fainter_spots_agree_with_is_not_ranged() -> None:
+    """A reference of SNR 8 placed to 1.2 px at 0.5 m, and the parallel laser's spot beside it on the
+    same surface: three blobs of the kind noise and JPEG make as often as lasers do, if the partner
+    is fainter than min_snr (tuning-1266 zone 0, tuning-1509 zone 11: 66 % and 98 % short). The
+    same partner at SNR 7 makes it a range (± 3 %)."""
+    rig = _wall(0.5).rig
+    ranger = Ranger(rig)
+
+    def spot(name: str, sigma_px: float, snr: float):
+        laser = rig.laser(name)
+        return measure(laser, rig.camera, rig.camera.project(laser.point_at_depth(0.5)), sigma_px, snr, 2)
+
+    reference = spot("center", 1.2, 8.0)
+    for partner_snr, refused in ((4.5, True), (7.0, False)):
+        partner = spot("parallel", 0.8, partner_snr)
+        fusion = fuse(rig, reference, [partner])
+        assert [m.laser for m in fusion.used] == ["center", "parallel"]
+        assert fusion.sigma_m < 0.05 * fusion.range_m
+        others = {"parallel": [partner], "sloped": []}
+        doubt = ranger._doubt(reference, fusion, others, {id(reference): (2, 2), id(partner): (2, 2)}, [], {},
+                              {"center": [reference], **others})
+        if refused:
+            assert doubt is not None and doubt[0] == AMBIGUOUS and "only fainter spots agree" in doubt[1]
+        else:
+            assert doubt is None
+
+
 def test_faint_blobs_in_one_view_alone_do_not_confirm_each_other() -> None:
     """No laser lit; in one of the zone's two views, faint blobs where the `center` and `parallel`
     spots of one surface would be (as JPEG makes of a textured block that changed in that frame).
