@@ -492,7 +492,7 @@ class Ranger:
                                f"{chosen.sigma_px:.1f} px, and only fainter spots agree with it")
         if (len(fusion.used) == 2 and _rests_on_a_far_one(fusion) and self._too_loose_alone(chosen)
                 and (fusion.sigma_m > FAR_PARTNER_SHARE * self.config.max_sigma_fraction * fusion.range_m
-                     or chosen.sigma_m > FAR_LOOSE_REFERENCE * self.config.max_sigma_fraction * chosen.depth_m)):
+                     or self._too_loose_alone(chosen, FAR_LOOSE_REFERENCE))):
             # Too loose to range alone, the reference takes its range from the one other laser that
             # agrees with it, and from the surface model between them: a spot that far away may be
             # on another surface, which a loose reference cannot tell. Such a fusion must be sure
@@ -528,9 +528,10 @@ class Ranger:
                                f"{fusion.range_m:.2f} m ± {fusion.sigma_m:.2f} m")
         return None
 
-    def _too_loose_alone(self, spot: LaserMeasurement) -> bool:
-        """Is `spot` placed too loosely to range on its own (σ over `max_sigma_fraction` of its depth)?"""
-        return spot.sigma_m > self.config.max_sigma_fraction * spot.depth_m
+    def _too_loose_alone(self, spot: LaserMeasurement, times: float = 1.0) -> bool:
+        """Is `spot` placed too loosely to range on its own (σ over `times` × `max_sigma_fraction` of
+        its depth)?"""
+        return spot.sigma_m > times * self.config.max_sigma_fraction * spot.depth_m
 
     def _believable(self, refs: list[LaserMeasurement]) -> list[LaserMeasurement]:
         """The reference laser's spots that may be its spot."""

@@ -379,7 +379,8 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
     notes = [f"  {r.condition.name}: ranged with the {r.rig} rig" for r in runs if r.rig not in RIGS]
     lines += notes
     per = [r.figures for r in runs]
-    pooled = Figures.of([z for r in runs for z in r.outcomes])
+    outcomes = [z for r in runs for z in r.outcomes]
+    pooled = Figures.of(outcomes)
     scored = [f for f in per if f.scored]  # conditions with ok zones to judge their σ by
     missed = ", ".join(f"{s} {n}" for s, n in sorted(pooled.missed.items(), key=lambda kv: -kv[1])) or "none"
     lines += [
@@ -401,7 +402,7 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
         f"  observable zones not ok: {missed}",
         "  a surer `ok` (σ at most this share of the range) would have left: " + "; ".join(
             f"{100 * x.fraction:g} %: coverage {_pct(x.coverage)}, {x.wrong_ok} wrong"
-            for x in stricter([z for r in runs for z in r.outcomes])),
+            for x in stricter(outcomes)),
         *([f"  observable zones the oracle places to {PLACEABLE_FRACTION:.0%} of their range in the same frames: "
            f"{pooled.placeable}, {pooled.covered_placeable} of them ok (coverage "
            f"{_pct(_share(pooled.covered_placeable, pooled.placeable))}; the others JPEG or demosaicing left "

@@ -489,11 +489,13 @@ def _colours_kept_apart(frames: list[Frame]) -> None:
     matrix, and takes none from us.)"""
     import numpy as np
 
+    from edge.hw.camera import IDENTITY_CCM  # (what edge asks the ISP for)
+
     for f in frames:
         if "ColourCorrectionMatrix" not in f.metadata:
             continue
         m = np.asarray(f.metadata["ColourCorrectionMatrix"], dtype=float).ravel()
-        if m.size == 9 and float(np.abs(m - np.eye(3).ravel()).max()) > COLOUR_MATRIX_TOLERANCE:
+        if m.size == 9 and float(np.abs(m - np.asarray(IDENTITY_CCM)).max()) > COLOUR_MATRIX_TOLERANCE:
             raise Problem(f"the ISP mixes the colours: its colour matrix takes {m[0]:.2f} R {m[1]:+.2f} G "
                           f"{m[2]:+.2f} B for red", "edge asks for none through the sensor's tuning file: look "
                           "for the camera's warning that it could not read it, and update libcamera's tuning "
