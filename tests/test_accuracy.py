@@ -284,6 +284,13 @@ def test_kept_recordings_are_ranged_again_by_replay(tmp_path: Path, capsys: pyte
     (again,) = replay_family(None, [], kept, "true")
     assert again.rows == runs[0].rows  # frame SNR and the oracle's errors kept, the ranging the same
     assert any(row["status"] == "ok" for row in again.rows)
+    # An `ok` row names the spots its range was fused from (the reference's among them); others none.
+    for row in again.rows:
+        if row["status"] == "ok":
+            assert row["used"]["center"] == [round(row["spot"]["depth_m"], 5), round(row["spot"]["sigma_m"], 5)]
+            assert all(sigma > 0 for _, sigma in row["used"].values())
+        else:
+            assert row["used"] is None
     (nominal,) = replay_family(None, [], kept, "nominal")
     assert nominal.rig == "nominal" and [r["frame_snr"] for r in nominal.rows] == [r["frame_snr"] for r in again.rows]
     assert nominal.rows != again.rows  # the nominal rig is not the rig as built: other ranges

@@ -216,6 +216,9 @@ def _row(cond: Condition, pan: float, tilt: float, z: ZoneOutcome, result: ZoneR
         "wrong": z.wrong, "floor": floor, "frame_snr": z.frame_snr,
         "oracle_error_m": None if z.oracle_error_m is None else round(z.oracle_error_m, 7),
         "spot": None if mine is None else mine.to_json(),
+        # The spots an `ok` range was fused from, each (depth m, σ m): which kinds of fusion err how.
+        "used": {n: [round(m.depth_m, 5), round(m.sigma_m, 5)] for n, m in result.lasers.items()}
+        if z.status == "ok" else None,
     }
 
 
