@@ -604,8 +604,9 @@ class Ranger:
             pool = pooled_frames(groups, name)
             if span is None or pool is None:
                 continue
-            on, off, views = pool
-            found = self.finder.find(on, off, [name], near={name: span}, threshold=LOOK_THRESHOLD).get(name, [])
+            on, off, views, lit = pool
+            found = self.finder.find(on, off, lit, near={name: span}, threshold=LOOK_THRESHOLD,
+                                     wanted=[name]).get(name, [])
             new = [self._measure(Track(name, [c], set(views))) for c in found]
             if new:
                 grown.setdefault(name, []).extend(new)
@@ -685,8 +686,8 @@ class Ranger:
         pool = pooled_frames(groups, name)
         if pool is None or (channel is None and sum(name in g.lasers for g in groups) < 2):
             return []
-        on, off, views = pool
-        found = self.finder.find(on, off, [name], channel=channel).get(name, [])
+        on, off, views, lit = pool
+        found = self.finder.find(on, off, lit, channel=channel, wanted=[name]).get(name, [])
         return [Track(name, [c], set(views)) for c in found][:3]
 
     def _deblend(self, group: FrameGroup, found: dict[str, list[Candidate]],

@@ -144,13 +144,15 @@ def follow(found: Sequence[tuple[FrameGroup, Mapping[str, Sequence[Candidate]]]]
 
 
 def pooled_frames(groups: Sequence[FrameGroup], name: str
-          ) -> tuple[list[np.ndarray], list[np.ndarray], set[tuple[float, float]]] | None:
-    """The laser-on and laser-off frames of every frame group where `name` was on, and their
-    views; None where it was on in none."""
+                  ) -> tuple[list[np.ndarray], list[np.ndarray], set[tuple[float, float]], list[str]] | None:
+    """The laser-on and laser-off frames of every frame group where `name` was on, their views,
+    and every laser that was on in any of them (in the order the groups first name them: the
+    others' spots lie in the pooled frames too); None where `name` was on in none."""
     mine = [g for g in groups if name in g.lasers]
     if not mine:
         return None
-    return [f for g in mine for f in g.on], [f for g in mine for f in g.off], {g.view for g in mine}
+    lit = list(dict.fromkeys(n for g in mine for n in g.lasers))
+    return [f for g in mine for f in g.on], [f for g in mine for f in g.off], {g.view for g in mine}, lit
 
 
 def in_every_view(spots: Sequence[LaserMeasurement], groups: Sequence[FrameGroup]) -> dict[int, tuple[int, int]]:

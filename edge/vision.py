@@ -19,7 +19,7 @@ import bisect
 import functools
 import math
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -314,6 +314,7 @@ class SpotFinder:
         threshold: float = 1.0,
         channel: str | None = None,
         strays: list[Candidate] | None = None,
+        wanted: Collection[str] | None = None,
     ) -> dict[str, list[Candidate]]:
         """Candidate spots per laser from laser-on and laser-off frames of one pose.
 
@@ -334,6 +335,11 @@ class SpotFinder:
         `strays`, where given, gets the blobs that a laser's strip holds but that lie off its path
         (by more than `path_tolerance`, within STRAY_REACH_PX): two lasers' spots run together into
         one blob lie between their paths, and only a fit of both can place them (`edge.deblend`).
+
+        `wanted`: of the lasers that were on, those whose spots are returned (default: all). The
+        others' spots are still looked for, and kept out of the wanted spots' windows: a search
+        for one laser alone let its neighbour's spot, 5 px off on a 320-px camera, pull its window
+        off its path (tuning-1152 zone 1: a spot of SNR 60 in red `no_spot`).
         """
         if channel is not None and channel not in CHANNEL_WEIGHTS:
             raise ValueError(f"channel must be one of {', '.join(CHANNEL_WEIGHTS)}, got {channel!r}")
@@ -341,7 +347,7 @@ class SpotFinder:
             kept = self._weights, self._demosaiced, self._aside
             self._weights, self._aside = CHANNEL_WEIGHTS[channel], True
             try:
-                return self.find(on, off, lasers, max_candidates, near, threshold, strays=strays)
+                return self.find(on, off, lasers, max_candidates, near, threshold, strays=strays, wanted=wanted)
             finally:
                 self._weights, self._demosaiced, self._aside = kept
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
@@ -365,7 +371,7 @@ class SpotFinder:
         self._demosaiced = texture.demosaiced
         seeds = self._detect(diff, off_vals, deviation, noise, quantum, names, near, threshold, on, off, gain,
                              max_candidates)
-        refined = self._place(seeds, on, off, gain, shot, texture, strays)
+        refined = self._place(seeds, on, off, gain, shot, texture, strays, wanted)
         if texture.bayer is not None:  # (only then are spots placed by their red pixels)
             self._place_again(refined)
         elif self._sites.looking and on[0].ndim == 3 and not self._aside:
@@ -420,9 +426,11 @@ class SpotFinder:
 
     def _place(self, seeds: Mapping[str, Sequence[Seed]],
                on: Sequence[np.ndarray], off: Sequence[np.ndarray], gain: float, shot: float, texture: Texture,
-               strays: list[Candidate] | None) -> dict[str, list[tuple[Callable[..., Candidate | None], Candidate]]]:
-        """`find`'s spots: each seed placed by `_refine`, with the call that placed it (`_place_again`
-        calls it again); blobs off their path go to `strays` where it is given."""
+               strays: list[Candidate] | None, wanted: Collection[str] | None = None
+               ) -> dict[str, list[tuple[Callable[..., Candidate | None], Candidate]]]:
+        """`find`'s spots: each seed of the `wanted` lasers (default: all) placed by `_refine`, with
+        the call that placed it (`_place_again` calls it again); blobs off their path go to `strays`
+        where it is given."""
         # Every seed of every laser: a neighbouring spot, whichever laser's, must not pull a
         # spot's centroid (the centre and parallel spots are 4 px apart at 5 m).
         everywhere = [(u, v) for ss in seeds.values() for u, v, _, _, _, _ in ss]
@@ -430,6 +438,8 @@ class SpotFinder:
         planes = self._planes(on, off)
         refined: dict[str, list[tuple[Callable[..., Candidate | None], Candidate]]] = {}  # (how it was refined)
         for name, ss in seeds.items():
+            if wanted is not None and name not in wanted:
+                continue  # (its seeds only keep the wanted spots' windows to themselves)
             out: list[tuple[Callable[..., Candidate | None], Candidate]] = []
             for u, v, peak, row, mf, here in ss:
                 others = [(a, b) for a, b in everywhere if 2.5 < math.hypot(a - u, b - v) < 4 * self._radius

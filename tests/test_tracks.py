@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge.tracks import FrameGroup, follow
+from edge.tracks import FrameGroup, follow, pooled_frames
 from edge.vision import Candidate
 
 
@@ -54,3 +54,23 @@ def test_a_loosely_placed_spot_joins_across_views_as_far_as_its_noise_reaches() 
     found = [(g, {"center": [_spot(100.0 + 2.5 * k, 50.0, sigma_px=1.0, snr=7.0)]}) for k, g in enumerate(groups)]
     (track,) = follow(found, ["center"])["center"]
     assert track.shows_in() == 2
+
+
+def test_frames_pooled_for_one_laser_tell_every_laser_that_was_on_in_them() -> None:
+    """A search of the pooled frames for one laser's spot must know the others that were on: their
+    spots lie in those frames too (`SpotFinder.find`'s `wanted`). Groups where the laser was off
+    are left out, with their lasers."""
+    a, b, c = (np.full((2, 2), k, np.uint8) for k in (1, 2, 3))
+    groups = [
+        FrameGroup([a], [b], ("center", "parallel"), (0.0, 0.0)),
+        FrameGroup([c], [b], ("sloped",), (0.0, 0.0)),
+        FrameGroup([c], [a], ("sloped", "center"), (0.05, 0.0)),
+    ]
+    pool = pooled_frames(groups, "center")
+    assert pool is not None
+    on, off, views, lit = pool
+    assert [f is x for f, x in zip(on, (a, c))] == [True, True] and len(on) == 2
+    assert [f is x for f, x in zip(off, (b, a))] == [True, True] and len(off) == 2
+    assert views == {(0.0, 0.0), (0.05, 0.0)}
+    assert lit == ["center", "parallel", "sloped"]
+    assert pooled_frames(groups, "other") is None
