@@ -1025,6 +1025,34 @@ def test_spots_too_faint_for_any_one_view_are_found_in_the_views_pooled() -> Non
     assert alone.status == AMBIGUOUS and "no other laser's spot was found" in alone.detail
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_views_pooled_for_a_faint_reference_keep_its_bright_neighbour_out_of_its_window(seed: int) -> None:
+    """On a 352-px camera 2.5 m from a wall the centre's spot, too faint for any of four views
+    (6 DN), lies 6.4 px beside the parallel's (30 DN). Pooled, the views hold it; the pooled
+    search for the reference must know that the parallel laser was on too, or its spot pulls the
+    reference's window off its path and the zone is `no_spot` (tuning-1152 zone 1)."""
+    config = load_config()
+    rig = replace(config.rig, camera=replace(config.rig.camera, model="webcam-cif")).build()
+    truth = Renderer(flat_target_scene(2.5), rig, config.sim).spots(0.0, 0.0)
+    vv, uu = np.mgrid[0 : rig.camera.height, 0 : rig.camera.width]
+    rng = np.random.default_rng(seed)
+    groups = []
+    for k in range(4):
+        on, off = 40.0 + rng.normal(0.0, 1.0, uu.shape), 40.0 + rng.normal(0.0, 1.0, uu.shape)
+        for name, peak in (("center", 6.0), ("parallel", 30.0), ("sloped", 60.0)):
+            u, v = truth[name].pixel
+            on += peak * np.exp(-((uu - u) ** 2 + (vv - v) ** 2) / (2 * 1.5**2))
+        on8, off8 = (np.clip(np.rint(x), 0, 255).astype(np.uint8) for x in (on, off))
+        groups.append(FrameGroup([on8], [off8], rig.laser_names, (0.05 * (k % 2), 0.0)))
+    ranger = Ranger(rig)
+    by_view = [ranger.finder.find(g.on, g.off, g.lasers)["center"] for g in groups]
+    assert sum(c.snr >= ranger.config.min_snr for found in by_view for c in found) == 0  # (no view alone)
+    result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    assert result.status == OK, result.detail
+    assert abs(result.range_m - 2.5) <= 2.0 * result.sigma_m and abs(result.range_m - 2.5) < 0.025
+    assert result.lasers["center"].views == 2  # the pooled spot, one sighting of every view
+
+
 def test_a_weak_lone_reference_is_confirmed_where_the_other_spots_should_be() -> None:
     """The other lasers' spots too faint to find along their whole paths, group by group: the
     weak reference spot is alone, and a blob as weak is not believed. Looked for where a wall
