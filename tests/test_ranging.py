@@ -33,6 +33,7 @@ from edge.sim.render import Renderer
 from edge.tracks import Track
 from edge.triangulation import LaserMeasurement, measure, triangulate
 from edge.vision import Candidate, SpotFinder
+from tests.test_vision import spot_pair, webcam_wall
 
 
 def _laser(ox: float, oy: float, ax: float, ay: float, name: str = "l") -> Laser:
@@ -1031,19 +1032,12 @@ def test_views_pooled_for_a_faint_reference_keep_its_bright_neighbour_out_of_its
     (6 DN), lies 6.4 px beside the parallel's (30 DN). Pooled, the views hold it; the pooled
     search for the reference must know that the parallel laser was on too, or its spot pulls the
     reference's window off its path and the zone is `no_spot` (tuning-1152 zone 1)."""
-    config = load_config()
-    rig = replace(config.rig, camera=replace(config.rig.camera, model="webcam-cif")).build()
-    truth = Renderer(flat_target_scene(2.5), rig, config.sim).spots(0.0, 0.0)
-    vv, uu = np.mgrid[0 : rig.camera.height, 0 : rig.camera.width]
+    rig, truth = webcam_wall(2.5)
     rng = np.random.default_rng(seed)
     groups = []
     for k in range(4):
-        on, off = 40.0 + rng.normal(0.0, 1.0, uu.shape), 40.0 + rng.normal(0.0, 1.0, uu.shape)
-        for name, peak in (("center", 6.0), ("parallel", 30.0), ("sloped", 60.0)):
-            u, v = truth[name].pixel
-            on += peak * np.exp(-((uu - u) ** 2 + (vv - v) ** 2) / (2 * 1.5**2))
-        on8, off8 = (np.clip(np.rint(x), 0, 255).astype(np.uint8) for x in (on, off))
-        groups.append(FrameGroup([on8], [off8], rig.laser_names, (0.05 * (k % 2), 0.0)))
+        on, off = spot_pair(rig, truth, {"center": 6.0, "parallel": 30.0, "sloped": 60.0}, rng)
+        groups.append(FrameGroup([on], [off], rig.laser_names, (0.05 * (k % 2), 0.0)))
     ranger = Ranger(rig)
     by_view = [ranger.finder.find(g.on, g.off, g.lasers)["center"] for g in groups]
     assert sum(c.snr >= ranger.config.min_snr for found in by_view for c in found) == 0  # (no view alone)

@@ -13,6 +13,7 @@ import pytest
 
 from edge import framenoise, redsites, spoterror, vision
 from edge.config import load_config
+from edge.rig import Rig
 from edge.sim.record import flat_target_scene
 from edge.sim.render import Renderer
 from edge.sim.scene import load_scene
@@ -108,23 +109,34 @@ def test_a_stretch_of_path_where_a_spot_is_expected_is_searched_at_lower_thresho
     assert there >= 3
 
 
+def webcam_wall(distance: float) -> tuple[Rig, dict]:
+    """The default rig on a 352 × 288 webcam, and its spots' truths on a wall `distance` m away."""
+    config = load_config()
+    rig = replace(config.rig, camera=replace(config.rig.camera, model="webcam-cif")).build()
+    return rig, Renderer(flat_target_scene(distance), rig, config.sim).spots(0.0, 0.0)
+
+
+def spot_pair(rig: Rig, truth: dict, peaks: dict[str, float], rng: np.random.Generator
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """An 8-bit grey laser-on and laser-off pair: a flat 40 DN with 1 DN of noise in each, and in
+    the laser-on frame each of `peaks`' lasers' spot at its `truth` pixel, a Gaussian of σ 1.5 px
+    and that peak (DN)."""
+    vv, uu = np.mgrid[0 : rig.camera.height, 0 : rig.camera.width]
+    on, off = 40.0 + rng.normal(0.0, 1.0, uu.shape), 40.0 + rng.normal(0.0, 1.0, uu.shape)
+    for name, peak in peaks.items():
+        u, v = truth[name].pixel
+        on += peak * np.exp(-((uu - u) ** 2 + (vv - v) ** 2) / (2 * 1.5**2))
+    return np.clip(np.rint(on), 0, 255).astype(np.uint8), np.clip(np.rint(off), 0, 255).astype(np.uint8)
+
+
 def test_a_search_for_one_laser_keeps_the_other_lit_lasers_spots_out_of_its_window() -> None:
     """On a 352-px camera 2.5 m from a wall the centre and parallel spots are 6.4 px apart. A search
     for the centre's spot alone (the views pooled, or red looked at) must still know that the
     parallel laser was on: told that the centre alone was on, the finder lets the parallel's
     spot, 3 × brighter, pull the centre's window off its path (tuning-1152 zone 1). Wanted alone
     of the lasers that were on, it is placed as a search for all of them places it."""
-    config = load_config()
-    rig = replace(config.rig, camera=replace(config.rig.camera, model="webcam-cif")).build()
-    truth = Renderer(flat_target_scene(2.5), rig, config.sim).spots(0.0, 0.0)
-    cam = rig.camera
-    vv, uu = np.mgrid[0 : cam.height, 0 : cam.width]
-    rng = np.random.default_rng(3)
-    on, off = 40.0 + rng.normal(0.0, 1.0, uu.shape), 40.0 + rng.normal(0.0, 1.0, uu.shape)
-    for name, peak in (("center", 30.0), ("parallel", 100.0), ("sloped", 60.0)):
-        u, v = truth[name].pixel
-        on += peak * np.exp(-((uu - u) ** 2 + (vv - v) ** 2) / (2 * 1.5**2))
-    on8, off8 = (np.clip(np.rint(x), 0, 255).astype(np.uint8) for x in (on, off))
+    rig, truth = webcam_wall(2.5)
+    on8, off8 = spot_pair(rig, truth, {"center": 30.0, "parallel": 100.0, "sloped": 60.0}, np.random.default_rng(3))
     lit = list(rig.laser_names)
     every = SpotFinder(rig).find([on8], [off8], lit)["center"]
     assert len(every) == 1 and np.linalg.norm(every[0].pixel - truth["center"].pixel) < 0.3
