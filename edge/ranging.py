@@ -89,12 +89,20 @@ FAR_LOOSE_REFERENCE = 2.0
 # a spot is found at this share of the usual thresholds: a few px of path hold few chances of noise.
 LOOK_SLOPE = 0.3
 # A spot that misses another laser's by at most this many σ of the two is a little off, not on
-# another surface: a reference that rests on a far laser alone, beside a near laser's spot placed as
-# surely that misses it so, is ranged with its σ grown by half the miss (one of the two is off);
-# missed by more (another surface, or a wrong blob), a reference too loose alone is refused. A
-# reference that no other laser confirms, where the others agree on a surface it misses so, is
-# fused with them with its own σ grown by half the miss (two lasers outvote one spot).
+# another surface: a reference that no other laser confirms, where the others agree on a surface it
+# misses so, is fused with them with its own σ grown by half the miss (two lasers outvote one spot).
 NEAR_MISS_SIGMAS = 5.0
+# A reference that rests on a far laser alone, beside a near laser's spot placed as surely that
+# misses it by at most this many σ of the two, is ranged with its σ grown by half the miss (one of
+# the two is off); missed by more (another surface, or a wrong blob), a reference too loose alone
+# is refused, and one placed well enough alone keeps the fusion's σ. Fewer σ than NEAR_MISS_SIGMAS:
+# two spots placed to their σ miss by 3 σ of the two once in hundreds, but a beam's spot beside an
+# edge or on a surface seen aslant misses its neighbour's 4 cm away by far more (tuning-1776 zone
+# 15: a counter's top at 0.99 m, the parallel spot 15 cm deeper, 3.1 σ; grown by half that, a
+# reference 0.03 % off at ± 3.5 % was refused as ± 9 %). On the ten tuning sets, 5 → 3: 13 zones
+# more `ok` (12 of them observable), each the reference and the sloped laser's spot, all within 2σ;
+# none fewer, no wrong one.
+NEAR_WITNESS_SIGMAS = 3.0
 # A reference this faint (peak over noise) and placed to worse than LOOSE_WINNER_PX, that only
 # spots fainter than min_snr agree with, is three blobs of the kind noise and JPEG make as often as
 # lasers do, one meeting the others' surface by chance: not ranged. (Tuning-1266 zone 0 and
@@ -446,7 +454,7 @@ class Ranger:
             witness = self._near_witness(chosen, fusion, others, known)
             if witness is not None:
                 gap, near = witness
-                if gap <= NEAR_MISS_SIGMAS * math.hypot(chosen.sigma_m, near.sigma_m):
+                if gap <= NEAR_WITNESS_SIGMAS * math.hypot(chosen.sigma_m, near.sigma_m):
                     # The near laser's spot, 4 cm from the reference's and placed as surely, nearly
                     # agrees: one of the two is off by more than its σ, and the far laser cannot
                     # tell which (tuning-682 zone 5: 12 % long at ± 3.7 %, the parallel 13.7 % short).

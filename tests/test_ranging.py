@@ -690,6 +690,27 @@ def test_a_near_lasers_spot_that_the_reference_misses_is_heard(monkeypatch, cent
     assert abs(unheard.range_m - 2.0) > 2 * unheard.sigma_m
 
 
+def test_a_reference_beside_a_depth_edge_keeps_its_own_sigma(monkeypatch) -> None:
+    """The centre and sloped spots on a wall at 2.16 m, the parallel spot 4 cm away on a wall at
+    2 m (an edge between the beams, or a surface seen aslant: tuning-1776 zone 15). The parallel
+    spot misses the reference by 4-5 σ of the two: another surface, not a spot placed a little
+    off, and the reference, placed well enough alone, is ranged to the fusion's σ. Were a miss
+    that size taken as one of the two being off, its σ would grow by half the miss."""
+    import edge.ranging
+
+    walls = {"center": _wall(2.16), "parallel": _wall(2.0), "sloped": _wall(2.16)}
+    groups = [_lit_at(dict.fromkeys(walls, 1.0), 0.0514 * k, [3, k], walls) for k in range(2)]
+    rig = walls["center"].rig
+    result = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    assert result.status == OK and set(result.lasers) == {"center", "sloped"}, result.detail
+    assert abs(result.range_m - 2.16) <= 2 * result.sigma_m
+    assert result.sigma_m < 0.2 * 0.16  # not grown by half the miss
+    monkeypatch.setattr(edge.ranging, "NEAR_WITNESS_SIGMAS", edge.ranging.NEAR_MISS_SIGMAS)
+    doubted = Ranger(rig).range_zone(0, 0.0, 0.0, groups)
+    assert doubted.status == OK and doubted.range_m == pytest.approx(result.range_m), doubted.detail
+    assert doubted.sigma_m > 0.45 * 0.16
+
+
 @pytest.mark.parametrize(("centre_m", "sloped_m", "outvoted_by"), [
     (2.12, 2.0, {"parallel", "sloped"}), (2.12, 1.6, {"parallel"}), (2.3, 2.0, None)])
 def test_a_reference_a_little_off_the_surface_the_others_give_is_outvoted(
