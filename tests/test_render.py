@@ -7,6 +7,7 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -316,6 +317,46 @@ def test_jpeg_chroma_subsampling_smears_a_red_spot_more_than_full_chroma() -> No
     loss = {c: np.abs(f[near].astype(float) - lossless[near]).sum() for c, f in frames.items()}
     assert loss["4:4:4"] < 0.6 * loss["4:2:0"], loss
     assert not np.array_equal(frames["4:2:0"], frames["4:4:4"])
+
+
+def test_a_webcams_yuyv_stream_shares_each_pixel_pairs_chroma_and_keeps_its_luma() -> None:
+    """YUYV (YUV 4:2:2): each two pixels of a row share one chroma pair, as OpenCV decodes it; luma
+    stays whole. A red spot smears along rows, less than through JPEG."""
+    rng = np.random.default_rng
+    wall = ("sim.surfaces.texture_scale=0", "sim.ambient.white_e_per_ms=60")
+    # A spot too dim to clip: a red blob on a grey wall.
+    dim = [_small(*k, "sim.beam.e_per_ms_at_1m=2000", *wall).render(0.0, 0.0, {"center": 1.0}, 0.0, rng(1),
+                                                                    noise=False)
+           for k in (("sim.sensor.yuyv=true",), ())]
+    assert dim[1].max() < 250
+    chroma = [cv2.cvtColor(f, cv2.COLOR_BGR2YCrCb)[..., 1:].astype(int) for f in dim]
+    # One pair a two pixels, but for rounding (video range, 8-bit colours, read back in JPEG's YCrCb).
+    assert np.abs(chroma[0][:, 0::2] - chroma[0][:, 1::2]).max() <= 4
+    assert np.abs(chroma[1][:, 0::2] - chroma[1][:, 1::2]).max() > 20
+    luma = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY).astype(int) for f in dim]
+    # Luma within a few levels (video range's steps and 8-bit colours) where the spot raises it 30.
+    assert np.abs(luma[0] - luma[1]).max() <= 5 and luma[1].max() - np.median(luma[1]) > 30
+    yuyv = _small("sim.sensor.yuyv=true", *wall).render(0.0, 0.0, {"center": 1.0}, 0.0, rng(0), noise=False)
+    renderer = _small(*wall)
+    plain = renderer.render(0.0, 0.0, {"center": 1.0}, 0.0, rng(0), noise=False)
+    jpeg = _small("sim.sensor.jpeg_quality=90", *wall).render(0.0, 0.0, {"center": 1.0}, 0.0, rng(0), noise=False)
+    u, v = (int(round(c)) for c in renderer.spots(0.0, 0.0)["center"].pixel)
+    near = (slice(v - 4, v + 5), slice(u - 4, u + 5), 2)
+    loss = {name: np.abs(f[near].astype(float) - plain[near]).sum() for name, f in (("yuyv", yuyv), ("jpeg", jpeg))}
+    assert 0 < loss["yuyv"] < loss["jpeg"], loss
+    grey = _small("sim.sensor.yuyv=true", "sim.sensor.colour=false", *wall)
+    assert grey.render(0.0, 0.0, {}, 0.0, rng(0), noise=False).ndim == 2  # grey frames pass unchanged
+
+
+@pytest.mark.parametrize(("overrides", "words"), [
+    (["sim.sensor.jpeg_quality=70"], "a webcam streams YUYV or JPEG, not both"),
+    (["sim.sensor.output_bits=16"], "YUYV frames are 8-bit"),
+])
+def test_yuyv_frames_that_cannot_be_are_refused_by_name(overrides: list[str], words: str) -> None:
+    from edge.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=f"sim.sensor.yuyv: {words}"):
+        load_config(None, ["sim.sensor.yuyv=true", *overrides])
 
 
 def test_surfaces_change_every_material_at_once() -> None:

@@ -492,6 +492,10 @@ class Renderer:
             out = out[..., 0]
         if sensor.colour_matrix and out.ndim == 3:
             out = _colour_corrected(out, sensor.colour_matrix, sensor.gamma, full)
+        if sensor.yuyv and out.ndim == 3:
+            # Packed as the webcam sends it (chroma averaged over each two pixels of a row, luma in
+            # video range), unpacked as OpenCV's V4L2 backend does.
+            out = cv2.cvtColor(cv2.cvtColor(out, cv2.COLOR_BGR2YUV_YUYV), cv2.COLOR_YUV2BGR_YUYV)
         if sensor.jpeg_quality:
             # 8-bit only: the config refuses jpeg_quality with 16-bit output.
             params = [cv2.IMWRITE_JPEG_QUALITY, sensor.jpeg_quality]

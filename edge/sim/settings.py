@@ -25,6 +25,11 @@ class SensorConfig:
     # JPEG's colour resolution: "4:2:0" halves it both ways (MJPEG webcams; OpenCV's default),
     # "4:4:4" keeps it whole. A small red spot lives mostly in the chroma.
     jpeg_chroma: Literal["4:2:0", "4:4:4"] = "4:2:0"
+    # A webcam's uncompressed stream: YUYV (YUV 4:2:2), one chroma pair for each two pixels of a
+    # row, as OpenCV's V4L2 backend asks a UVC webcam for first, and decodes as it does
+    # (cv2.COLOR_YUV2BGR_YUYV). 8-bit colour frames only, and not with JPEG; grey frames pass
+    # unchanged (so that one `--set` serves a whole family, as colour_matrix does).
+    yuyv: bool = False
     # A colour sensor sees one colour per pixel through its Bayer filter (RGGB) and the camera
     # interpolates the other two: "none" is an ideal sensor that sees all three everywhere;
     # "bilinear", "vng" and "ea" (edge-aware) are OpenCV's demosaicing methods.
@@ -65,6 +70,9 @@ class SensorConfig:
             "jpeg_quality",
             "JPEG frames are 8-bit; set output_bits = 8",
         )
+        require(not (self.yuyv and self.jpeg_quality), "yuyv",
+                "a webcam streams YUYV or JPEG, not both; set jpeg_quality = 0")
+        require(not (self.yuyv and self.output_bits == 16), "yuyv", "YUYV frames are 8-bit; set output_bits = 8")
         require(self.bayer == "none" or self.colour, "bayer", "a grey sensor has no colour filter; set colour = true")
         require(self.bayer != "vng" or self.output_bits == 8, "bayer", "OpenCV's vng demosaics 8-bit frames only")
 
