@@ -757,3 +757,27 @@ def test_lossless_frames_read_in_luma_keep_red_s_term_once_the_spots_tell_their_
     for c in by_sites:
         assert c.locked_px == pytest.approx(spoterror.demosaic_px(c.size_px, own_values=True)[1])
         assert c.locked_px < spoterror.LUMA_DEMOSAIC_PX
+
+
+@pytest.mark.parametrize(("overrides", "paired"), [
+    (["sim.sensor.yuyv=true"], True),
+    (['sim.sensor.bayer="bilinear"', "sim.sensor.yuyv=true"], True),
+    (["sim.sensor.yuyv=true", "sim.ambient.white_e_per_ms=20"], True),  # (a dim room: rounding alone)
+    ([], False),
+    (['sim.sensor.bayer="vng"'], False),
+    (['sim.sensor.bayer="ea"', "sim.sensor.output_bits=16"], False),
+])
+def test_pixels_that_share_their_chroma_in_pairs_are_told_apart(overrides: list[str], paired: bool) -> None:
+    """A YUYV stream's pixel pairs share one chroma; uncompressed frames' pixels, demosaiced or not,
+    have their own (`paired_chroma` about the finder's background samples, three aims)."""
+    from edge.framenoise import PAIRED_CHROMA, paired_chroma
+    from edge.sim.record import scene_for, true_rig
+
+    config = load_config(None, overrides)
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim)
+    near = SpotFinder(renderer.rig).strips.near_samples()
+    rng = np.random.default_rng(3)
+    for pan in (-90.0, 0.0, 45.0):
+        on, off = (renderer.render(pan, 0.0, {}, 0.0, rng) for _ in range(2))
+        ratio = paired_chroma(on, off, *near)
+        assert ratio is not None and (ratio < PAIRED_CHROMA) == paired, (pan, ratio)
