@@ -21,13 +21,19 @@ from edge.parts import open_parts
 
 class _FakeCapture:
     """Just what OpenCVCamera uses of cv2.VideoCapture: frames every 5 ms, and a record of every
-    capture opened and how often each was released."""
+    capture opened, the properties set on it and how often each was released. Its device streams
+    `formats` (a size each) as V4L2 through OpenCV does: a size set keeps the format that streams
+    it, else takes the first that does in OpenCV's order (uncompressed before JPEG)."""
 
     opened: list[_FakeCapture] = []
+    formats: dict[str, set[tuple[int, int]]] = {"YUYV": {(64, 48)}, "MJPG": {(64, 48), (1280, 720)}}
 
     def __init__(self, source, api=None) -> None:
         self.releases = 0
         self.reads = 0
+        self.sets: list[tuple[int, float]] = []
+        self.fourcc, self.size = "YUYV", (64, 48)
+        self.asked = list(self.size)
         self._lock = threading.Lock()
         _FakeCapture.opened.append(self)
 
@@ -35,7 +41,27 @@ class _FakeCapture:
         return self.releases == 0
 
     def set(self, prop, value) -> bool:
+        self.sets.append((prop, value))
+        if prop == cv2.CAP_PROP_FOURCC:
+            code = "".join(chr((int(value) >> (8 * i)) & 0xFF) for i in range(4))
+            if self.size not in self.formats.get(code, ()):
+                return False
+            self.fourcc = code
+        elif prop in (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT):
+            # (OpenCV asks the device for a size once it has been told both)
+            self.asked[prop == cv2.CAP_PROP_FRAME_HEIGHT] = int(value)
+            size = (self.asked[0], self.asked[1])
+            streams = [f for f, sizes in self.formats.items() if size in sizes]
+            if streams:
+                self.size = size
+                if self.fourcc not in streams:
+                    self.fourcc = streams[0]
         return True
+
+    def get(self, prop) -> float:
+        if prop == cv2.CAP_PROP_FOURCC:
+            return float(cv2.VideoWriter_fourcc(*self.fourcc))
+        return 0.0
 
     def read(self):
         time.sleep(0.005)
@@ -139,3 +165,31 @@ def test_open_parts_closes_the_simulated_camera():
         camera = parts.camera
         assert not camera.closed  # type: ignore[attr-defined]
     assert camera.closed  # type: ignore[attr-defined]
+
+
+def test_a_webcam_says_which_stream_it_delivers_and_takes_the_one_asked_for(fake_cv2):
+    """`auto` takes what OpenCV picks (uncompressed first) and says so; MJPG is asked for before the
+    size, so that the size is one of that stream's."""
+    camera = OpenCVCamera(_settings(), (64, 48))
+    assert camera.pixel_format == "YUYV"
+    camera.close()
+    camera = OpenCVCamera(CameraSettings(**{**_settings().__dict__, "pixel_format": "MJPG"}), (64, 48))
+    assert camera.pixel_format == "MJPG"
+    props = [prop for prop, _ in fake_cv2.opened[-1].sets]
+    assert props.index(cv2.CAP_PROP_FOURCC) < props.index(cv2.CAP_PROP_FRAME_WIDTH)
+    camera.close()
+
+
+def test_a_webcam_that_will_not_stream_uncompressed_at_the_size_is_one_clear_error(fake_cv2):
+    """At 1280 x 720 the device streams JPEG alone: `auto` takes it (and says so), while asking for
+    YUYV is an error that names the setting and how to list what the device streams; the device is
+    released."""
+    camera = OpenCVCamera(_settings(), (1280, 720))
+    assert camera.pixel_format == "MJPG"
+    camera.close()
+    yuyv = CameraSettings(**{**_settings().__dict__, "pixel_format": "YUYV"})
+    with pytest.raises(CameraError) as err:
+        OpenCVCamera(yuyv, (1280, 720))
+    assert str(err.value) == ("camera: video device '0' streams MJPG at 1280x720, not YUYV as camera.pixel_format asks "
+                              "(v4l2-ctl -d 0 --list-formats-ext lists what it streams)")
+    assert fake_cv2.opened[-1].releases == 1

@@ -40,12 +40,46 @@ def test_a_bayer_filter_behind_lossless_frames_is_named_with_its_red_pixels():
     assert "ranging reads red (auto: the chroma at full resolution" in line
 
 
+def test_a_yuyv_stream_is_named_and_its_red_never_taken_for_a_bayer_filters():
+    """A webcam's YUYV stream over a Bayer sensor: each two pixels of a row share their chroma, so no
+    pixel keeps its own red, and the line says spots are placed by the interpolated red, where the
+    same sensor's frames uncompressed are placed by their red pixels."""
+    line = _frames_line('sim.sensor.bayer="ea"', "sim.sensor.yuyv=true")
+    assert line.startswith("640x480 colour, not JPEG")
+    assert "each two pixels of a row share one chroma (a YUYV stream, YUV 4:2:2)" in line
+    assert "placed by their red pixels" not in line
+    assert "share one chroma" not in _frames_line('sim.sensor.bayer="ea"')
+
+
 def test_jpeg_frames_are_named_and_read_by_their_luma():
     line = _frames_line("sim.sensor.jpeg_quality=60")
     assert line.startswith("640x480 colour, JPEG (blockiness ")
     assert "ranging reads luma (auto: the chroma at half resolution" in line
     # (JPEG keeps too little of the noise to show a filter: luma's red is taken as demosaiced.)
     assert "taken as behind a Bayer filter, as colour webcams are: each spot carries its 0.25 px" in line
+
+
+def test_a_webcams_jpeg_frames_are_met_with_what_to_ask_it_for_instead():
+    """A webcam whose frames are JPEG is told to ask for YUYV, with what JPEG costs; the Pi camera's
+    frames (or the simulator's) are never JPEG for a setting to mend, and are not told."""
+    from edge.doctor.frames import WEBCAM_JPEG
+
+    config = load_config(None, ["sim.sensor.jpeg_quality=60"])
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim)
+    rng = np.random.default_rng(5)
+    frames = [renderer.render(-90.0, 0.0, {}, 0.0, rng) for _ in range(3)]
+    webcam = replace(config, camera=replace(config.camera, backend="opencv"))
+    assert 'camera.pixel_format = "YUYV"' in WEBCAM_JPEG and "77 %" in WEBCAM_JPEG
+    assert WEBCAM_JPEG in judge(frames, config.rig.build(), webcam)
+    assert WEBCAM_JPEG not in judge(frames, config.rig.build(), config)
+    with contextlib.ExitStack() as stack:  # (the camera's line names the stream, as a webcam's does)
+        checks = RigChecks(config, from_config(config), stack)
+        assert checks.camera_check().startswith("sim 640x480 MJPG: ")
+    lossless = load_config(None, ["sim.sensor.yuyv=true"])
+    plain = Renderer(scene_for(lossless), true_rig(lossless), lossless.sim)
+    frames = [plain.render(-90.0, 0.0, {}, 0.0, rng) for _ in range(3)]
+    line = judge(frames, lossless.rig.build(), replace(lossless, camera=replace(lossless.camera, backend="opencv")))
+    assert line.startswith("640x480 colour, not JPEG") and WEBCAM_JPEG not in line
 
 
 def test_frames_through_a_tone_curve_are_read_as_ranging_reads_them():

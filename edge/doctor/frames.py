@@ -45,6 +45,12 @@ if TYPE_CHECKING:
 # reads 1.25-1.68 and is left alone: it grows a spot's σ by a fifth at most.)
 SMOOTHED_AREA = 1.8
 
+# What the frames line adds for a webcam's JPEG frames: the accuracy family's figures (README, "A
+# sixth evaluation set" and the table by kind of frames) and the setting that mends it.
+WEBCAM_JPEG = ("ranging places spots in JPEG frames worse (of the observable zones in the simulated family's "
+               "colour frames, 77 % ranged in JPEG frames, 94 % in uncompressed ones): ask the webcam for "
+               'YUYV, camera.pixel_format = "YUYV", at a size it streams uncompressed (v4l2-ctl --list-formats-ext)')
+
 T = TypeVar("T")
 
 
@@ -86,8 +92,14 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
              + ("" if frames[0].dtype == np.uint8 else f" ({_depth(frames[0])})"),
              f"JPEG (blockiness {blockiness:.2f} > {JPEG_BLOCKINESS:g})" if jpeg
              else f"not JPEG (blockiness {blockiness:.2f} ≤ {JPEG_BLOCKINESS:g})"]
+    if jpeg and config.camera.backend == "opencv":
+        words.append(WEBCAM_JPEG)
     channel = _most(k.channel for k in kinds)
-    if channel == "red" and not grey:
+    paired = not grey and _most(k.paired for k in kinds)
+    if paired:
+        words.append("each two pixels of a row share one chroma (a YUYV stream, YUV 4:2:2): no pixel keeps its own "
+                     "red, and spots are placed by the interpolated red")
+    elif channel == "red" and not grey:
         words.append(_demosaiced(kinds))
     words.append(_channel(channel, config.ranging.channel, [k.chroma_lag2 for k in kinds]))
     if channel == "luma" and not grey and _most(k.demosaiced for k in kinds):

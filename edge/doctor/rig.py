@@ -259,7 +259,9 @@ class RigChecks:
             gain = f", gain {g:.2f}"
         _colours_kept_apart(frames)
         median = statistics.median(intervals)
-        return (f"{config.camera.backend} {shape[1]}x{shape[0]}: {len(frames)} frames every {median:.1f} ms "
+        stream = getattr(self.camera, "pixel_format", "")  # (a webcam's: YUYV, MJPG)
+        return (f"{config.camera.backend} {shape[1]}x{shape[0]}{' ' + stream if stream else ''}: "
+                f"{len(frames)} frames every {median:.1f} ms "
                 f"({1e3 / median:.1f} fps; {settings.frame_rate_hz:g} configured), exposure {got:.0f} µs fixed "
                 f"({settings.exposure_us:g} asked){gain}{_lens(frames, settings.lens_dioptres)}")
 

@@ -73,6 +73,10 @@ class SimCamera:
         self.renderer = renderer
         self.clock = clock
         self.closed = False
+        # The stream a webcam would name (edge.hw.camera.OpenCVCamera.pixel_format) for the frames
+        # the sensor is set to make; "" for the Pi camera's, which no such code names.
+        sensor = renderer.sim.sensor
+        self.pixel_format = "MJPG" if sensor.jpeg_quality else "YUYV" if sensor.yuyv else ""
         self.light = light
         self.settings = settings
         self.frame_ns = settings.frame_ns
@@ -267,9 +271,9 @@ class SimCamera:
             "laser_fraction_range": {n: (float(f.min()), float(f.max())) for n, f in fractions.items()},
         }
         sensor = self.renderer.sim.sensor
-        if sensor.colour_matrix and self.renderer.channels == 3 and not sensor.jpeg_quality:
-            # As libcamera tells the matrix the Pi camera's ISP applied; a webcam's JPEG frames
-            # come with nothing of the kind (as the accuracy family takes its JPEG frames to be).
+        if sensor.colour_matrix and self.renderer.channels == 3 and not (sensor.jpeg_quality or sensor.yuyv):
+            # As libcamera tells the matrix the Pi camera's ISP applied; a webcam's JPEG or YUYV
+            # frames come with nothing of the kind (as the accuracy family takes its JPEG frames to be).
             metadata["ColourCorrectionMatrix"] = sensor.colour_matrix
         return Frame(image, t_start, self.settings.exposure_us, self.readout_ns, k, metadata)
 
