@@ -47,7 +47,7 @@ def test_a_yuyv_stream_is_named_and_its_red_never_taken_for_a_bayer_filters():
     line = _frames_line('sim.sensor.bayer="ea"', "sim.sensor.yuyv=true")
     assert line.startswith("640x480 colour, not JPEG")
     assert "each two pixels of a row share one chroma (a YUYV stream, YUV 4:2:2)" in line
-    assert "placed by their red pixels" not in line
+    assert "placed by their red pixels" not in line and "chroma at full resolution" not in line
     assert "share one chroma" not in _frames_line('sim.sensor.bayer="ea"')
 
 

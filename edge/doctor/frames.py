@@ -101,7 +101,7 @@ def judge(frames: Sequence[np.ndarray], rig: Rig, config: Config) -> str:
                      "red, and spots are placed by the interpolated red")
     elif channel == "red" and not grey:
         words.append(_demosaiced(kinds))
-    words.append(_channel(channel, config.ranging.channel, [k.chroma_lag2 for k in kinds]))
+    words.append(_channel(channel, config.ranging.channel, [k.chroma_lag2 for k in kinds], paired))
     if channel == "luma" and not grey and _most(k.demosaiced for k in kinds):
         words.append(f"taken as behind a Bayer filter, as colour webcams are: each spot carries its "
                      f"{LUMA_DEMOSAIC_PX:g} px")
@@ -152,8 +152,9 @@ def _demosaiced(kinds: Sequence[FrameKind]) -> str:
             "placed by their red pixels where it shows, else by the interpolated red")
 
 
-def _channel(channel: str, configured: str, chroma: Sequence[float | None]) -> str:
-    """What the line says of the channel read (`chroma`: each pair's chroma correlation, if measured)."""
+def _channel(channel: str, configured: str, chroma: Sequence[float | None], paired: bool = False) -> str:
+    """What the line says of the channel read (`chroma`: each pair's chroma correlation, if measured;
+    `paired`: pixels that share their chroma in pairs)."""
     if channel == "grey":
         return "ranging reads grey"
     if configured != "auto":
@@ -165,6 +166,9 @@ def _channel(channel: str, configured: str, chroma: Sequence[float | None]) -> s
     if channel == "luma":
         return (f"ranging reads luma (auto: the chroma at half resolution, as JPEG 4:2:0 keeps it: its noise "
                 f"correlated {rho:.2f} at 2 px)")
+    if paired:  # (a pair's chroma repeated over both pixels leaves no correlation 2 px apart)
+        return (f"ranging reads red (auto: the chroma's noise correlated {rho:.2f} at 2 px: shared in pairs, not "
+                "interpolated as JPEG 4:2:0's is)")
     return f"ranging reads red (auto: the chroma at full resolution, its noise correlated {rho:.2f} at 2 px)"
 
 
