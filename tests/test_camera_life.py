@@ -193,3 +193,14 @@ def test_a_webcam_that_will_not_stream_uncompressed_at_the_size_is_one_clear_err
     assert str(err.value) == ("camera: video device '0' streams MJPG at 1280x720, not YUYV as camera.pixel_format asks "
                               "(v4l2-ctl -d 0 --list-formats-ext lists what it streams)")
     assert fake_cv2.opened[-1].releases == 1
+
+
+def test_a_webcam_whose_backend_does_not_say_its_stream_is_taken_as_it_comes(fake_cv2, monkeypatch, caplog):
+    """A backend that reports no FOURCC cannot be held to the stream asked for: a warning, not a
+    failure, and the doctor names no stream."""
+    monkeypatch.setattr(fake_cv2, "get", lambda self, prop: 0.0)
+    yuyv = CameraSettings(**{**_settings().__dict__, "pixel_format": "YUYV"})
+    with caplog.at_level("WARNING"):
+        camera = OpenCVCamera(yuyv, (64, 48))
+    assert camera.pixel_format == "" and "does not say which stream it gives; YUYV was asked for" in caplog.text
+    camera.close()

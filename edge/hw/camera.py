@@ -447,7 +447,9 @@ class OpenCVCamera:
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.size[0])
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.size[1])
         self.pixel_format = fourcc_text(cap.get(cv2.CAP_PROP_FOURCC))
-        if asked != "auto" and self.pixel_format != asked:
+        if asked != "auto" and not self.pixel_format:  # (a backend that does not say: nothing to hold it to)
+            log.warning("camera: video device %r does not say which stream it gives; %s was asked for", device, asked)
+        elif asked != "auto" and self.pixel_format != asked:
             cap.release()
             size = f" at {self.size[0]}x{self.size[1]}" if self.size else ""
             raise CameraError(
