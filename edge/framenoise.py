@@ -202,10 +202,11 @@ def paired_chroma(on: np.ndarray, off: np.ndarray, v: np.ndarray, u: np.ndarray)
     rows, start = v[keep].astype(np.intp), start[keep]
     cols = start[:, None] + np.arange(3)
     rows = np.broadcast_to(rows[:, None], cols.shape)
+    if not start.size:
+        return None
     diff = on[rows, cols].astype(np.float32) - off[rows, cols].astype(np.float32)
-    chroma = diff[..., 2] - diff[..., 1]
-    within = float(np.abs(chroma[:, 1] - chroma[:, 0]).mean()) if chroma.size else 0.0
-    across = float(np.abs(chroma[:, 2] - chroma[:, 1]).mean()) if chroma.size else 0.0
+    step = np.abs(np.diff(diff[..., 2] - diff[..., 1], axis=1))  # (within a pair, across to the next)
+    within, across = step.mean(axis=0).tolist()
     return within / across if across > 0.0 else None
 
 

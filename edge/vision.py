@@ -189,8 +189,11 @@ class SpotFinder:
         self._chroma_lag2: list[float] = []  # `auto`'s measurements so far
         # Colour frames whose pixels share their chroma in pairs (a webcam's YUYV stream), told by
         # the first AUTO_GROUPS groups (`paired_chroma`, their median): then no red pixel keeps its
-        # own value, and spots are never placed by a Bayer filter's red pixels.
+        # own value, and spots are never placed by a Bayer filter's red pixels. The looks are
+        # counted whether or not they told anything, so that frames with no chroma noise to tell
+        # by (a monochrome sensor delivered as colour) are not looked at group after group.
         self._pair_steps: list[float] = []
+        self._pair_looks = 0
         self._paired = False
         self._weights = CHANNEL_WEIGHTS["red" if self._auto else channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
@@ -374,7 +377,8 @@ class SpotFinder:
                 self._weights = self._auto_weights(self._chroma_lag2)
         if self._jpeg is None:  # told once, by the first laser-off frame
             self._jpeg = jpeg_blockiness(off[0]) > JPEG_BLOCKINESS
-        if not self._aside and on[0].ndim == 3 and not self._jpeg and len(self._pair_steps) < AUTO_GROUPS:
+        if not self._aside and on[0].ndim == 3 and not self._jpeg and self._pair_looks < AUTO_GROUPS:
+            self._pair_looks += 1
             self._paired = self._pairs_told(self._pair_steps, on[0], off[0])
         diff, off_vals, gain, off_level = self._difference(on, off)
         centre, deviation, noise = self._spread(diff)
@@ -912,7 +916,7 @@ class SpotFinder:
             if told:
                 weights = self._auto_weights(told)
         paired = self._paired
-        if colour and not jpeg and len(self._pair_steps) < AUTO_GROUPS:
+        if colour and not jpeg and self._pair_looks < AUTO_GROUPS:
             paired = self._pairs_told([*self._pair_steps], first, second)
         # `_difference` and `_texture` read the channel from the finder: this pair's, and back after.
         kept, self._weights = self._weights, weights

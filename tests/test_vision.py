@@ -781,3 +781,21 @@ def test_pixels_that_share_their_chroma_in_pairs_are_told_apart(overrides: list[
         on, off = (renderer.render(pan, 0.0, {}, 0.0, rng) for _ in range(2))
         ratio = paired_chroma(on, off, *near)
         assert ratio is not None and (ratio < PAIRED_CHROMA) == paired, (pan, ratio)
+
+
+def test_frames_with_no_chroma_to_tell_pairs_by_are_looked_at_only_as_long_as_auto_looks(monkeypatch) -> None:
+    """A monochrome sensor delivered as colour has no chroma noise: the pair test tells nothing,
+    and is given up after AUTO_GROUPS groups rather than run on every frame."""
+    from edge.sim.record import scene_for, true_rig
+
+    config = load_config(None, ["sim.sensor.colour=false"])
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim)
+    rng = np.random.default_rng(4)
+    grey = [renderer.render(-90.0, 0.0, lit, 0.0, rng) for lit in ({n: 1.0 for n in renderer.rig.laser_names}, {})]
+    on, off = (np.repeat(f[..., None], 3, axis=2) for f in grey)
+    looks = []
+    monkeypatch.setattr(vision, "paired_chroma", lambda *a: looks.append(framenoise.paired_chroma(*a)))
+    finder = SpotFinder(renderer.rig)
+    for _ in range(vision.AUTO_GROUPS + 4):
+        assert finder.find([on], [off])["center"]
+    assert looks == [None] * vision.AUTO_GROUPS
