@@ -100,8 +100,6 @@ class CameraSettings:
         require_gamma(self.gamma, "gamma")
         lens = lens_dioptres_problem(self.lens_dioptres)
         require(lens is None, "lens_dioptres", lens or "")
-        require(self.pixel_format in ("auto", "YUYV", "MJPG"), "pixel_format",
-                f'must be "auto", "YUYV" or "MJPG", got {self.pixel_format!r}')
 
     @property
     def frame_ns(self) -> int:
@@ -453,7 +451,7 @@ class OpenCVCamera:
             cap.release()
             size = f" at {self.size[0]}x{self.size[1]}" if self.size else ""
             raise CameraError(
-                f"camera: video device {device!r} streams {self.pixel_format or 'another format'}{size}, not {asked} "
+                f"camera: video device {device!r} streams {self.pixel_format}{size}, not {asked} "
                 f"as camera.pixel_format asks (v4l2-ctl -d {device} --list-formats-ext lists what it streams)"
             )
         cap.set(cv2.CAP_PROP_FPS, self.settings.frame_rate_hz)
