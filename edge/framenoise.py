@@ -8,6 +8,7 @@ holds (`local_noise`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -126,6 +127,16 @@ BAYER_CONTRAST = 1.25
 # filter, whose blocks keep little of its pattern, 0.88–0.96. JPEG's 4:2:0 chroma can still pass for
 # a filter, as it can by the louder red pixel: tuning-31, no filter, 0.68 and 1.46.)
 BAYER_LOW_CONTRAST = 0.75
+# Red's noise spread over neighbours (demosaiced) and yet the same at all four parities, summed over
+# a finder's first looks: no colour filter's pixels at this size. A Pi camera's ISP demosaics its
+# sensor's 1640 × 1232 and scales that to 640 × 480: every output pixel mixes red from several red
+# pixels, and a spot is locked to no grid. Measured over 8 looks (their shares summed, the largest
+# over the smallest): behind a filter at the frame's own size (tuning 1792-1983, 51 lossless
+# conditions: bilinear, VNG, edge-aware) 1.25-4.2, VNG's the lowest; a 3-colour sensor 1.04-1.14;
+# the simulator's Bayer frames at 1640 × 1232 scaled to 640 × 480 by area (four rooms, lights and
+# demosaicings) 1.02-1.07. A filter taken for scaled frames would lose its spots' demosaicing σ: the
+# line sits nearer the scaled frames.
+RESAMPLED_CONTRAST = 1.15
 
 
 # Not frozen (never changed once made but by the finder's own look): a frozen dataclass costs
@@ -139,6 +150,23 @@ class Texture:
     sites: float = 1.0  # the same over a Bayer filter's red pixels alone (2 px apart)
     bayer: int | None = None  # the (row, column) parity of red pixels, 2·row + column; None: no filter seen
     demosaiced: bool = False  # red read from a colour frame whose red noise is spread over neighbours
+    # Where demosaiced: each (row, column) parity's share of red's noise power (`parity_contrast`).
+    parity: tuple[float, float, float, float] | None = None
+
+
+def parity_contrast(shares: Sequence[Sequence[float]]) -> float:
+    """The four (row, column) parities' shares of red's noise power (`Texture.parity`), summed over
+    `shares` (looks at several frames): the largest over the smallest (1: no parity stands out;
+    inf where a parity has none)."""
+    total = np.sum(np.asarray(shares, dtype=np.float64), axis=0)
+    low = float(total.min())
+    return float(total.max()) / low if low > 0.0 else math.inf
+
+
+def resampled(shares: Sequence[Sequence[float]]) -> bool:
+    """Do these looks (`Texture.parity`) show red's noise spread over neighbours by no colour filter
+    at this size (RESAMPLED_CONTRAST)?"""
+    return bool(shares) and parity_contrast(shares) < RESAMPLED_CONTRAST
 
 
 def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour: bool,
@@ -166,6 +194,7 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
     along_v = 1.0 + 2.0 * rho[(0, 1)] + 2.0 * rho[(0, 2)]
     area = min(max(along_u * along_v, 1.0), 25.0)
     bayer = None
+    shares = None
     demosaiced = red_of_colour and max(rho[(1, 0)], rho[(0, 1)]) > 0.15
     if demosaiced:
         # The four (row, column) parities: the sample's own and its neighbours' flips.
@@ -173,6 +202,9 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
         sq = samples[rows]
         power = ((sq * sq).ravel() @ onehot).tolist()
         power = [p / c for p, c in zip(power, count)]
+        total = sum(power)
+        if total > 0.0:
+            shares = (power[0] / total, power[1] / total, power[2] / total, power[3] / total)
         low, mid1, mid2, high = sorted(power)
         if low > 0 and high > BAYER_CONTRAST * 0.5 * (mid1 + mid2):
             bayer = power.index(high)
@@ -180,7 +212,7 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
             bayer = power.index(low) ^ 3  # (the red pixel is the blue one's diagonal neighbour)
     # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
     sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
-    return Texture(area, sites, bayer, demosaiced)
+    return Texture(area, sites, bayer, demosaiced, shares)
 
 
 # Each two pixels of a row that share one chroma pair (a webcam's YUYV stream, YUV 4:2:2, as

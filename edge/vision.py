@@ -36,6 +36,7 @@ from edge.framenoise import (
     noise_by_level,
     noise_texture,
     paired_chroma,
+    resampled,
     value_step,
 )
 from edge.paths import Strips, full_scale
@@ -158,6 +159,9 @@ class FrameKind:
     noise: float  # pixel noise (robust σ) of the two frames' difference, full-scale units; 0: none
     area: float  # how far that noise is spread over neighbouring pixels (1: white; a centroid's variance × it)
     paired: bool = False  # colour pixels sharing their chroma in pairs (a YUYV stream: `paired_chroma`)
+    # Where red's noise is spread (demosaiced): each (row, column) parity's share of its power, which
+    # looks at several pairs pool to tell frames scaled after demosaicing (`framenoise.resampled`).
+    parity: tuple[float, float, float, float] | None = None
 
 
 # A seed of a spot (`SpotFinder._seeds`): its pixel (u, v), peak, strip row, matched-filter SNR and the
@@ -195,6 +199,12 @@ class SpotFinder:
         self._pair_steps: list[float] = []
         self._pair_looks = 0
         self._paired = False
+        # Colour frames whose red noise is spread over neighbours by no colour filter at this size
+        # (a Pi camera's ISP scales what it demosaiced), told by the first AUTO_GROUPS groups whose
+        # red noise is spread (`resampled`): then spots are placed as in frames without a filter,
+        # with none of demosaicing's σ, and no filter is looked for.
+        self._parity_shares: list[tuple[float, float, float, float]] = []
+        self._resampled = False
         self._weights = CHANNEL_WEIGHTS["red" if self._auto else channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
         self.strips = Strips(rig, names, band_halfwidth_px)  # the pixels it reads of each frame
@@ -390,13 +400,19 @@ class SpotFinder:
         # difference noise is (mostly) the shot noise of two frames of it.
         shot = noise**2 / (2.0 * max(off_level, 1e-3))
         texture = self._texture(diff, centre, noise, on[0].ndim == 3, bool(self._jpeg))
+        if (texture.parity is not None and not self._aside and not self._jpeg and not self._paired
+                and len(self._parity_shares) < AUTO_GROUPS):
+            self._parity_shares.append(texture.parity)
+            if len(self._parity_shares) == AUTO_GROUPS and resampled(self._parity_shares):
+                self._resampled = True
+                texture.bayer, texture.demosaiced = None, False
         self._demosaiced = texture.demosaiced
         seeds = self._detect(diff, off_vals, deviation, noise, quantum, names, near, threshold, on, off, gain,
                              max_candidates)
         refined = self._place(seeds, on, off, gain, shot, texture, strays, wanted)
         if texture.bayer is not None:  # (only then are spots placed by their red pixels)
             self._place_again(refined)
-        elif self._sites.looking and on[0].ndim == 3 and not self._aside and not self._paired:
+        elif self._sites.looking and on[0].ndim == 3 and not self._aside and not self._paired and not self._resampled:
             told = self._sites.look([c for out in refined.values() for _, c in out], on, off, gain)
             if told and self._auto:  # (then red is read, if the channel is `auto`'s to choose)
                 self._weights = CHANNEL_WEIGHTS["red"]
@@ -622,6 +638,11 @@ class SpotFinder:
             # made YUYV: placed by red pixels, |error| ÷ floor 2.27 and 94 % of `ok` zones within
             # 2σ; by the centroid, 1.96 and 98 %.)
             texture.bayer = None
+        elif self._resampled and colour:
+            # No filter's pixels at this size: its red noise is spread, but a spot is locked to no
+            # grid. (Office and kitchen, Bayer frames at 1640 × 1232 scaled to 640 × 480: placed
+            # as demosaiced, σ 0.5 px against the 3-colour sensor's 0.02 for the same errors.)
+            texture.bayer, texture.demosaiced = None, False
         elif texture.bayer is None and self._sites.parity is not None and colour:
             texture.bayer, texture.demosaiced = self._sites.parity, True
         elif colour and jpeg and self._weights == CHANNEL_WEIGHTS["luma"]:
@@ -931,4 +952,4 @@ class SpotFinder:
         channel = "grey" if not colour else "luma" if weights == CHANNEL_WEIGHTS["luma"] else "red"
         bayer_red = None if texture.bayer is None else divmod(texture.bayer, 2)
         return FrameKind(jpeg, blockiness, colour, channel, rho, texture.demosaiced, bayer_red, noise, texture.area,
-                         paired)
+                         paired, texture.parity)

@@ -1,0 +1,121 @@
+"""Frames scaled after demosaicing (a Pi camera's ISP: 1640 × 1232 to 640 × 480) against frames
+demosaiced at their own size: the finder tells them apart by red's noise at the four parities of a
+2 × 2 block, and places the scaled frames' spots without demosaicing's σ."""
+
+from __future__ import annotations
+
+import copy
+import functools
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from edge.config import load_config
+from edge.doctor.frames import judge
+from edge.framenoise import RESAMPLED_CONTRAST, parity_contrast, resampled
+from edge.sim.record import scene_for, true_rig
+from edge.sim.render import Renderer
+from edge.vision import AUTO_GROUPS, SpotFinder
+
+SCALE = 2.5625  # 1640 → 640 columns; 1230 → 480 rows, a row cropped off the top and the bottom (4:3)
+# The sensor's 1640 × 1232 pixels, each 1/SCALE² of a 640 × 480 pixel: a room as bright per area as the
+# simulator's 640 × 480 one, in a well as deep per area, blurred and speckled as finely in the scene.
+RAW = ["rig.camera.model=picam-v2-1640", "sim.ambient.white_e_per_ms=91.4", "sim.sensor.full_well_e=1522",
+       "sim.optics.psf_sigma_px=1.28", "sim.beam.speckle=0"]
+WALL = -90.0  # the office wall, 1.3 m away
+
+
+def _scaled(frame: np.ndarray) -> np.ndarray:
+    """A 1640 × 1232 frame as the ISP hands it over at 640 × 480."""
+    return cv2.resize(frame[1:-1], (640, 480), interpolation=cv2.INTER_AREA)
+
+
+@functools.cache
+def _raw_views() -> Renderer:
+    config = load_config(None, RAW)
+    return Renderer(scene_for(config), true_rig(config), config.sim)
+
+
+def _raw_renderer(bayer: str) -> Renderer:
+    """The 1640 × 1232 sensor behind a Bayer filter demosaiced by `bayer`: a copy of one renderer
+    that shares its views (ray casting 2 million pixels is most of the time), with its own sensor."""
+    renderer = copy.copy(_raw_views())
+    renderer.sim = replace(renderer.sim, sensor=replace(renderer.sim.sensor, bayer=bayer))
+    return renderer
+
+
+def _groups(renderer: Renderer, pan: float, count: int, seed: int, scale: bool):
+    rng = np.random.default_rng(seed)
+    lit = {n: 1.0 for n in renderer.rig.laser_names}
+    for _ in range(count):
+        on, off = (renderer.render(pan, 0.0, lasers, 0.0, rng) for lasers in (lit, {}))
+        yield (_scaled(on), _scaled(off)) if scale else (on, off)
+
+
+def test_parity_contrast_pools_looks_and_tells_no_parity_standing_out() -> None:
+    assert parity_contrast([(0.25, 0.25, 0.25, 0.25)]) == pytest.approx(1.0)
+    # Two looks whose extremes fall on different parities pool to flatter than either alone.
+    looks = [(0.3, 0.25, 0.25, 0.2), (0.2, 0.25, 0.25, 0.3)]
+    assert parity_contrast(looks[:1]) == pytest.approx(1.5)
+    assert parity_contrast(looks) == pytest.approx(1.0)
+    assert resampled(looks) and not resampled(looks[:1]) and not resampled([])
+    assert parity_contrast([(0.4, 0.2, 0.2, 0.2)]) > RESAMPLED_CONTRAST
+
+
+@pytest.mark.parametrize("bayer", ["bilinear", "vng", "ea"])
+def test_frames_scaled_after_demosaicing_lose_demosaicings_sigma_and_keep_their_accuracy(bayer: str) -> None:
+    renderer = _raw_renderer(bayer)
+    rig = true_rig(load_config())  # the 640 × 480 camera the frames come out of
+    finder = SpotFinder(rig)
+    before = []
+    for i, (on, off) in enumerate(_groups(renderer, WALL, AUTO_GROUPS, seed=1, scale=True)):
+        spots = finder.find([on], [off])
+        before += [c[0].sigma_px for c in spots.values() if c]
+        assert finder.frame_kind(on, off).demosaiced == (i < AUTO_GROUPS - 1)  # told by the last of them
+    assert min(before[:-3]) > 0.3  # demosaicing's σ until then
+    z, errors = [], []
+    for pan in (WALL - 6.0, WALL + 2.5, WALL + 7.0):
+        truth = renderer.spots(pan, 0.0)
+        for on, off in _groups(renderer, pan, 2, seed=2, scale=True):
+            for name, cands in finder.find([on], [off]).items():
+                raw = np.asarray(truth[name].pixel)
+                pixel = (raw + (0.5, -0.5)) / SCALE - 0.5  # (the cropped row)
+                error = float(np.hypot(*(cands[0].pixel - pixel)))
+                errors.append(error)
+                z.append(error / cands[0].sigma_px)
+    assert len(errors) == 18
+    # Placed as claimed (the σ of the pixel noise alone: speckle is off), and nearly as well as the
+    # 1640 × 1232 frames' demosaicing, averaged over 2.6 × 2.6 of their pixels, allows.
+    assert np.sqrt(np.mean(np.square(z))) < 1.5
+    assert np.sqrt(np.mean(np.square(errors))) < 0.08
+
+
+@pytest.mark.parametrize("bayer", ["bilinear", "vng", "ea"])
+def test_frames_demosaiced_at_their_own_size_keep_their_filter(bayer: str) -> None:
+    config = load_config(None, [f"sim.sensor.bayer={bayer}", "sim.beam.speckle=0"])
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim)
+    finder = SpotFinder(renderer.rig)
+    shares = []
+    for on, off in _groups(renderer, WALL, AUTO_GROUPS + 2, seed=3, scale=False):
+        finder.find([on], [off])
+        kind = finder.frame_kind(on, off)
+        assert kind.demosaiced
+        shares.append(kind.parity)
+    assert not finder._resampled
+    assert parity_contrast(shares[:AUTO_GROUPS]) > RESAMPLED_CONTRAST * 1.05
+
+
+def test_the_doctor_names_frames_scaled_after_demosaicing() -> None:
+    renderer = _raw_renderer("ea")
+    rng = np.random.default_rng(4)
+    frames = [_scaled(renderer.render(WALL, 0.0, {}, 0.0, rng)) for _ in range(4)]
+    config = load_config()
+    line = judge(frames, config.rig.build(), config)
+    assert "scaled after demosaicing" in line and "640x480 colour" in line, line
+    own = load_config(None, ["sim.sensor.bayer=ea"])
+    at_size = Renderer(scene_for(own), true_rig(own), own.sim)
+    frames = [at_size.render(WALL, 0.0, {}, 0.0, rng) for _ in range(4)]
+    assert "demosaiced from a Bayer filter, red at even rows and columns" in judge(frames, config.rig.build(), config)
+
