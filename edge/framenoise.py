@@ -133,9 +133,9 @@ BAYER_LOW_CONTRAST = 0.75
 # pixels, and a spot is locked to no grid. Measured over 8 looks (their shares summed, the largest
 # over the smallest): behind a filter at the frame's own size (tuning 1792-1983, 51 lossless
 # conditions: bilinear, VNG, edge-aware) 1.25-4.2, VNG's the lowest; a 3-colour sensor 1.04-1.14;
-# the simulator's Bayer frames at 1640 × 1232 scaled to 640 × 480 by area (four rooms, lights and
-# demosaicings) 1.02-1.07. A filter taken for scaled frames would lose its spots' demosaicing σ: the
-# line sits nearer the scaled frames.
+# the simulator's Bayer frames at 1640 × 1232 scaled to 640 × 480 by area (office and kitchen, three
+# demosaicings, a dim room: tools/isp_scaled.py) 1.02-1.07. A filter taken for scaled frames would
+# lose its spots' demosaicing σ: the line sits nearer the scaled frames.
 RESAMPLED_CONTRAST = 1.15
 
 
