@@ -45,7 +45,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("raw", type=Path, help="a recording of the picam-v2-1640 camera")
     parser.add_argument("out", type=Path, help="the 640 × 480 recording to write (replaced)")
     args = parser.parse_args(argv)
-    sweep = json.loads((args.raw / "sweep.json").read_text())
+    try:
+        sweep = json.loads((args.raw / "sweep.json").read_text())
+    except (OSError, ValueError) as exc:
+        print(f"isp_scaled: {args.raw / 'sweep.json'}: cannot be read as a recording: {exc}", file=sys.stderr)
+        return 2
     camera = sweep["camera"]
     if (camera["width"], camera["height"]) != RAW_SIZE:
         print(f"isp_scaled: {args.raw / 'sweep.json'}: camera is {camera['width']}x{camera['height']}, "
