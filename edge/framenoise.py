@@ -137,6 +137,13 @@ BAYER_LOW_CONTRAST = 0.75
 # demosaicings, a dim room: tools/isp_scaled.py) 1.02-1.07. A filter taken for scaled frames would
 # lose its spots' demosaicing σ: the line sits nearer the scaled frames.
 RESAMPLED_CONTRAST = 1.15
+# And where the chroma's noise is as uncorrelated 2 px apart as a raw pipeline leaves it (the
+# median of the same looks' correlations: `SpotFinder._chroma_correlation`). JPEG at high quality
+# can hide a filter's pattern from the noise and still not show its blocks (tuning-10: a bilinear
+# filter at quality 90, 4:4:4, contrast 1.06), but correlates the chroma over its blocks: -0.10
+# there, 0.09 and 0.18 in two 3-colour conditions at 92 and 65. The scaled frames read -0.003-0.04
+# (nine recordings, and one scaled bilinearly and bicubically instead), a 3-colour sensor 0.02.
+RESAMPLED_CHROMA = 0.06
 
 
 # Not frozen (never changed once made but by the finder's own look): a frozen dataclass costs
@@ -163,10 +170,14 @@ def parity_contrast(shares: Sequence[Sequence[float]]) -> float:
     return float(total.max()) / low if low > 0.0 else math.inf
 
 
-def resampled(shares: Sequence[Sequence[float]]) -> bool:
-    """Do these looks (`Texture.parity`) show red's noise spread over neighbours by no colour filter
-    at this size (RESAMPLED_CONTRAST)?"""
-    return bool(shares) and parity_contrast(shares) < RESAMPLED_CONTRAST
+def resampled(shares: Sequence[Sequence[float]], chroma: Sequence[float]) -> bool:
+    """Do these looks show red's noise spread over neighbours by no colour filter at this size:
+    `shares` (`Texture.parity`) no parity standing out (RESAMPLED_CONTRAST), and `chroma` (their
+    chroma noise's correlations 2 px apart) none of JPEG's (RESAMPLED_CHROMA)? False where either
+    is empty: no evidence."""
+    if not shares or not chroma:
+        return False
+    return parity_contrast(shares) < RESAMPLED_CONTRAST and abs(float(np.median(chroma))) <= RESAMPLED_CHROMA
 
 
 def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour: bool,

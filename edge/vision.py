@@ -201,9 +201,11 @@ class SpotFinder:
         self._paired = False
         # Colour frames whose red noise is spread over neighbours by no colour filter at this size
         # (a Pi camera's ISP scales what it demosaiced), told by the first AUTO_GROUPS groups whose
-        # red noise is spread (`resampled`): then spots are placed as in frames without a filter,
-        # with none of demosaicing's σ, and no filter is looked for.
+        # red noise is spread (`resampled`: its parities and the chroma's correlation): then spots
+        # are placed as in frames without a filter, with none of demosaicing's σ, and no filter is
+        # looked for.
         self._parity_shares: list[tuple[float, float, float, float]] = []
+        self._parity_chroma: list[float] = []  # the same looks' chroma correlations (RESAMPLED_CHROMA)
         self._resampled = False
         self._weights = CHANNEL_WEIGHTS["red" if self._auto else channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
@@ -403,7 +405,10 @@ class SpotFinder:
         if (texture.parity is not None and not self._aside and not self._jpeg and not self._paired
                 and len(self._parity_shares) < AUTO_GROUPS):
             self._parity_shares.append(texture.parity)
-            if len(self._parity_shares) == AUTO_GROUPS and resampled(self._parity_shares):
+            rho = self._chroma_correlation(on[0], off[0])
+            if rho is not None:
+                self._parity_chroma.append(rho)
+            if len(self._parity_shares) == AUTO_GROUPS and resampled(self._parity_shares, self._parity_chroma):
                 self._resampled = True
                 texture.bayer, texture.demosaiced = None, False
         self._demosaiced = texture.demosaiced

@@ -60,8 +60,10 @@ def test_parity_contrast_pools_looks_and_tells_no_parity_standing_out() -> None:
     looks = [(0.3, 0.25, 0.25, 0.2), (0.2, 0.25, 0.25, 0.3)]
     assert parity_contrast(looks[:1]) == pytest.approx(1.5)
     assert parity_contrast(looks) == pytest.approx(1.0)
-    assert resampled(looks) and not resampled(looks[:1]) and not resampled([])
+    assert resampled(looks, [0.01]) and not resampled(looks[:1], [0.01]) and not resampled([], [0.01])
     assert parity_contrast([(0.4, 0.2, 0.2, 0.2)]) > RESAMPLED_CONTRAST
+    # Chroma correlated 2 px apart, as JPEG leaves it (either sign), or not measured: not scaled frames.
+    assert not resampled(looks, [-0.1]) and not resampled(looks, [0.1, 0.2]) and not resampled(looks, [])
 
 
 @pytest.mark.parametrize("bayer", ["bilinear", "vng", "ea"])

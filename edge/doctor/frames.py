@@ -138,16 +138,18 @@ def _most(values: Iterable[T]) -> T:
 
 def _demosaiced(kinds: Sequence[FrameKind]) -> str:
     """What the line says of a colour filter, for colour frames whose red is read."""
-    from edge.framenoise import RESAMPLED_CONTRAST, parity_contrast, resampled
+    from edge.framenoise import RESAMPLED_CHROMA, RESAMPLED_CONTRAST, parity_contrast, resampled
 
     if sum(k.demosaiced for k in kinds) * 2 <= len(kinds):
         return "every pixel's own red (no demosaicing seen)"
     shares = [k.parity for k in kinds if k.parity is not None]
-    if resampled(shares):
+    chroma = [k.chroma_lag2 for k in kinds if k.chroma_lag2 is not None]
+    if resampled(shares, chroma):
         return (f"red's noise spread over neighbours, alike at every pixel of a 2 × 2 block (contrast "
-                f"{parity_contrast(shares):.2f} < {RESAMPLED_CONTRAST:g}): scaled after demosaicing, as a Pi camera's "
-                "ISP scales its sensor's 1640 × 1232 to 640 × 480, and no colour filter's pixels at this size: spots "
-                "are placed as without one")
+                f"{parity_contrast(shares):.2f} < {RESAMPLED_CONTRAST:g}; chroma correlated "
+                f"{statistics.median(chroma):.2f} at 2 px, within ±{RESAMPLED_CHROMA:g}): scaled after demosaicing, as "
+                "a Pi camera's ISP scales its sensor's 1640 × 1232 to 640 × 480, and no colour filter's pixels at "
+                "this size: spots are placed as without one")
     found = Counter(k.bayer_red for k in kinds if k.bayer_red is not None)
     if not found:
         return "demosaiced, no Bayer filter's pattern seen: spots are placed by the interpolated red"
