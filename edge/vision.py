@@ -159,9 +159,11 @@ class FrameKind:
     noise: float  # pixel noise (robust σ) of the two frames' difference, full-scale units; 0: none
     area: float  # how far that noise is spread over neighbouring pixels (1: white; a centroid's variance × it)
     paired: bool = False  # colour pixels sharing their chroma in pairs (a YUYV stream: `paired_chroma`)
-    # Where red's noise is spread (demosaiced): each (row, column) parity's share of its power, which
-    # looks at several pairs pool to tell frames scaled after demosaicing (`framenoise.resampled`).
+    # Where red's noise is spread (demosaiced): each (row, column) parity's share of its power, and the
+    # chroma noise's correlation 2 px apart (whatever the channel), which looks at several pairs pool
+    # to tell frames scaled after demosaicing (`framenoise.resampled`).
     parity: tuple[float, float, float, float] | None = None
+    chroma: float | None = None
 
 
 # A seed of a spot (`SpotFinder._seeds`): its pixel (u, v), peak, strip row, matched-filter SNR and the
@@ -956,5 +958,6 @@ class SpotFinder:
             self._weights, self._paired = kept, kept_paired
         channel = "grey" if not colour else "luma" if weights == CHANNEL_WEIGHTS["luma"] else "red"
         bayer_red = None if texture.bayer is None else divmod(texture.bayer, 2)
+        chroma = rho if rho is not None or texture.parity is None else self._chroma_correlation(first, second)
         return FrameKind(jpeg, blockiness, colour, channel, rho, texture.demosaiced, bayer_red, noise, texture.area,
-                         paired, texture.parity)
+                         paired, texture.parity, chroma)

@@ -109,11 +109,13 @@ def test_frames_demosaiced_at_their_own_size_keep_their_filter(bayer: str) -> No
     assert parity_contrast(shares[:AUTO_GROUPS]) > RESAMPLED_CONTRAST * 1.05
 
 
-def test_the_doctor_names_frames_scaled_after_demosaicing() -> None:
+@pytest.mark.parametrize("channel", ["auto", "red"])
+def test_the_doctor_names_frames_scaled_after_demosaicing(channel: str) -> None:
+    """Whatever channel ranging is set to read (red: `auto` measures no chroma), as the finder tells."""
     renderer = _raw_renderer("ea")
     rng = np.random.default_rng(4)
     frames = [_scaled(renderer.render(WALL, 0.0, {}, 0.0, rng)) for _ in range(4)]
-    config = load_config()
+    config = load_config(None, [f"ranging.channel={channel}"])
     line = judge(frames, config.rig.build(), config)
     assert "scaled after demosaicing" in line and "640x480 colour" in line, line
     own = load_config(None, ["sim.sensor.bayer=ea"])

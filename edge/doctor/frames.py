@@ -143,7 +143,7 @@ def _demosaiced(kinds: Sequence[FrameKind]) -> str:
     if sum(k.demosaiced for k in kinds) * 2 <= len(kinds):
         return "every pixel's own red (no demosaicing seen)"
     shares = [k.parity for k in kinds if k.parity is not None]
-    chroma = [k.chroma_lag2 for k in kinds if k.chroma_lag2 is not None]
+    chroma = [k.chroma for k in kinds if k.chroma is not None]
     if resampled(shares, chroma):
         return (f"red's noise spread over neighbours, alike at every pixel of a 2 × 2 block (contrast "
                 f"{parity_contrast(shares):.2f} < {RESAMPLED_CONTRAST:g}; chroma correlated "
