@@ -9,6 +9,7 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -272,7 +273,7 @@ def test_kept_recordings_are_ranged_again_by_replay(tmp_path: Path, capsys: pyte
     """`--keep` keeps a family's recordings and their figures; `--replay` ranges them again, as the
     estimator is now, without rendering or running the oracle again: the same zones, the same
     results from the same estimator, and what ranging was given follows --rig."""
-    from edge.accuracy.bench import KEPT_FILE, KeptFamily, family_document, replay_family, run_family
+    from edge.accuracy.bench import KEPT_FILE, KeptFamily, family_document, replay_family, run_family, software
     from edge.cli import main
 
     tiny = replace(cond.condition("tuning", 0), width=160, height=120, fx=140.0, cx=79.5, cy=59.5, k1=0.0,
@@ -297,8 +298,32 @@ def test_kept_recordings_are_ranged_again_by_replay(tmp_path: Path, capsys: pyte
 
     out = tmp_path / "again.json"
     assert main(["bench", "accuracy", "--replay", str(tmp_path), "--jobs", "1", "--json", str(out)]) == 0
-    assert "family: 3 zones" in capsys.readouterr().out
-    assert json.loads(out.read_text())["rows"] == json.loads(json.dumps(list(runs[0].rows)))
+    printed = capsys.readouterr().out
+    assert "family: 3 zones" in printed
+    written = json.loads(out.read_text())
+    assert written["rows"] == json.loads(json.dumps(list(runs[0].rows)))
+    # What rendered the frames and what ranged them: the same software here, said once.
+    assert written["rendered_with"] == written["ranged_with"] == software() and kept.rendered_with == software()
+    assert f"software: numpy {np.__version__}, opencv {cv2.__version__}, python" in printed
+
+    # Frames rendered by other versions than those ranging them now: both are said, and kept.
+    doc = json.loads((tmp_path / KEPT_FILE).read_text())
+    doc["rendered_with"] = {"python": "3.11.7", "numpy": "1.26.4", "opencv": "4.10.0"}
+    (tmp_path / KEPT_FILE).write_text(json.dumps(doc))
+    assert main(["bench", "accuracy", "--replay", str(tmp_path), "--jobs", "1", "--json", str(out)]) == 0
+    assert "software: rendered with numpy 1.26.4, opencv 4.10.0, python 3.11.7; ranged with numpy" in (
+        capsys.readouterr().out)
+    assert json.loads(out.read_text())["rendered_with"]["opencv"] == "4.10.0"
+    # A family kept before the versions were: said, not guessed.
+    del doc["rendered_with"]
+    (tmp_path / KEPT_FILE).write_text(json.dumps(doc))
+    assert main(["bench", "accuracy", "--replay", str(tmp_path), "--jobs", "1"]) == 0
+    assert "what rendered the frames was not kept" in capsys.readouterr().out
+    doc["rendered_with"] = "opencv 4"
+    (tmp_path / KEPT_FILE).write_text(json.dumps(doc))
+    assert main(["bench", "accuracy", "--replay", str(tmp_path), "--jobs", "1"]) != 0
+    err = capsys.readouterr().err
+    assert "rendered_with must be a table of versions" in err and "Traceback" not in err
 
 
 def test_the_command_refuses_what_it_cannot_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -22,7 +22,7 @@ import math
 import multiprocessing
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -265,13 +265,44 @@ def _pooled(work: Callable[..., Run], args: Sequence[tuple], jobs: int,
 KEPT_FILE = "accuracy.json"
 
 
+def software() -> dict[str, str]:
+    """The libraries a family's figures rest on: OpenCV's JPEG codec, demosaicing and resizing make
+    the simulated frames, and numpy the noise (the same seeds on the same library versions give the
+    same frames; evaluation 464-527, recorded again under numpy 2.4 and OpenCV 5.1, moved one zone)."""
+    import platform
+
+    import cv2
+    import numpy
+
+    return {"python": platform.python_version(), "numpy": numpy.__version__, "opencv": cv2.__version__}
+
+
 def family_document(runs: Sequence[Run], family_name: str, zones: int, rig: str,
-                    config_path: str | None, overrides: Sequence[str]) -> dict:
+                    config_path: str | None, overrides: Sequence[str],
+                    rendered_with: Mapping[str, str] | None = None) -> dict:
     """What `--json` writes, and `--keep` beside its recordings (KEPT_FILE): every zone's row, and
-    what the family was run with."""
+    what the family was run with: the software that rendered its frames (`rendered_with`; default:
+    this one's, as for a family just recorded) and that ranged them."""
+    here = software()
     return {"family": family_name, "zones": zones, "rig": rig, "config": config_path, "set": list(overrides),
+            "rendered_with": dict(rendered_with or here), "ranged_with": here,
             "conditions": [r.condition.to_json() | {"rig": r.rig} for r in runs],
             "rows": [row for r in runs for row in r.rows]}
+
+
+def software_line(rendered_with: Mapping[str, str] | None) -> str:
+    """The report's line on the software: what rendered the frames (None: not kept, a family kept
+    before it was) and what ranged them, where the two differ."""
+    here = software()
+
+    def said(s: Mapping[str, str]) -> str:
+        return ", ".join(f"{name} {s[name]}" for name in ("numpy", "opencv", "python") if name in s)
+
+    if rendered_with is None:
+        return f"  software: ranged with {said(here)}; what rendered the frames was not kept"
+    if dict(rendered_with) == here:
+        return f"  software: {said(here)}"
+    return f"  software: rendered with {said(rendered_with)}; ranged with {said(here)}"
 
 
 @dataclass(frozen=True)
@@ -286,6 +317,7 @@ class KeptFamily:
     overrides: tuple[str, ...]
     conditions: tuple[Condition, ...]
     rows: tuple[dict, ...]
+    rendered_with: dict[str, str] | None = None  # `software()` when the frames were rendered (None: not kept)
 
     def rows_of(self, name: str) -> list[dict]:
         return [row for row in self.rows if row.get("condition") == name]
@@ -311,8 +343,12 @@ class KeptFamily:
             if family_name not in FAMILIES:
                 raise ValueError(f"family {family_name!r} is not one of {', '.join(FAMILIES)}")
             conditions = tuple(Condition.from_json(c) for c in doc["conditions"])
+            rendered = doc.get("rendered_with")
+            if rendered is not None and not isinstance(rendered, dict):
+                raise ValueError(f"rendered_with must be a table of versions, got {rendered!r}")
             return cls(folder, family_name, int(doc["zones"]), str(doc["rig"]), doc.get("config"),
-                       tuple(str(s) for s in doc.get("set") or ()), conditions, tuple(doc["rows"]))
+                       tuple(str(s) for s in doc.get("set") or ()), conditions, tuple(doc["rows"]),
+                       None if rendered is None else {str(k): str(v) for k, v in rendered.items()})
         except (KeyError, TypeError, ValueError) as exc:
             raise UsageError(f"--replay {folder}: {file} is not what --keep writes: {exc!r}") from None
 

@@ -84,6 +84,8 @@ def cmd_bench_accuracy(args: argparse.Namespace) -> int:
         replay_family,
         report,
         run_family,
+        software,
+        software_line,
     )
     from edge.accuracy.conditions import FAMILY_SIZE, family
     from edge.config import load_config
@@ -112,6 +114,7 @@ def cmd_bench_accuracy(args: argparse.Namespace) -> int:
         family_name, zones, rig = kept.family, kept.zones, args.rig or kept.rig
         jobs = args.jobs or min(len(kept.conditions), os.cpu_count() or 1)
         runs = replay_family(config_path, overrides, kept, rig, jobs, done)
+        rendered_with = kept.rendered_with
     else:
         args.conditions = 8 if args.conditions is None else args.conditions
         args.seed = 0 if args.seed is None else args.seed
@@ -129,8 +132,10 @@ def cmd_bench_accuracy(args: argparse.Namespace) -> int:
         jobs = args.jobs or min(len(conditions), os.cpu_count() or 1)
         runs = run_family(config_path, overrides, conditions, zones, rig, jobs,
                           Path(args.keep) if args.keep else None, done)
-    print("\n".join(report(runs, family_name, zones, rig)))
-    doc = json.dumps(family_document(runs, family_name, zones, rig, config_path, overrides), indent=1).encode()
+        rendered_with = software()
+    print("\n".join([*report(runs, family_name, zones, rig), software_line(rendered_with)]))
+    doc = json.dumps(family_document(runs, family_name, zones, rig, config_path, overrides, rendered_with),
+                     indent=1).encode()
     if args.keep:
         atomic_write_bytes(Path(args.keep) / KEPT_FILE, doc)
     if args.json:
