@@ -410,7 +410,9 @@ class SpotFinder:
             rho = self._chroma_correlation(on[0], off[0])
             if rho is not None:
                 self._parity_chroma.append(rho)
-            if len(self._parity_shares) == AUTO_GROUPS and resampled(self._parity_shares, self._parity_chroma):
+            # (Not where bright spots' red bends told a filter already: `SiteLook` sees past the noise.)
+            if (len(self._parity_shares) == AUTO_GROUPS and self._sites.parity is None
+                    and resampled(self._parity_shares, self._parity_chroma)):
                 self._resampled = True
                 texture.bayer, texture.demosaiced = None, False
         self._demosaiced = texture.demosaiced
