@@ -259,7 +259,7 @@ class RigChecks:
             gain = f", gain {g:.2f}"
         _colours_kept_apart(frames)
         median = statistics.median(intervals)
-        stream = getattr(self.camera, "pixel_format", "")  # (a webcam's: YUYV, MJPG)
+        stream = self.camera.pixel_format if self.camera is not None else ""  # (a webcam's: YUYV, MJPG)
         return (f"{config.camera.backend} {shape[1]}x{shape[0]}{' ' + stream if stream else ''}: "
                 f"{len(frames)} frames every {median:.1f} ms "
                 f"({1e3 / median:.1f} fps; {settings.frame_rate_hz:g} configured), exposure {got:.0f} µs fixed "

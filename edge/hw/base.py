@@ -43,6 +43,9 @@ class Frame:
 
 class Camera(Protocol):
     frame_ns: int  # the frame period
+    # The stream's four-character code where the camera names one (a webcam's YUYV or MJPG, for
+    # JPEG places spots worse); "" where it names none (the Pi camera's frames are edge's own RGB888).
+    pixel_format: str
 
     def start(self) -> None:
         """Deliver frames from now on; again after a stop() (a restart). CameraError if it cannot."""

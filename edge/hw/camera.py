@@ -125,6 +125,7 @@ class Picamera2Camera:
         self.settings = settings
         self.frame_ns = settings.frame_ns
         self.size = size
+        self.pixel_format = ""  # (Camera's: no code names the frames edge configures, RGB888)
         self.skipped = 0  # frames read and discarded by frame_after
         self.closed = False
         self._first_t: int | None = None
