@@ -298,6 +298,23 @@ class SpotFinder:
             steps.append(ratio)
         return bool(steps) and float(np.median(steps)) < PAIRED_CHROMA
 
+    def _scaling_told(self, texture: Texture, rho: float | None, on: np.ndarray, off: np.ndarray) -> bool:
+        """Look, in the first AUTO_GROUPS groups whose red noise is spread (`texture.parity`), at
+        whether the frames were scaled after demosaicing (`framenoise.resampled`), with the chroma
+        correlation `rho` where `auto` measured it for this pair already; True when this look
+        told it (`_texture` then takes no filter). JPEG and YUYV frames are not looked at, nor
+        frames whose bright spots' red bends told a filter (`SiteLook` sees past the noise)."""
+        if (texture.parity is None or self._jpeg or self._paired
+                or len(self._parity_shares) >= AUTO_GROUPS):
+            return False
+        self._parity_shares.append(texture.parity)
+        chroma = rho if rho is not None else self._chroma_correlation(on, off)
+        if chroma is not None:
+            self._parity_chroma.append(chroma)
+        self._resampled = (len(self._parity_shares) == AUTO_GROUPS and self._sites.parity is None
+                           and resampled(self._parity_shares, self._parity_chroma))
+        return self._resampled
+
     @staticmethod
     def _auto_weights(told: Sequence[float]) -> tuple[float, float, float]:
         """`auto`'s channel from the chroma correlations `told` so far: luma where their median
@@ -384,6 +401,7 @@ class SpotFinder:
             finally:
                 self._weights, self._demosaiced, self._aside = kept
         names = [n for n in (lasers if lasers is not None else self.bands) if n in self.bands]
+        rho: float | None = None  # this pair's chroma correlation, where `auto` measured it
         if not self._aside and self._choosing_channel(on[0]):
             rho = self._chroma_correlation(on[0], off[0])
             if rho is not None:
@@ -403,18 +421,10 @@ class SpotFinder:
         # Shot noise grows with the signal: estimate its scale from the background, whose
         # difference noise is (mostly) the shot noise of two frames of it.
         shot = noise**2 / (2.0 * max(off_level, 1e-3))
-        texture = self._texture(diff, centre, noise, on[0].ndim == 3, bool(self._jpeg))
-        if (texture.parity is not None and not self._aside and not self._jpeg and not self._paired
-                and len(self._parity_shares) < AUTO_GROUPS):
-            self._parity_shares.append(texture.parity)
-            rho = self._chroma_correlation(on[0], off[0])
-            if rho is not None:
-                self._parity_chroma.append(rho)
-            # (Not where bright spots' red bends told a filter already: `SiteLook` sees past the noise.)
-            if (len(self._parity_shares) == AUTO_GROUPS and self._sites.parity is None
-                    and resampled(self._parity_shares, self._parity_chroma)):
-                self._resampled = True
-                texture.bayer, texture.demosaiced = None, False
+        colour, jpeg = on[0].ndim == 3, bool(self._jpeg)
+        texture = self._texture(diff, centre, noise, colour, jpeg)
+        if not self._aside and self._scaling_told(texture, rho, on[0], off[0]):
+            texture = self._texture(diff, centre, noise, colour, jpeg)  # (once: as every frame from now on)
         self._demosaiced = texture.demosaiced
         seeds = self._detect(diff, off_vals, deviation, noise, quantum, names, near, threshold, on, off, gain,
                              max_candidates)
