@@ -268,10 +268,15 @@ def _at(source: str, where: str) -> Fail:
 # Rig -> JSON
 
 
+def camera_to_json(cam: CameraModel) -> dict[str, Any]:
+    """A camera model as sweep.json's `camera`."""
+    return {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
+            "dist": list(cam.dist)}
+
+
 def rig_to_json(rig: Rig) -> dict[str, Any]:
     """The rig as sweep.json's `camera`, `lasers`, `mount` and `range_limits_m` (GPIO pins, being
     hardware wiring rather than geometry, are not part of the format)."""
-    cam = rig.camera
     lasers = []
     for laser in rig.lasers:
         entry: dict[str, Any] = {
@@ -283,8 +288,7 @@ def rig_to_json(rig: Rig) -> dict[str, Any]:
             entry["reference"] = True
         lasers.append(entry)
     return {
-        "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy,
-                   "cx": cam.cx, "cy": cam.cy, "dist": list(cam.dist)},
+        "camera": camera_to_json(rig.camera),
         "lasers": lasers,
         "mount": {"origin_m": list(rig.mount.origin_m), "rpy_deg": list(rig.mount.rpy_deg)},
         "range_limits_m": list(rig.range_limits_m),

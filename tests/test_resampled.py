@@ -8,28 +8,20 @@ import copy
 import functools
 from dataclasses import replace
 
-import cv2
 import numpy as np
 import pytest
 
 from edge.config import load_config
 from edge.doctor.frames import judge
 from edge.framenoise import RESAMPLED_CONTRAST, parity_contrast, resampled
+from edge.sim import isp
 from edge.sim.record import scene_for, true_rig
 from edge.sim.render import Renderer
 from edge.vision import AUTO_GROUPS, SpotFinder
 
-SCALE = 2.5625  # 1640 → 640 columns; 1230 → 480 rows, a row cropped off the top and the bottom (4:3)
-# The sensor's 1640 × 1232 pixels, each 1/SCALE² of a 640 × 480 pixel: a room as bright per area as the
-# simulator's 640 × 480 one, in a well as deep per area, blurred and speckled as finely in the scene.
-RAW = ["rig.camera.model=picam-v2-1640", "sim.ambient.white_e_per_ms=91.4", "sim.sensor.full_well_e=1522",
-       "sim.optics.psf_sigma_px=1.28", "sim.beam.speckle=0"]
+# The sensor at 1640 × 1232 (`isp.RAW_SETTINGS`), without speckle: the σ checked is the pixel noise's.
+RAW = [*isp.RAW_SETTINGS, "sim.beam.speckle=0"]
 WALL = -90.0  # the office wall, 1.3 m away
-
-
-def _scaled(frame: np.ndarray) -> np.ndarray:
-    """A 1640 × 1232 frame as the ISP hands it over at 640 × 480."""
-    return cv2.resize(frame[1:-1], (640, 480), interpolation=cv2.INTER_AREA)
 
 
 @functools.cache
@@ -51,7 +43,18 @@ def _groups(renderer: Renderer, pan: float, count: int, seed: int, scale: bool):
     lit = {n: 1.0 for n in renderer.rig.laser_names}
     for _ in range(count):
         on, off = (renderer.render(pan, 0.0, lasers, 0.0, rng) for lasers in (lit, {}))
-        yield (_scaled(on), _scaled(off)) if scale else (on, off)
+        yield (isp.scaled_frame(on), isp.scaled_frame(off)) if scale else (on, off)
+
+
+def test_the_isp_maps_the_sensor_s_camera_onto_the_rig_s() -> None:
+    """The crop and scale take `picam-v2-1640`'s principal point to `picam-v2`'s, and its focal
+    length to `picam-v2`'s: the two models are one camera."""
+    assert isp.scaled_pixel(isp.RAW.cx, isp.RAW.cy) == pytest.approx((isp.OUT.cx, isp.OUT.cy))
+    assert isp.RAW.fx / isp.SCALE == pytest.approx(isp.OUT.fx) and isp.CROP_ROWS == 1
+    frame = np.zeros((isp.RAW.height, isp.RAW.width, 3), np.uint8)
+    frame[isp.CROP_ROWS:-isp.CROP_ROWS] = 200  # the cropped rows are not averaged in
+    assert isp.scaled_frame(frame).shape == (isp.OUT.height, isp.OUT.width, 3)
+    assert int(isp.scaled_frame(frame).min()) == 200
 
 
 def test_parity_contrast_pools_looks_and_tells_no_parity_standing_out() -> None:
@@ -82,8 +85,7 @@ def test_frames_scaled_after_demosaicing_lose_demosaicings_sigma_and_keep_their_
         truth = renderer.spots(pan, 0.0)
         for on, off in _groups(renderer, pan, 2, seed=2, scale=True):
             for name, cands in finder.find([on], [off]).items():
-                raw = np.asarray(truth[name].pixel)
-                pixel = (raw + (0.5, -0.5)) / SCALE - 0.5  # (the cropped row)
+                pixel = isp.scaled_pixel(*truth[name].pixel)
                 error = float(np.hypot(*(cands[0].pixel - pixel)))
                 errors.append(error)
                 z.append(error / cands[0].sigma_px)
@@ -105,7 +107,6 @@ def test_frames_demosaiced_at_their_own_size_keep_their_filter(bayer: str) -> No
         kind = finder.frame_kind(on, off)
         assert kind.demosaiced
         shares.append(kind.parity)
-    assert not finder._resampled
     assert parity_contrast(shares[:AUTO_GROUPS]) > RESAMPLED_CONTRAST * 1.05
 
 
@@ -114,7 +115,7 @@ def test_the_doctor_names_frames_scaled_after_demosaicing(channel: str) -> None:
     """Whatever channel ranging is set to read (red: `auto` measures no chroma), as the finder tells."""
     renderer = _raw_renderer("ea")
     rng = np.random.default_rng(4)
-    frames = [_scaled(renderer.render(WALL, 0.0, {}, 0.0, rng)) for _ in range(4)]
+    frames = [isp.scaled_frame(renderer.render(WALL, 0.0, {}, 0.0, rng)) for _ in range(4)]
     config = load_config(None, [f"ranging.channel={channel}"])
     line = judge(frames, config.rig.build(), config)
     assert "scaled after demosaicing" in line and "640x480 colour" in line, line

@@ -7,15 +7,14 @@ two the simulator draws. This makes them from a recording of the `picam-v2-1640`
 Bayer filter: every frame cropped and scaled by area, the camera written as `picam-v2`'s, and each
 laser's true pixel moved to match.
 
-    ./dev edge sim record --out rec/raw --set rig.camera.model=picam-v2-1640 --set sim.sensor.bayer=ea \\
-        --set sim.optics.psf_sigma_px=1.28 --set sim.ambient.white_e_per_ms=91.4 \\
-        --set sim.sensor.full_well_e=1522 --set sim.beam.speckle_grain=2.5625
+    ./dev edge sim record --out rec/raw --set sim.sensor.bayer=ea \
+        --set rig.camera.model=picam-v2-1640 --set sim.ambient.white_e_per_ms=91.4 \
+        --set sim.sensor.full_well_e=1522 --set sim.optics.psf_sigma_px=1.28 --set sim.beam.speckle_grain=2.5625
     .venv/bin/python tools/isp_scaled.py rec/raw rec/isp
     ./dev edge replay rec/isp --score
 
-(The --set values keep the room as bright, the wells as deep, and the blur and speckle as fine, per
-area of the scene, as the simulator's own 640 × 480 camera has them: each 1640 × 1232 pixel is
-1/2.5625² of one of its pixels.)
+(The --set values, `edge.sim.isp.RAW_SETTINGS`, keep the room as bright, the wells as deep, and the
+blur and speckle as fine, per area of the scene, as the simulator's own 640 × 480 camera has them.)
 """
 
 from __future__ import annotations
@@ -28,16 +27,8 @@ from pathlib import Path
 
 import cv2
 
-SCALE = 2.5625  # 1640 → 640 columns, and 1230 → 480 rows
-RAW_SIZE = (1640, 1232)
-OUT_SIZE = (640, 480)
-CROP_ROWS = 1  # off the top and the bottom: 1230 rows are 4:3
-CAMERA = {"width": 640, "height": 480, "fx": 530.0, "fy": 530.0, "cx": 319.5, "cy": 239.5, "dist": [0.0] * 5}
-
-
-def scaled_pixel(u: float, v: float) -> list[float]:
-    """A 1640 × 1232 pixel's place in the 640 × 480 frame (pixel centres at integers)."""
-    return [round((u + 0.5) / SCALE - 0.5, 4), round((v - CROP_ROWS + 0.5) / SCALE - 0.5, 4)]
+from edge.recording import camera_to_json
+from edge.sim.isp import OUT, RAW, scaled_frame, scaled_pixel
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,24 +42,23 @@ def main(argv: list[str] | None = None) -> int:
         print(f"isp_scaled: {args.raw / 'sweep.json'}: cannot be read as a recording: {exc}", file=sys.stderr)
         return 2
     camera = sweep["camera"]
-    if (camera["width"], camera["height"]) != RAW_SIZE:
+    if (camera["width"], camera["height"]) != (RAW.width, RAW.height):
         print(f"isp_scaled: {args.raw / 'sweep.json'}: camera is {camera['width']}x{camera['height']}, "
-              f"not {RAW_SIZE[0]}x{RAW_SIZE[1]}", file=sys.stderr)
+              f"not {RAW.width}x{RAW.height}", file=sys.stderr)
         return 2
-    sweep["camera"] = CAMERA
+    sweep["camera"] = camera_to_json(OUT)
     for zone in sweep["zones"]:
         for laser in zone.get("truth", {}).get("lasers", {}).values():
             if laser.get("pixel"):
-                laser["pixel"] = scaled_pixel(*laser["pixel"])
+                laser["pixel"] = [round(c, 4) for c in scaled_pixel(*laser["pixel"])]
     if args.out.exists():
         shutil.rmtree(args.out)
     (args.out / "frames").mkdir(parents=True)
     (args.out / "sweep.json").write_text(json.dumps(sweep, indent=1))
     for frame in sorted((args.raw / "frames").iterdir()):
         image = cv2.imread(str(frame), cv2.IMREAD_UNCHANGED)
-        small = cv2.resize(image[CROP_ROWS:-CROP_ROWS], OUT_SIZE, interpolation=cv2.INTER_AREA)
-        cv2.imwrite(str(args.out / "frames" / frame.name), small)
-    print(f"wrote {args.out}: {len(sweep['zones'])} zones at {OUT_SIZE[0]}x{OUT_SIZE[1]}")
+        cv2.imwrite(str(args.out / "frames" / frame.name), scaled_frame(image))
+    print(f"wrote {args.out}: {len(sweep['zones'])} zones at {OUT.width}x{OUT.height}")
     return 0
 
 
