@@ -15,7 +15,7 @@ import sys
 import pytest
 from broker import publish
 from conftest import REPO
-from test_service import DEVICE, P, finish, payload, start
+from test_service import DEVICE, P, finish, heard_to_the_end, payload, start
 
 from edge.calibration.file import read_calibration
 from edge.config import load_config
@@ -74,6 +74,7 @@ def test_a_board_carried_to_each_distance_calibrates_the_rig(broker, subscriber,
     subscriber.wait_for(f"{P}/range", lambda m: rig_s(m) > WALL_FROM_S + LATE_S + 3, timeout=120)
     proc.send_signal(signal.SIGTERM)
     err = finish(proc)
+    heard_to_the_end(subscriber)
     body = payload(result)
     assert body["ok"] is True and body["request_id"].startswith("cli-"), body
 
@@ -151,6 +152,7 @@ def test_a_session_refuses_other_commands_is_cancelled_by_a_mode_and_times_out(b
     assert late["ok"] is False and late["request_id"].startswith("cli-")
     proc.send_signal(signal.SIGTERM)
     finish(proc)
+    heard_to_the_end(subscriber)
     assert not (tmp_path / "state" / "calibration.json").exists()
     states = [payload(m) for m in subscriber.messages(f"{P}/state")]
     assert states[-1]["health"]["calibration"] == "nominal rig (no calibration file)"

@@ -54,6 +54,16 @@ def finish(proc: subprocess.Popen, timeout: float = 300) -> str:
     return err
 
 
+def heard_to_the_end(subscriber: Subscriber) -> None:
+    """Wait until `subscriber` has the `offline` that a stopped service publishes last, after its
+    last state: then it has every message the service published before it (the broker hands one
+    client's messages on in order). A process's exit says nothing of what is still on its way to
+    the subscriber."""
+    started = [i for i, m in enumerate(subscriber.messages()) if m.topic == f"{P}/status" and m.payload == b"online"]
+    subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"offline", since=started[-1] if started else 0,
+                        timeout=30)
+
+
 def test_a_range_finder_run_publishes_every_topic_of_the_contract(broker, subscriber, tmp_path):
     proc = start(broker, tmp_path, "mode=\"rangefinder\"", "rangefinder.pan_deg=-90.0", run_for=8)
     online = subscriber.wait_for(f"{P}/status", lambda m: m.payload == b"online", timeout=20)
@@ -228,6 +238,7 @@ def test_sweeps_published_while_the_broker_is_down_all_arrive_in_order(broker, s
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+    heard_to_the_end(subscriber)
     numbers = [payload(m)["sweep"] for m in subscriber.messages(f"{P}/sweep")]
     assert numbers[:len(first)] == list(range(1, len(first) + 1))
     seen = list(dict.fromkeys(numbers))  # first sightings
@@ -325,6 +336,7 @@ def test_guard_alerts_survive_ten_broker_outages_exactly_as_raised_and_in_order(
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+    heard_to_the_end(subscriber)
     raised = _raised(err)
     got = [payload(m) for m in subscriber.messages(f"{P}/alert")]
     firsts = list(dict.fromkeys((a["event"], a["id"], str(a["zones"]).replace(" ", ""), a["sweep"]) for a in got))
@@ -374,6 +386,7 @@ def test_blind_aid_cues_on_mqtt_match_the_sound_in_the_wav(broker, subscriber, t
     proc = start(broker, tmp_path, 'mode="blindaid"', "sim.scene=office-approach", "blindaid.speak_new=false",
                  f"audio.out={json.dumps(str(wav))}", run_for=18)
     finish(proc)
+    heard_to_the_end(subscriber)
     cues = [payload(m) for m in subscriber.messages(f"{P}/cue")]
     assert len(cues) >= 3
     for c in cues:
@@ -416,6 +429,7 @@ def test_a_stalled_or_torn_camera_is_restarted_and_ranging_resumes(broker, subsc
     proc = start(broker, tmp_path, 'mode="rangefinder"', "rangefinder.pan_deg=-90.0", "camera.timeout_s=0.5", faults,
                  run_for=18.0)
     err = finish(proc)
+    heard_to_the_end(subscriber)
     ranges = [json.loads(m.payload) for m in subscriber.messages(f"{P}/range")]
     statuses = [r["status"] for r in ranges]
     first_fault = statuses.index("fault")
