@@ -18,6 +18,7 @@ from edge.accuracy.floor import OBSERVABLE_SNR, spot_profile
 from edge.accuracy.score import Figures, ZoneOutcome, failing_by_chance, stricter, targets
 from edge.config import load_config
 from edge.ranging import OK, ZoneResult
+from edge.sim import isp
 
 # --- conditions ----------------------------------------------------------------------------------
 
@@ -58,6 +59,13 @@ def test_conditions_cover_what_the_issue_asks_within_its_ranges() -> None:
         assert max(values) - min(values) > 0.5 * (hi - lo), f"{key} does not spread over its range"
     # Half-power points of the log-uniform scales: as many below 1 as above.
     assert 0.35 < np.mean([c.laser_power < 1 for c in family]) < 0.65
+    # The default rig's own camera: about half of the lossless colour cameras at 640 × 480 are a
+    # Bayer sensor read out at 1640 × 1232 and ISP-scaled, with each of the demosaicings, 8-bit.
+    pi_like = [c for c in family if (c.width, c.height) == (640, 480) and c.colour and not c.jpeg_quality]
+    scaled = [c for c in family if c.isp]
+    assert set(scaled) <= set(pi_like) and 0.3 < len(scaled) / len(pi_like) < 0.7
+    assert {c.bayer for c in scaled} == set(cond.ISP_DEMOSAICS) and {c.output_bits for c in scaled} == {8}
+    assert {c.frames for c in scaled} == {"ISP-scaled lossless"}
     # A webcam (JPEG colour frames) mixes its channels as real sensors' matrices do, warm to cool;
     # the Pi camera (lossless) and grey cameras do not.
     webcams = [c for c in family if c.colour and c.jpeg_quality]
@@ -86,21 +94,34 @@ def test_a_family_kept_before_the_colour_matrix_was_drawn_reads_as_without_one()
 
 def test_a_condition_is_a_valid_configuration_of_what_it_says() -> None:
     base = load_config(None, [])
-    for c in cond.family("evaluation", 12):
+    conditions = cond.family("evaluation", 12)
+    assert any(c.isp for c in conditions) and not all(c.isp for c in conditions)
+    for c in conditions:
         extra = c.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones=5)
         config = load_config(None, list(extra))
         assert config.sim.seed == c.seed == config.sim.rig_error.seed
         assert config.sim.scene == c.scene
-        assert config.rig.build().camera.width == c.width and config.rig.camera.dist == (c.k1, 0, 0, 0, 0)
+        camera = config.rig.build().camera
+        # An ISP condition renders the Pi camera's 1640 × 1232 sensor, which the ISP scales to the
+        # condition's camera; per area, the sensor sees the room as that camera would.
+        per_area = isp.SCALE**2 if c.isp else 1.0
+        ranged = isp.scaled_camera(camera) if c.isp else camera
+        assert [getattr(ranged, k) for k in ("width", "height", "fx", "fy", "cx", "cy")] == pytest.approx(
+            [getattr(c.camera, k) for k in ("width", "height", "fx", "fy", "cx", "cy")], abs=1e-9)
+        assert camera.width == (isp.RAW.width if c.isp else c.width) and config.rig.camera.dist == (c.k1, 0, 0, 0, 0)
         assert config.sim.beam.e_per_ms_at_1m == pytest.approx(20000.0 * c.laser_power)
-        assert config.sim.ambient.white_e_per_ms == pytest.approx(600.0 * c.room_light)
+        assert config.sim.ambient.white_e_per_ms == pytest.approx(600.0 * c.room_light / per_area)
+        assert config.sim.sensor.full_well_e == pytest.approx(c.full_well_e / per_area)
+        assert config.sim.optics.psf_sigma_px == pytest.approx(c.psf_sigma_px * math.sqrt(per_area))
+        assert config.sim.beam.speckle_grain == pytest.approx(c.speckle_grain * math.sqrt(per_area))
         assert config.sim.sensor.bayer == c.bayer and config.sim.sensor.jpeg_quality == c.jpeg_quality
         assert config.sim.surfaces.albedo_scale == c.albedo_scale
         assert config.sim.sensor.colour_matrix == c.colour_matrix
         assert config.sweep.poses() == c.poses(5)
-        white = 600.0 * c.room_light * config.camera.exposure_us / 1000.0  # e of a white wall
+        white = config.sim.ambient.white_e_per_ms * config.camera.exposure_us / 1000.0  # e of a white wall
         assert 500.0 <= config.camera.exposure_us <= 30000.0
-        assert white == pytest.approx(c.fill * c.full_well_e, rel=1e-3) or config.camera.exposure_us in (500, 30000)
+        assert (white == pytest.approx(c.fill * config.sim.sensor.full_well_e, rel=1e-3)
+                or config.camera.exposure_us in (500, 30000))
         assert c.name in c.describe() or c.scene in c.describe()
     # A matrix given by `--set` reaches the cameras that draw none (the Pi camera's lossless frames);
     # a webcam keeps its own.
@@ -359,6 +380,32 @@ def test_the_calibrated_rig_is_fitted_from_a_simulated_board(tmp_path: Path) -> 
     assert run.rig == "calibrated" and len(run.outcomes) == 2
     board = read_recording(tmp_path / "tuning-0-calibration")
     assert [z.truth["range_m"] for z in board.zones if z.truth] == pytest.approx(CALIBRATION_DISTANCES_M, abs=0.01)
+
+
+@pytest.mark.slow  # two zones rendered at 1640 × 1232
+def test_an_isp_condition_is_ranged_from_the_frames_the_pi_camera_s_isp_hands_over(tmp_path: Path) -> None:
+    """The default rig's own camera in the family: its 1640 × 1232 sensor is recorded, scaled to
+    640 × 480 as the ISP hands it over and ranged with the true rig seen through the ISP; the truth,
+    the floor (the sensor's) and the oracle (told the scaled spot) agree with what ranging finds."""
+    from edge.accuracy.bench import run_condition
+    from edge.recording import read_recording
+
+    c = cond.condition("tuning", 1)
+    assert c.isp and c.bayer == "bilinear"
+    run = run_condition(None, [], c, 2, "true", tmp_path, oracle=True)
+    recording = read_recording(tmp_path / c.name)
+    assert not (tmp_path / f"{c.name}-sensor").exists()  # only the scaled frames are kept
+    camera = recording.rig.camera
+    assert (camera.width, camera.height) == (640, 480) and camera.fx == pytest.approx(c.fx)
+    assert (camera.cx, camera.cy) == pytest.approx((c.cx, c.cy))
+    zone = recording.zones[1]
+    assert recording.load_image(zone, zone.frames[0]).shape == (480, 640, 3)
+    near = run.outcomes[1]  # a white-ish wall at 1.0 m, its spot 25 × the noise
+    assert near.status == OK and near.floor_m is not None and near.sigma_m is not None and near.error_m is not None
+    assert abs(near.error_m) < 2.5 * near.sigma_m and near.sigma_m < 0.02 * near.truth_m
+    # The oracle, told where the sensor's spot lands in the scaled frames and how wide it is there,
+    # places it as the floor allows.
+    assert near.oracle_error_m is not None and abs(near.oracle_error_m) < 2.0 * near.floor_m
 
 
 # --- observable in the frames (edge/accuracy/observe.py) ---

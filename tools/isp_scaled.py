@@ -20,15 +20,10 @@ blur and speckle as fine, per area of the scene, as the simulator's own 640 × 4
 from __future__ import annotations
 
 import argparse
-import json
-import shutil
 import sys
 from pathlib import Path
 
-import cv2
-
-from edge.recording import camera_to_json
-from edge.sim.isp import OUT, RAW, scaled_frame, scaled_pixel
+from edge.sim.isp import OUT, scale_recording
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,28 +32,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", type=Path, help="the 640 × 480 recording to write (replaced)")
     args = parser.parse_args(argv)
     try:
-        sweep = json.loads((args.raw / "sweep.json").read_text())
-    except (OSError, ValueError) as exc:
-        print(f"isp_scaled: {args.raw / 'sweep.json'}: cannot be read as a recording: {exc}", file=sys.stderr)
+        zones = scale_recording(args.raw, args.out)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"isp_scaled: {args.raw / 'sweep.json'}: cannot be read as a 1640x1232 recording: {exc}",
+              file=sys.stderr)
         return 2
-    camera = sweep["camera"]
-    if (camera["width"], camera["height"]) != (RAW.width, RAW.height):
-        print(f"isp_scaled: {args.raw / 'sweep.json'}: camera is {camera['width']}x{camera['height']}, "
-              f"not {RAW.width}x{RAW.height}", file=sys.stderr)
-        return 2
-    sweep["camera"] = camera_to_json(OUT)
-    for zone in sweep["zones"]:
-        for laser in zone.get("truth", {}).get("lasers", {}).values():
-            if laser.get("pixel"):
-                laser["pixel"] = [round(c, 4) for c in scaled_pixel(*laser["pixel"])]
-    if args.out.exists():
-        shutil.rmtree(args.out)
-    (args.out / "frames").mkdir(parents=True)
-    (args.out / "sweep.json").write_text(json.dumps(sweep, indent=1))
-    for frame in sorted((args.raw / "frames").iterdir()):
-        image = cv2.imread(str(frame), cv2.IMREAD_UNCHANGED)
-        cv2.imwrite(str(args.out / "frames" / frame.name), scaled_frame(image))
-    print(f"wrote {args.out}: {len(sweep['zones'])} zones at {OUT.width}x{OUT.height}")
+    print(f"wrote {args.out}: {zones} zones at {OUT.width}x{OUT.height}")
     return 0
 
 

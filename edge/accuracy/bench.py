@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import multiprocessing
+import shutil
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -78,13 +79,13 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     began = time.monotonic()
     config = condition_config(config_path, overrides, cond, zones)
     out = folder / cond.name
-    record_sweep(config, out, extra_truth=floor_truth(config))
+    _recorded(cond, out, lambda to: record_sweep(config, to, extra_truth=floor_truth(config)))
     recording = read_recording(out)
     if rig == "calibrated":
-        ranging_rig, said = _calibrated(config, recording.rig, folder / f"{cond.name}-calibration")
+        ranging_rig, said = _calibrated(cond, config, recording.rig, folder / f"{cond.name}-calibration")
     else:
-        ranging_rig, said = _given_rig(config, recording.rig, rig)
-    zone_oracle = ZoneOracle.of(config) if oracle else None
+        ranging_rig, said = _given_rig(cond, config, recording.rig, rig)
+    zone_oracle = ZoneOracle.of(config, scaled=cond.isp) if oracle else None
 
     def seen(zone: ZoneRecord, groups: Sequence[FrameGroup], reference: str) -> tuple[float | None, float | None]:
         t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
@@ -102,11 +103,27 @@ def condition_config(config_path: str | None, overrides: Sequence[str], cond: Co
     return load_config(config_path, [*overrides, *extra])
 
 
-def _given_rig(config: Config, nominal: Rig, rig: str) -> tuple[Rig, str]:
+def _recorded(cond: Condition, out: Path, record: Callable[[Path], object]) -> None:
+    """`record` condition `cond`'s recording into `out`: straight there, or for an ISP condition
+    its 1640 × 1232 sensor's beside it, scaled into `out` as the ISP hands it over and removed."""
+    if not cond.isp:
+        record(out)
+        return
+    from edge.sim.isp import scale_recording
+
+    sensor = out.with_name(f"{out.name}-sensor")
+    record(sensor)
+    scale_recording(sensor, out)
+    shutil.rmtree(sensor)
+
+
+def _given_rig(cond: Condition, config: Config, nominal: Rig, rig: str) -> tuple[Rig, str]:
+    from edge.sim.isp import scaled_rig
     from edge.sim.record import true_rig
 
     if rig == "true":
-        return true_rig(config), "true"
+        built = true_rig(config)  # (an ISP condition's: its sensor's camera, through the ISP)
+        return (scaled_rig(built) if cond.isp else built), "true"
     if rig == "nominal":
         return nominal, "nominal"
     raise ValueError(f"rig must be one of {', '.join(RIGS)}, got {rig!r}")
@@ -154,7 +171,7 @@ def replay_condition(config_path: str | None, overrides: Sequence[str], cond: Co
                              f"({board / 'sweep.json'} is missing)")
         ranging_rig, said = _fitted(board, recording.rig)
     else:
-        ranging_rig, said = _given_rig(config, recording.rig, rig)
+        ranging_rig, said = _given_rig(cond, config, recording.rig, rig)
     by_zone = {int(row["zone"]): row for row in kept}
 
     def seen(zone: ZoneRecord, groups: Sequence[FrameGroup], reference: str) -> tuple[float | None, float | None]:
@@ -180,14 +197,14 @@ def _frame_snr(groups: Sequence[FrameGroup], zone: ZoneRecord, reference: str) -
     return frame_snr(diffs, mine["pixel"], others)
 
 
-def _calibrated(config: Config, nominal: Rig, out: Path) -> tuple[Rig, str]:
+def _calibrated(cond: Condition, config: Config, nominal: Rig, out: Path) -> tuple[Rig, str]:
     """The rig fitted from a simulated white board at CALIBRATION_DISTANCES_M (the room's surfaces
     do not matter: a user calibrates with a matte white board), or the nominal rig if it fails."""
     from edge.sim.record import record_targets
     from edge.sim.settings import SurfacesConfig
 
     board = replace(config, sim=replace(config.sim, surfaces=SurfacesConfig()))
-    record_targets(board, list(CALIBRATION_DISTANCES_M), out, pairs=CALIBRATION_PAIRS)
+    _recorded(cond, out, lambda to: record_targets(board, list(CALIBRATION_DISTANCES_M), to, pairs=CALIBRATION_PAIRS))
     return _fitted(out, nominal)
 
 

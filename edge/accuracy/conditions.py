@@ -8,7 +8,10 @@ A condition draws, from its seed, everything the simulator can vary that real se
   3-colour sensor or a Bayer filter and one of OpenCV's demosaicing methods; lossless frames
   (8- or 16-bit) or JPEG of quality 50–95 with 4:2:0 or 4:4:4 chroma; JPEG colour frames (a
   webcam's) through a colour matrix like a real sensor's, which a webcam's ISP applies and nobody
-  can turn off (lossless colour frames stand for the Pi camera, whose matrix edge turns off);
+  can turn off (lossless colour frames stand for the Pi camera, whose matrix edge turns off); and,
+  for half of the lossless colour cameras at 640 × 480, the default rig's own pipeline
+  (:mod:`edge.sim.isp`): a Bayer sensor read out at 1640 × 1232, demosaiced there and scaled by its
+  ISP to 640 × 480;
 - the light: laser power and room light each ¼–4 × the configured, and the exposure someone (or an
   auto-exposure) chose for the room: a white wall under its light fills 25–80 % of the full well,
   within 0.5–30 ms (a fixed exposure in a bright room would clip every wall: nothing to measure);
@@ -35,10 +38,13 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import MISSING, dataclass, fields
+from dataclasses import MISSING, dataclass, fields, replace
 from typing import Any, Literal
 
 import numpy as np
+
+from edge.rig import CameraModel
+from edge.sim import isp
 
 Family = Literal["tuning", "evaluation"]
 FAMILIES: dict[str, int] = {"tuning": 1_000_000, "evaluation": 2_000_000}
@@ -67,6 +73,8 @@ SENSOR_COLOUR_MATRICES: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] =
                (1.546, -0.204, -0.342, -0.317, 2.226, -0.908, -0.1, -0.659, 1.759)),
 }
 _POSES_SALT = 0x9053
+ISP_SHARE = 0.5  # of the lossless colour cameras at 640 × 480: the Pi camera's ISP-scaled frames
+ISP_DEMOSAICS = ("bilinear", "vng", "ea")  # for an ISP condition drawn as a 3-colour sensor
 
 
 @dataclass(frozen=True)
@@ -109,6 +117,10 @@ class Condition:
     # An ISP's colour matrix (sim.sensor.colour_matrix; empty: none). Drawn last: families kept
     # before it was drawn read as none.
     colour_matrix: tuple[float, ...] = ()
+    # The frames are the Pi camera's: its Bayer sensor (`bayer`) read out at 1640 × 1232 and scaled
+    # by its ISP to the condition's 640 × 480 (edge.sim.isp); the camera above is the 640 × 480 one.
+    # Drawn after the colour matrix: families kept before read as False.
+    isp: bool = False
 
     @property
     def name(self) -> str:
@@ -135,16 +147,23 @@ class Condition:
         """``--set`` overrides that make this condition of a base configuration whose beam, room
         light and frame rate are these (the scales multiply them)."""
         poses = json.dumps([list(p) for p in self.poses(zones)])
+        # (An ISP condition records its 1640 × 1232 sensor, which sees the room as the 640 × 480
+        # camera does, per area; its recording is scaled afterwards: edge.sim.isp.scale_recording.)
+        camera = self.camera if not self.isp else isp.sensor_camera(self.camera)
+        white, well, blur, grain = (white_e_per_ms * self.room_light, self.full_well_e, self.psf_sigma_px,
+                                    self.speckle_grain)
+        if self.isp:
+            white, well, blur, grain = isp.per_area(white, well, blur, grain)
         return (
             f"camera.exposure_us={self.exposure_us(white_e_per_ms, frame_rate_hz)!r}",
             f"sim.scene={json.dumps(self.scene)}",
             f"sim.seed={self.seed}",
-            f"rig.camera.width={self.width}",
-            f"rig.camera.height={self.height}",
-            f"rig.camera.fx={self.fx!r}",
-            f"rig.camera.fy={self.fx!r}",
-            f"rig.camera.cx={self.cx!r}",
-            f"rig.camera.cy={self.cy!r}",
+            f"rig.camera.width={camera.width}",
+            f"rig.camera.height={camera.height}",
+            f"rig.camera.fx={camera.fx!r}",
+            f"rig.camera.fy={camera.fy!r}",
+            f"rig.camera.cx={camera.cx!r}",
+            f"rig.camera.cy={camera.cy!r}",
             f"rig.camera.dist=[{self.k1!r}, 0.0, 0.0, 0.0, 0.0]",
             f"sim.sensor.colour={str(self.colour).lower()}",
             f"sim.sensor.bayer={json.dumps(self.bayer)}",
@@ -152,18 +171,18 @@ class Condition:
             f"sim.sensor.jpeg_chroma={json.dumps(self.jpeg_chroma)}",
             f"sim.sensor.output_bits={self.output_bits}",
             f"sim.sensor.adc_bits={self.adc_bits}",
-            f"sim.sensor.full_well_e={self.full_well_e!r}",
+            f"sim.sensor.full_well_e={well!r}",
             f"sim.sensor.read_noise_e={self.read_noise_e!r}",
             f"sim.beam.e_per_ms_at_1m={beam_e_per_ms_at_1m * self.laser_power!r}",
-            f"sim.ambient.white_e_per_ms={white_e_per_ms * self.room_light!r}",
+            f"sim.ambient.white_e_per_ms={white!r}",
             f"sim.surfaces.albedo_scale={self.albedo_scale!r}",
             f"sim.surfaces.texture_scale={self.texture_scale!r}",
             f"sim.surfaces.extra_gloss={self.extra_gloss!r}",
             f"sim.optics.f_number={self.f_number!r}",
             f"sim.optics.focus_m={self.focus_m!r}",
-            f"sim.optics.psf_sigma_px={self.psf_sigma_px!r}",
+            f"sim.optics.psf_sigma_px={blur!r}",
             f"sim.beam.speckle={self.speckle!r}",
-            f"sim.beam.speckle_grain={self.speckle_grain!r}",
+            f"sim.beam.speckle_grain={grain!r}",
             f"sim.beam.speckle_cell_m={self.speckle_cell_m!r}",
             f"sim.rig_error.laser_angle_deg={self.laser_angle_deg!r}",
             f"sim.rig_error.laser_offset_m={self.laser_offset_m!r}",
@@ -178,22 +197,31 @@ class Condition:
               ) -> tuple[str, ...]:
         """`overrides` for the condition seen from its pose number `pose` alone, its rig built as
         configured (no mounting errors, no sweep): the range finder aimed there, and so
-        `edge doctor`'s laser checks."""
+        `edge doctor`'s laser checks. (An ISP condition's camera is then its 1640 × 1232 sensor:
+        the live simulator renders frames, not the ISP's scaling of them.)"""
         pan, tilt = self.poses(pose + 1)[pose]
         kept = [o for o in self.overrides(beam_e_per_ms_at_1m, white_e_per_ms, 1, frame_rate_hz)
                 if not o.startswith(("sweep.", "sim.rig_error"))]
         return (*kept, f"rangefinder.pan_deg={pan}", f"rangefinder.tilt_deg={tilt}")
 
     @property
+    def camera(self) -> CameraModel:
+        """The camera model whose frames the estimator ranges."""
+        return CameraModel(self.width, self.height, self.fx, self.fx, self.cx, self.cy, (self.k1, 0.0, 0.0, 0.0, 0.0))
+
+    @property
     def frames(self) -> str:
         """The kind of frames the camera delivers, as the estimator meets them: the sensor (grey,
-        3-colour, Bayer) and lossless or JPEG."""
-        sensor = "grey" if not self.colour else ("3-colour" if self.bayer == "none" else "Bayer")
+        3-colour, Bayer, or a Bayer sensor ISP-scaled) and lossless or JPEG."""
+        sensor = "grey" if not self.colour else ("3-colour" if self.bayer == "none" else "ISP-scaled" if self.isp
+                                                 else "Bayer")
         return f"{sensor} {'JPEG' if self.jpeg_quality else 'lossless'}"
 
     def describe(self) -> str:
         """One short line of what matters most to ranging."""
         sensor = "grey" if not self.colour else ("3-colour" if self.bayer == "none" else f"bayer-{self.bayer}")
+        if self.isp:
+            sensor = f"{isp.RAW.width}x{isp.RAW.height} {sensor} ISP-scaled"
         frames = f"jpeg{self.jpeg_quality} {self.jpeg_chroma}" if self.jpeg_quality else f"png{self.output_bits}"
         if self.colour_matrix:
             frames += f" ccm {self.colour_matrix[0]:.2f}R{self.colour_matrix[1]:+.2f}G{self.colour_matrix[2]:+.2f}B"
@@ -247,7 +275,7 @@ def condition(family: Family | str, index: int) -> Condition:
     adc_bits = int(rng.choice([8, 10, 12], p=[0.2, 0.5, 0.3]))
     full_well = round(_log_uniform(rng, 3000.0, 20000.0), 1)
     read_noise = round(_log_uniform(rng, 1.5, 15.0), 2)
-    return Condition(
+    drawn = Condition(
         family=family,
         index=index,
         seed=seed,
@@ -283,6 +311,22 @@ def condition(family: Family | str, index: int) -> Condition:
         focal_scale=round(float(rng.uniform(0.0, 0.01)), 5),
         colour_matrix=_colour_matrix(rng, colour and bool(jpeg_quality)),
     )
+    return _through_isp(drawn, rng)
+
+
+def _through_isp(drawn: Condition, rng: np.random.Generator) -> Condition:
+    """`drawn`, or for ISP_SHARE of the lossless colour cameras at 640 × 480 the Pi camera's
+    pipeline in their place: a Bayer sensor (the drawn demosaicing, or one of ISP_DEMOSAICS for a
+    3-colour draw) at 1640 × 1232, scaled to 8-bit 640 × 480 frames (as the Pi camera's RGB888).
+    (Both draws are made for every condition, so that a knob drawn after them keeps its draws.)"""
+    share, demosaic = float(rng.random()), str(rng.choice(ISP_DEMOSAICS))
+    if ((drawn.width, drawn.height) != (isp.OUT.width, isp.OUT.height) or not drawn.colour or drawn.jpeg_quality
+            or share >= ISP_SHARE):
+        return drawn
+    bayer: Literal["none", "bilinear", "vng", "ea"] = drawn.bayer
+    if bayer == "none":
+        bayer = demosaic  # type: ignore[assignment]
+    return replace(drawn, isp=True, bayer=bayer, output_bits=8)
 
 
 def _colour_matrix(rng: np.random.Generator, webcam: bool) -> tuple[float, ...]:

@@ -33,6 +33,7 @@ import numpy as np
 
 from edge.accuracy.floor import fusion_weights, spot_profile
 from edge.ranging import FrameGroup
+from edge.sim import isp
 from edge.tone import linear_table
 from edge.triangulation import triangulate
 
@@ -93,20 +94,24 @@ class ZoneOracle:
     """The oracle's range error for the zones of one simulated recording, from the renderer that
     made it (the rig it ranges with is the renderer's, the true one)."""
 
-    def __init__(self, renderer: Renderer, bayer: bool, gamma: float = 1.0) -> None:
+    def __init__(self, renderer: Renderer, bayer: bool, gamma: float = 1.0, scaled: bool = False) -> None:
         self.renderer = renderer
         self.bayer = bayer
         self.gamma = gamma  # the camera's tone curve, which the oracle undoes (it fits linear light)
+        self.scaled = scaled  # the renderer's sensor is 1640 × 1232, its frames scaled by the ISP (`of`)
 
     @classmethod
-    def of(cls, config: Config) -> ZoneOracle:
-        """The oracle of recordings made by ``edge.sim.record.record_sweep`` with `config`."""
+    def of(cls, config: Config, scaled: bool = False) -> ZoneOracle:
+        """The oracle of recordings made by ``edge.sim.record.record_sweep`` with `config`, or with
+        `scaled`, made so of a 1640 × 1232 sensor and scaled as the Pi camera's ISP hands them over
+        (``edge.sim.isp.scale_recording``): no pixel keeps its own colour then, and a spot's true
+        place and shape are the sensor's, scaled."""
         from edge.sim.record import scene_for, true_rig
         from edge.sim.render import Renderer
 
         sensor = config.sim.sensor
         renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
-        return cls(renderer, sensor.colour and sensor.bayer != "none", sensor.gamma)
+        return cls(renderer, sensor.colour and sensor.bayer != "none" and not scaled, sensor.gamma, scaled)
 
     def error_m(self, groups: Sequence[FrameGroup], truth: dict, t_s: float) -> float | None:
         """The oracle's error of the zone's reference range (m), from its frame `groups` and the
@@ -159,10 +164,13 @@ class ZoneOracle:
             model = self.renderer.spot_model(pan, tilt, laser, t_s)
             if model is None or model.truth.pixel is None or laser not in group.lasers:
                 continue
-            fitted = fit_centre(diff, usable, model.truth.pixel, model.covariance, self.bayer)
+            pixel, cov = np.asarray(model.truth.pixel, dtype=np.float64), model.covariance
+            if self.scaled:
+                pixel, cov = np.array(isp.scaled_pixel(*pixel)), isp.scaled_covariance(cov)
+            fitted = fit_centre(diff, usable, pixel, cov, self.bayer)
             if fitted is None:
                 continue
-            errors.append(fitted - model.truth.pixel)
+            errors.append((fitted - pixel) * (isp.SCALE if self.scaled else 1.0))  # (the sensor's pixels)
             if first is None:
                 first, view = model.truth, group.view
         if first is None or first.pixel is None or first.point_camera is None or first.normal_world is None:
