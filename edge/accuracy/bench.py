@@ -412,7 +412,7 @@ def _by_frames(runs: Sequence[Run]) -> list[str]:
     for kind, outcomes in sorted(kinds.items()):
         f = Figures.of(outcomes)
         lines.append(
-            f"    {kind:<17} ({sum(r.condition.frames == kind for r in runs)}): coverage "
+            f"    {kind:<19} ({sum(r.condition.frames == kind for r in runs)}): coverage "
             f"{_pct(f.coverage)} ({f.covered} of {f.observable}), {f.wrong_ok} wrong, |error| ÷ floor mean "
             f"{_num(f.mean_ratio)}, {_num(f.over_oracle)} × the oracle's")
     return lines
