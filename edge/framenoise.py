@@ -170,6 +170,40 @@ def parity_contrast(shares: Sequence[Sequence[float]]) -> float:
     return float(total.max()) / low if low > 0.0 else math.inf
 
 
+# The look for scaled frames (`ScalingLook`) decides from this many looks on (as `auto` decides its
+# channel from the first 8 groups), and goes on, up to SCALED_LOOKS, while they have not told scaled
+# frames: 8 looks leave the parities' contrast noisy. The accuracy family's ISP conditions (tuning
+# 0-63 and 1792-2111, 31 conditions) read 1.02-1.16 over 8 looks and 1.02-1.08 over 32 (tuning-13,
+# 1.16, under the line from its 10th); filters at the frame's own size hold steady: at least 1.29
+# over any 8 to 32.
+SCALED_FIRST_LOOK = 8
+SCALED_LOOKS = 32
+
+
+class ScalingLook:
+    """A finder's look at whether its colour frames were scaled after demosaicing (`resampled`),
+    over its first groups whose red noise is spread: decided from SCALED_FIRST_LOOK looks on, and
+    kept once told."""
+
+    def __init__(self) -> None:
+        self.shares: list[tuple[float, float, float, float]] = []  # each look's `Texture.parity`
+        self.chroma: list[float] = []  # the same looks' chroma correlations 2 px apart, where measured
+        self.told = False
+
+    @property
+    def looking(self) -> bool:
+        return not self.told and len(self.shares) < SCALED_LOOKS
+
+    def look(self, shares: tuple[float, float, float, float], chroma: float | None) -> bool:
+        """Add one look (its parities' `shares` and chroma correlation `chroma`, None where not
+        measured); True when the looks so far tell scaled frames."""
+        self.shares.append(shares)
+        if chroma is not None:
+            self.chroma.append(chroma)
+        self.told = len(self.shares) >= SCALED_FIRST_LOOK and resampled(self.shares, self.chroma)
+        return self.told
+
+
 def resampled(shares: Sequence[Sequence[float]], chroma: Sequence[float]) -> bool:
     """Do these looks show red's noise spread over neighbours by no colour filter at this size:
     `shares` (`Texture.parity`) no parity standing out (RESAMPLED_CONTRAST), and `chroma` (their

@@ -28,6 +28,7 @@ from edge.framenoise import (
     NEIGHBOURS,
     NOISE_FLOOR_FRACTION,
     PAIRED_CHROMA,
+    ScalingLook,
     Texture,
     jpeg_blockiness,
     kth,
@@ -36,7 +37,6 @@ from edge.framenoise import (
     noise_by_level,
     noise_texture,
     paired_chroma,
-    resampled,
     value_step,
 )
 from edge.paths import Strips, full_scale
@@ -202,12 +202,10 @@ class SpotFinder:
         self._pair_looks = 0
         self._paired = False
         # Colour frames whose red noise is spread over neighbours by no colour filter at this size
-        # (a Pi camera's ISP scales what it demosaiced), told by the first AUTO_GROUPS groups whose
-        # red noise is spread (`resampled`: its parities and the chroma's correlation): then spots
-        # are placed as in frames without a filter, with none of demosaicing's σ, and no filter is
-        # looked for.
-        self._parity_shares: list[tuple[float, float, float, float]] = []
-        self._parity_chroma: list[float] = []  # the same looks' chroma correlations (RESAMPLED_CHROMA)
+        # (a Pi camera's ISP scales what it demosaiced), told by the first groups whose red noise is
+        # spread (`ScalingLook`: their parities and the chroma's correlation): then spots are placed
+        # as in frames without a filter, with none of demosaicing's σ, and no filter is looked for.
+        self._scaling = ScalingLook()
         self._resampled = False
         self._weights = CHANNEL_WEIGHTS["red" if self._auto else channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
@@ -299,20 +297,16 @@ class SpotFinder:
         return bool(steps) and float(np.median(steps)) < PAIRED_CHROMA
 
     def _scaling_told(self, texture: Texture, rho: float | None, on: np.ndarray, off: np.ndarray) -> bool:
-        """Look, in the first AUTO_GROUPS groups whose red noise is spread (`texture.parity`), at
-        whether the frames were scaled after demosaicing (`framenoise.resampled`), with the chroma
-        correlation `rho` where `auto` measured it for this pair already; True when this look
-        told it (`_texture` then takes no filter). JPEG and YUYV frames are not looked at, nor
-        frames whose bright spots' red bends told a filter (`SiteLook` sees past the noise)."""
-        if (texture.parity is None or self._jpeg or self._paired
-                or len(self._parity_shares) >= AUTO_GROUPS):
+        """Look, in the first groups whose red noise is spread (`texture.parity`), at whether the
+        frames were scaled after demosaicing (`ScalingLook`), with the chroma correlation `rho`
+        where `auto` measured it for this pair already; True when this look told it (`_texture`
+        then takes no filter). JPEG and YUYV frames are not looked at, nor frames whose bright
+        spots' red bends told a filter (`SiteLook` sees past the noise)."""
+        if (texture.parity is None or self._jpeg or self._paired or self._sites.parity is not None
+                or not self._scaling.looking):
             return False
-        self._parity_shares.append(texture.parity)
-        chroma = rho if rho is not None else self._chroma_correlation(on, off)
-        if chroma is not None:
-            self._parity_chroma.append(chroma)
-        self._resampled = (len(self._parity_shares) == AUTO_GROUPS and self._sites.parity is None
-                           and resampled(self._parity_shares, self._parity_chroma))
+        self._resampled = self._scaling.look(texture.parity,
+                                             rho if rho is not None else self._chroma_correlation(on, off))
         return self._resampled
 
     @staticmethod
