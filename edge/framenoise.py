@@ -171,11 +171,14 @@ def parity_contrast(shares: Sequence[Sequence[float]]) -> float:
 
 
 # The look for scaled frames (`ScalingLook`) decides from this many looks on (as `auto` decides its
-# channel from the first 8 groups), and goes on, up to SCALED_LOOKS, while they have not told scaled
-# frames: 8 looks leave the parities' contrast noisy. The accuracy family's ISP conditions (tuning
-# 0-63 and 1792-2111, 31 conditions) read 1.02-1.16 over 8 looks and 1.02-1.08 over 32 (tuning-13,
-# 1.16, under the line from its 10th); filters at the frame's own size hold steady: at least 1.29
-# over any 8 to 32.
+# channel from the first 8 groups). Where their chroma shows none of JPEG's correlation but a parity
+# still stands out, it goes on, up to SCALED_LOOKS, until the parities even out: 8 looks leave their
+# contrast noisy. The accuracy family's ISP conditions (tuning 0-63 and 1792-2111, 31 conditions) read
+# 1.02-1.16 over 8 looks and 1.02-1.08 over 32 (tuning-13, 1.16, under the line from its 10th);
+# filters at the frame's own size hold steady: at least 1.25 over any 8 to 32 looks. Chroma that
+# shows JPEG ends the look: each look's chroma is noisy (tuning-10, JPEG at quality 90 with a
+# filter: -0.18 to 0.15), and a median asked again and again would at last slip inside the line
+# (-0.10 over 8 looks, -0.044 over 12).
 SCALED_FIRST_LOOK = 8
 SCALED_LOOKS = 32
 
@@ -183,16 +186,17 @@ SCALED_LOOKS = 32
 class ScalingLook:
     """A finder's look at whether its colour frames were scaled after demosaicing (`resampled`),
     over its first groups whose red noise is spread: decided from SCALED_FIRST_LOOK looks on, and
-    kept once told."""
+    kept once told, or once the chroma has shown JPEG."""
 
     def __init__(self) -> None:
         self.shares: list[tuple[float, float, float, float]] = []  # each look's `Texture.parity`
         self.chroma: list[float] = []  # the same looks' chroma correlations 2 px apart, where measured
         self.told = False
+        self.refused = False  # the chroma showed JPEG's correlation: no more looks
 
     @property
     def looking(self) -> bool:
-        return not self.told and len(self.shares) < SCALED_LOOKS
+        return not (self.told or self.refused) and len(self.shares) < SCALED_LOOKS
 
     def look(self, shares: tuple[float, float, float, float], chroma: float | None) -> bool:
         """Add one look (its parities' `shares` and chroma correlation `chroma`, None where not
@@ -200,8 +204,17 @@ class ScalingLook:
         self.shares.append(shares)
         if chroma is not None:
             self.chroma.append(chroma)
-        self.told = len(self.shares) >= SCALED_FIRST_LOOK and resampled(self.shares, self.chroma)
+        if len(self.shares) < SCALED_FIRST_LOOK:
+            return False
+        self.refused = bool(self.chroma) and not raw_chroma(self.chroma)
+        self.told = resampled(self.shares, self.chroma)
         return self.told
+
+
+def raw_chroma(chroma: Sequence[float]) -> bool:
+    """Is the chroma's noise as uncorrelated 2 px apart as a raw pipeline leaves it (the median of
+    `chroma`, looks' correlations, within RESAMPLED_CHROMA)? False where none was measured."""
+    return bool(chroma) and abs(float(np.median(chroma))) <= RESAMPLED_CHROMA
 
 
 def resampled(shares: Sequence[Sequence[float]], chroma: Sequence[float]) -> bool:
@@ -211,7 +224,7 @@ def resampled(shares: Sequence[Sequence[float]], chroma: Sequence[float]) -> boo
     is empty: no evidence."""
     if not shares or not chroma:
         return False
-    return parity_contrast(shares) < RESAMPLED_CONTRAST and abs(float(np.median(chroma))) <= RESAMPLED_CHROMA
+    return parity_contrast(shares) < RESAMPLED_CONTRAST and raw_chroma(chroma)
 
 
 def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour: bool,
