@@ -159,6 +159,8 @@ class Texture:
     demosaiced: bool = False  # red read from a colour frame whose red noise is spread over neighbours
     # Where demosaiced: each (row, column) parity's share of red's noise power (`parity_contrast`).
     parity: tuple[float, float, float, float] | None = None
+    # The correlations 1 and 2 px apart along u, then along v (`centroid_growth`); zero: white noise.
+    lags: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 def parity_contrast(shares: Sequence[Sequence[float]]) -> float:
@@ -270,7 +272,33 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
             bayer = power.index(low) ^ 3  # (the red pixel is the blue one's diagonal neighbour)
     # The red pixels of a Bayer filter are 2 px apart: their noise is correlated only as far.
     sites = min(max((1.0 + 2.0 * max(rho[(2, 0)], 0.0)) * (1.0 + 2.0 * max(rho[(0, 2)], 0.0)), 1.0), 25.0)
-    return Texture(area, sites, bayer, demosaiced, shares)
+    lags = (rho[(1, 0)], rho[(2, 0)], rho[(0, 1)], rho[(0, 2)])
+    return Texture(area, sites, bayer, demosaiced, shares, lags)
+
+
+def centroid_growth(used: np.ndarray, du: float, dv: float, lags: tuple[float, float, float, float]
+                    ) -> tuple[float, float]:
+    """How much the noise's correlation (`lags`, `Texture.lags`) grows the variance of a centroid
+    over the pixels `used` (a (2r + 1)² window, 1 where used, 0 not; the centroid at (du, dv) from
+    its centre): per axis (u, v), at least 1. `Texture.area` is the growth of a sum over many
+    pixels; a centroid weighs its pixels by their offset from it, which changes sign across the
+    spot, so that neighbours' shared noise partly cancels along its own axis (about a third of the
+    way to no growth for a spot 5 px across, all of it for 3 px)."""
+    r = used.shape[0] // 2
+    offsets = np.arange(-r, r + 1, dtype=np.float64)
+    ru1, ru2, rv1, rv2 = lags
+    grown = []
+    for weights in (used * (offsets - du)[None, :], used * (offsets - dv)[:, None]):
+        total = float(np.einsum("ij,ij->", weights, weights))
+        if total <= 0.0:
+            grown.append(1.0)
+            continue
+        along_u = (ru1 * float(np.einsum("ij,ij->", weights[:, 1:], weights[:, :-1]))
+                   + ru2 * float(np.einsum("ij,ij->", weights[:, 2:], weights[:, :-2])))
+        along_v = (rv1 * float(np.einsum("ij,ij->", weights[1:], weights[:-1]))
+                   + rv2 * float(np.einsum("ij,ij->", weights[2:], weights[:-2])))
+        grown.append(max((1.0 + 2.0 * along_u / total) * (1.0 + 2.0 * along_v / total), 1.0))
+    return grown[0], grown[1]
 
 
 # Each two pixels of a row that share one chroma pair (a webcam's YUYV stream, YUV 4:2:2, as

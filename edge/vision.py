@@ -30,6 +30,7 @@ from edge.framenoise import (
     PAIRED_CHROMA,
     ScalingLook,
     Texture,
+    centroid_growth,
     jpeg_blockiness,
     kth,
     level_bins,
@@ -897,14 +898,23 @@ class SpotFinder:
             # noise² on each pixel used and shot × its signal, and Σ (x − x̄)² w = Σ x² w − 2 x̄ Σ x w + x̄² Σ w.
             # The same sums over the pixels used (signal ≥ 0: its sign is 1 there, 0 elsewhere;
             # sums of small integers, exact however they are added).
-            n0, nx, nxx, ny, nyy = kit.powers.dot(np.sign(weights)).tolist()
-            grow = texture.area * misfit_grow(misfit, self._jpeg) / mass**2
+            used = np.sign(weights)
+            n0, nx, nxx, ny, nyy = kit.powers.dot(used).tolist()
+            grow = misfit_grow(misfit, self._jpeg) / mass**2
+            # The noise's correlation grows a centroid's variance less than a sum's (`area`). Not
+            # JPEG's: its blocks move a centroid by more than its noise's correlation 1 and 2 px
+            # apart says (tests/test_vision.py: the office's JPEG spots, placed by the centroid
+            # where the fit fails, went past 2σ), and `area` holds them.
+            grow_u = grow_v = texture.area
+            if texture.area > 1.0 and not self._jpeg:
+                grow_u, grow_v = centroid_growth(used.reshape(signal.shape), du, dv, texture.lags)
+                grow_u, grow_v = min(grow_u, texture.area), min(grow_v, texture.area)
             # Σ (x − x̄)² w, ≥ 0 in exact arithmetic; a one-pixel spot can round it a hair below
             noise2 = noise**2
-            var_u = grow * (noise2 * max(nxx - 2.0 * du * nx + du * du * n0, 0.0)
-                            + shot * max(mxx - 2.0 * du * mx + du * du * mass, 0.0))
-            var_v = grow * (noise2 * max(nyy - 2.0 * dv * ny + dv * dv * n0, 0.0)
-                            + shot * max(myy - 2.0 * dv * my + dv * dv * mass, 0.0))
+            var_u = grow * grow_u * (noise2 * max(nxx - 2.0 * du * nx + du * du * n0, 0.0)
+                                     + shot * max(mxx - 2.0 * du * mx + du * du * mass, 0.0))
+            var_v = grow * grow_v * (noise2 * max(nyy - 2.0 * dv * ny + dv * dv * n0, 0.0)
+                                     + shot * max(myy - 2.0 * dv * my + dv * dv * mass, 0.0))
         demosaic, locked = (self.grid_px(size, own_values=site_width is not None and not self._jpeg)
                             if texture.demosaiced else (0.0, 0.0))
         var_u += demosaic**2

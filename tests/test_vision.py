@@ -505,6 +505,34 @@ def test_a_one_pixel_spot_is_localised_on_its_pixel() -> None:
     assert np.abs(cand.pixel - [u, v]).max() < 1e-6 and cand.sigma_px >= 0.0
 
 
+@pytest.mark.parametrize("kernel", [(0.25, 0.5, 0.25), (0.1, 0.2, 0.4, 0.2, 0.1)])
+def test_a_centroid_s_variance_grows_with_correlated_noise_as_centroid_growth_says(kernel) -> None:
+    # Noise spread over neighbours (a demosaicing, an ISP's scaling), its correlations measured as
+    # the finder measures them: a centroid's weights change sign across the spot, so its variance
+    # grows by what centroid_growth says, well below what a sum's (`area`) grows by.
+    from edge.framenoise import centroid_growth
+
+    rng = np.random.default_rng(5)
+    k = np.array(kernel)
+    white = rng.normal(size=(4000, 15, 15))
+    noise = np.apply_along_axis(lambda a: np.convolve(a, k, "same"), 1, white)
+    noise = np.apply_along_axis(lambda a: np.convolve(a, k, "same"), 2, noise)[:, 3:12, 3:12]  # (9 × 9, no edge)
+    var = float(noise.var())
+    lag = [float((noise[:, :, d:] * noise[:, :, :-d]).mean()) / var for d in (1, 2)]
+    lags = (lag[0], lag[1], lag[0], lag[1])
+    area = (1 + 2 * lag[0] + 2 * lag[1]) ** 2
+    r = 4
+    offs = np.arange(-r, r + 1)
+    for radius, du, dv in ((1.5, 0.0, 0.0), (2.5, 0.3, -0.2), (4.0, 0.0, 0.4)):
+        used = ((offs[None, :] - du) ** 2 + (offs[:, None] - dv) ** 2 <= radius**2).astype(float)
+        weights_u = used * (offs - du)[None, :]
+        measured = float(np.einsum("nij,ij->n", noise, weights_u).var()) / (var * float((weights_u**2).sum()))
+        grow_u, grow_v = centroid_growth(used, du, dv, lags)
+        assert grow_u == pytest.approx(measured, rel=0.1)
+        assert 1.0 <= grow_u < 0.8 * area and 1.0 <= grow_v < 0.8 * area
+    assert centroid_growth(np.ones((9, 9)), 0.0, 0.0, (0.0, 0.0, 0.0, 0.0)) == (1.0, 1.0)
+
+
 def test_the_matched_filter_sums_3_columns_by_5_samples_with_its_ends_at_0() -> None:
     from edge.framenoise import spot_box
 
