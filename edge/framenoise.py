@@ -176,8 +176,9 @@ def parity_contrast(shares: Sequence[Sequence[float]]) -> float:
 # channel from the first 8 groups). Where their chroma shows none of JPEG's correlation but a parity
 # still stands out, it goes on, up to SCALED_LOOKS, until the parities even out: 8 looks leave their
 # contrast noisy. The accuracy family's ISP conditions (tuning 0-63 and 1792-2111, 31 conditions) read
-# 1.02-1.16 over 8 looks and 1.02-1.08 over 32 (tuning-13, 1.16, under the line from its 10th);
-# filters at the frame's own size hold steady: at least 1.25 over any 8 to 32 looks. Chroma that
+# 1.01-1.16 over 8 looks and 1.01-1.08 over 32 (tuning-13, 1.16, under the line from its 10th);
+# filters at the frame's own size hold steady: at least 1.21 over any 8 to 32 looks (138 lossless
+# conditions of tuning 0-63, 640-703 and 1792-2175; VNG lowest, tuning-2111). Chroma that
 # shows JPEG ends the look: each look's chroma is noisy (tuning-10, JPEG at quality 90 with a
 # filter: -0.18 to 0.15), and a median asked again and again would at last slip inside the line
 # (-0.10 over 8 looks, -0.044 over 12).
