@@ -13,12 +13,12 @@ import cv2
 import numpy as np
 import pytest
 
+from edge import isp
 from edge.accuracy import conditions as cond
 from edge.accuracy.floor import OBSERVABLE_SNR, spot_profile
 from edge.accuracy.score import Figures, ZoneOutcome, failing_by_chance, stricter, targets
 from edge.config import load_config
 from edge.ranging import OK, ZoneResult
-from edge.sim import isp
 
 # --- conditions ----------------------------------------------------------------------------------
 

@@ -42,6 +42,7 @@ CORE = (
     "modes/blindaid/logic.py",
     "laserhealth.py",
     "accuracy/conditions.py",
+    "isp.py",
     "accuracy/floor.py",
     "accuracy/score.py",
 )

@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from edge import isp
 from edge.config import load_config
 from edge.doctor.frames import judge
 from edge.framenoise import (
@@ -21,13 +22,13 @@ from edge.framenoise import (
     parity_contrast,
     resampled,
 )
-from edge.sim import isp
+from edge.sim.isp import RAW_SETTINGS, scaled_frame
 from edge.sim.record import scene_for, true_rig
 from edge.sim.render import Renderer
 from edge.vision import AUTO_GROUPS, SpotFinder
 
-# The sensor at 1640 × 1232 (`isp.RAW_SETTINGS`), without speckle: the σ checked is the pixel noise's.
-RAW = [*isp.RAW_SETTINGS, "sim.beam.speckle=0"]
+# The sensor at 1640 × 1232 (`RAW_SETTINGS`), without speckle: the σ checked is the pixel noise's.
+RAW = [*RAW_SETTINGS, "sim.beam.speckle=0"]
 WALL = -90.0  # the office wall, 1.3 m away
 
 
@@ -50,7 +51,7 @@ def _groups(renderer: Renderer, pan: float, count: int, seed: int, scale: bool):
     lit = {n: 1.0 for n in renderer.rig.laser_names}
     for _ in range(count):
         on, off = (renderer.render(pan, 0.0, lasers, 0.0, rng) for lasers in (lit, {}))
-        yield (isp.scaled_frame(on), isp.scaled_frame(off)) if scale else (on, off)
+        yield (scaled_frame(on), scaled_frame(off)) if scale else (on, off)
 
 
 def test_the_isp_maps_the_sensor_s_camera_onto_the_rig_s() -> None:
@@ -60,8 +61,8 @@ def test_the_isp_maps_the_sensor_s_camera_onto_the_rig_s() -> None:
     assert isp.RAW.fx / isp.SCALE == pytest.approx(isp.OUT.fx) and isp.CROP_ROWS == 1
     frame = np.zeros((isp.RAW.height, isp.RAW.width, 3), np.uint8)
     frame[isp.CROP_ROWS:-isp.CROP_ROWS] = 200  # the cropped rows are not averaged in
-    assert isp.scaled_frame(frame).shape == (isp.OUT.height, isp.OUT.width, 3)
-    assert int(isp.scaled_frame(frame).min()) == 200
+    assert scaled_frame(frame).shape == (isp.OUT.height, isp.OUT.width, 3)
+    assert int(scaled_frame(frame).min()) == 200
 
 
 def test_parity_contrast_pools_looks_and_tells_no_parity_standing_out() -> None:
@@ -145,7 +146,7 @@ def test_the_doctor_names_frames_scaled_after_demosaicing(channel: str) -> None:
     """Whatever channel ranging is set to read (red: `auto` measures no chroma), as the finder tells."""
     renderer = _raw_renderer("ea")
     rng = np.random.default_rng(4)
-    frames = [isp.scaled_frame(renderer.render(WALL, 0.0, {}, 0.0, rng)) for _ in range(4)]
+    frames = [scaled_frame(renderer.render(WALL, 0.0, {}, 0.0, rng)) for _ in range(4)]
     config = load_config(None, [f"ranging.channel={channel}"])
     line = judge(frames, config.rig.build(), config)
     assert "scaled after demosaicing" in line and "640x480 colour" in line, line

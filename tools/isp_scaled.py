@@ -23,7 +23,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from edge.sim.isp import OUT, scale_recording
+from edge.isp import OUT
+from edge.sim.isp import scale_recording
 
 
 def main(argv: list[str] | None = None) -> int:

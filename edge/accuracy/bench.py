@@ -118,7 +118,7 @@ def _recorded(cond: Condition, out: Path, record: Callable[[Path], object]) -> N
 
 
 def _given_rig(cond: Condition, config: Config, nominal: Rig, rig: str) -> tuple[Rig, str]:
-    from edge.sim.isp import scaled_rig
+    from edge.isp import scaled_rig
     from edge.sim.record import true_rig
 
     if rig == "true":

@@ -10,7 +10,7 @@ A condition draws, from its seed, everything the simulator can vary that real se
   webcam's) through a colour matrix like a real sensor's, which a webcam's ISP applies and nobody
   can turn off (lossless colour frames stand for the Pi camera, whose matrix edge turns off); and,
   for half of the lossless colour cameras at 640 × 480, the default rig's own pipeline
-  (:mod:`edge.sim.isp`): a Bayer sensor read out at 1640 × 1232, demosaiced there and scaled by its
+  (:mod:`edge.isp`, :mod:`edge.sim.isp`): a Bayer sensor read out at 1640 × 1232, demosaiced there and scaled by its
   ISP to 640 × 480;
 - the light: laser power and room light each ¼–4 × the configured, and the exposure someone (or an
   auto-exposure) chose for the room: a white wall under its light fills 25–80 % of the full well,
@@ -43,8 +43,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from edge import isp
 from edge.rig import CameraModel
-from edge.sim import isp
 
 Family = Literal["tuning", "evaluation"]
 FAMILIES: dict[str, int] = {"tuning": 1_000_000, "evaluation": 2_000_000}
@@ -118,7 +118,7 @@ class Condition:
     # before it was drawn read as none.
     colour_matrix: tuple[float, ...] = ()
     # The frames are the Pi camera's: its Bayer sensor (`bayer`) read out at 1640 × 1232 and scaled
-    # by its ISP to the condition's 640 × 480 (edge.sim.isp); the camera above is the 640 × 480 one.
+    # by its ISP to the condition's 640 × 480 (edge.isp); the camera above is the 640 × 480 one.
     # Drawn after the colour matrix: families kept before read as False.
     isp: bool = False
 

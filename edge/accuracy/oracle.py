@@ -31,9 +31,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from edge import isp
 from edge.accuracy.floor import fusion_weights, spot_profile
 from edge.ranging import FrameGroup
-from edge.sim import isp
 from edge.tone import linear_table
 from edge.triangulation import triangulate
 
