@@ -14,6 +14,7 @@ import pytest
 from edge import isp
 from edge.config import load_config
 from edge.doctor.frames import judge
+from edge.doctor.rig import KIND_FRAMES
 from edge.framenoise import (
     RESAMPLED_CONTRAST,
     SCALED_FIRST_LOOK,
@@ -146,12 +147,12 @@ def test_the_doctor_names_frames_scaled_after_demosaicing(channel: str) -> None:
     """Whatever channel ranging is set to read (red: `auto` measures no chroma), as the finder tells."""
     renderer = _raw_renderer("ea")
     rng = np.random.default_rng(4)
-    frames = [scaled_frame(renderer.render(WALL, 0.0, {}, 0.0, rng)) for _ in range(4)]
+    frames = [scaled_frame(renderer.render(WALL, 0.0, {}, 0.0, rng)) for _ in range(KIND_FRAMES)]  # (as the doctor)
     config = load_config(None, [f"ranging.channel={channel}"])
     line = judge(frames, config.rig.build(), config)
     assert "scaled after demosaicing" in line and "640x480 colour" in line, line
     own = load_config(None, ["sim.sensor.bayer=ea"])
     at_size = Renderer(scene_for(own), true_rig(own), own.sim)
-    frames = [at_size.render(WALL, 0.0, {}, 0.0, rng) for _ in range(4)]
+    frames = [at_size.render(WALL, 0.0, {}, 0.0, rng) for _ in range(KIND_FRAMES)]
     assert "demosaiced from a Bayer filter, red at even rows and columns" in judge(frames, config.rig.build(), config)
 

@@ -44,7 +44,11 @@ LENS_TOLERANCE = 0.05  # dioptres: a focus motor reports back where it is, to it
 COLOUR_MATRIX_TOLERANCE = 0.02
 TONE_FRAMES = 8  # frames averaged at each exposure for the tone curve (flicker averages out)
 TURN_FRAMES = 4  # laser-off frames averaged at each of the two aims that tell a spot that stays put
-KIND_FRAMES = 4  # laser-off frames taken one after another for the frames line: 6 pairs of pure noise
+# Laser-off frames taken one after another for the frames line (28 pairs of pure noise). Four left
+# the parities of a Pi camera's scaled frames noisy: of the accuracy family's 31 ISP conditions
+# (tuning 0-63, 1792-2111), 4 frames named 4 of them demosaiced, 8 none; of 112 Bayer filters at
+# their own size (lossless, or JPEG at quality 88 or more), neither took one for scaled frames.
+KIND_FRAMES = 8
 
 
 def _ptu_remedy(message: str) -> str:
