@@ -162,11 +162,6 @@ def open_lasers(config: Config, factory: Any = None, clock: Clock = REAL) -> Las
     return Lasers(config.rig.wiring(), config.lasers, factory, clock)
 
 
-# The Pi Camera v2 (IMX219) binned 2 × 2 over its whole field of view: the raw mode that keeps the
-# field of view the `picam-v2*` camera models describe.
-PICAM_V2_BINNED = (1640, 1232)
-
-
 def open_camera(config: Config, factory: Any = None, clock: Clock = REAL, **sim: Any) -> Camera:
     """The configured camera (``[camera] backend``), not yet started.
 
@@ -176,10 +171,14 @@ def open_camera(config: Config, factory: Any = None, clock: Clock = REAL, **sim:
     settings = config.camera
     model = config.rig.build().camera
     if settings.backend == "picamera2":
-        from edge.hw.camera import Picamera2Camera
+        from edge.hw.camera import PICAM_V2_BINNED, PICAM_V2_SENSOR, Picamera2Camera
+        from edge.rig import CAMERA_MODELS
 
-        raw = PICAM_V2_BINNED if config.rig.camera.model.startswith("picam-v2") else None
-        return Picamera2Camera(settings, (model.width, model.height), raw_size=raw)
+        named = config.rig.camera.model
+        raw = PICAM_V2_BINNED if named.startswith("picam-v2") else None
+        # (A model's own numbers are its sensor's: numbers of the user's own are checked by nobody.)
+        sensor = PICAM_V2_SENSOR if raw is not None and model == CAMERA_MODELS[named] else None
+        return Picamera2Camera(settings, (model.width, model.height), raw_size=raw, sensor=sensor)
     if settings.backend == "opencv":
         from edge.hw.camera import OpenCVCamera
 

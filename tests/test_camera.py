@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from edge.config import load_config
-from edge.errors import HardwareError
+from edge.errors import CameraError, HardwareError
 from edge.hw.camera import PICAMERA2_MISSING, CameraSettings, OpenCVCamera, Picamera2Camera
 from edge.parts import open_camera, open_lasers
 from edge.sim.camera import SimCamera
@@ -147,9 +147,12 @@ class _FakePicamera2:
         self.queue: list[_FakeRequest] = []
         self.flushes: list[int] = []
 
-    @staticmethod
-    def global_camera_info() -> list[dict]:
-        return [{"Model": "imx219", "Num": 0}]
+    sensor = "imx219"  # libcamera's name of the sensor
+    mode: tuple[int, int] | None = None  # the raw mode libcamera picks (None: the one asked for)
+
+    @classmethod
+    def global_camera_info(cls) -> list[dict]:
+        return [{"Model": cls.sensor, "Num": 0}]
 
     @classmethod
     def load_tuning_file(cls, name: str) -> dict:
@@ -168,6 +171,10 @@ class _FakePicamera2:
 
     def configure(self, config) -> None:
         self.config = config
+
+    def camera_configuration(self) -> dict:
+        asked = (self.config.get("raw") or {}).get("size", (1640, 1232))
+        return {**self.config, "raw": {"size": self.mode or asked, "format": "SBGGR10_CSI2P"}}
 
     def start(self) -> None:
         self.started = True
@@ -215,6 +222,27 @@ def test_picamera2_fixed_settings(fake_picamera2):
     assert fake.config["main"] == {"size": (640, 480), "format": "RGB888"}
     assert fake.config["raw"] == {"size": (1640, 1232)}  # the binned full field of view
     assert isinstance(cam, Picamera2Camera)
+
+
+def test_picamera2_refuses_a_sensor_or_mode_other_than_the_camera_model_describes(fake_picamera2, monkeypatch):
+    """`picam-v2` is a Camera Module 2 (IMX219) read at 1640 × 1232 over its whole field: a Camera
+    Module 3 in its place, or another sensor mode, would put every spot at other pixels than the
+    model says, and every range off (one line naming both, and the way out). A camera model whose
+    numbers the user set (their own camera's, measured) is theirs to answer for."""
+    config = load_config(None, ['camera.backend="picamera2"'])
+    monkeypatch.setattr(fake_picamera2, "sensor", "imx708")
+    with pytest.raises(CameraError) as err:
+        open_camera(config)
+    message = str(err.value)
+    assert "imx708" in message and "imx219" in message and "rig.camera.model" in message and "\n" not in message
+    own = load_config(None, ['camera.backend="picamera2"', "rig.camera.fx=508.0", "rig.camera.fy=508.0"])
+    assert isinstance(open_camera(own), Picamera2Camera)
+    monkeypatch.setattr(fake_picamera2, "sensor", "imx219")
+    monkeypatch.setattr(fake_picamera2, "mode", (640, 480))  # the IMX219's cropped 640 × 480 mode
+    with pytest.raises(CameraError, match="reads its sensor at 640x480, not at 1640x1232"):
+        open_camera(config)
+    monkeypatch.setattr(fake_picamera2, "mode", None)
+    assert isinstance(open_camera(config), Picamera2Camera)
 
 
 def test_picamera2_holds_a_focus_motors_lens_where_it_is_told(fake_picamera2, monkeypatch):

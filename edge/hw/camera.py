@@ -36,8 +36,9 @@ PICAMERA2_MISSING = (
     "the venv with --system-site-packages"
 )
 # The Pi Camera v2 (IMX219) binned 2 × 2 over its whole field of view: the raw mode that keeps the
-# field of view the `picam-v2*` camera models describe.
+# field of view the `picam-v2*` camera models describe, and that sensor's name in libcamera.
 PICAM_V2_BINNED = (1640, 1232)
+PICAM_V2_SENSOR = "imx219"
 
 
 def lens_dioptres_problem(dioptres: float) -> str | None:
@@ -115,9 +116,14 @@ class Picamera2Camera:
         size: tuple[int, int],
         *,
         raw_size: tuple[int, int] | None = None,
+        sensor: str | None = None,
         camera_num: int = 0,
         colour_gains: tuple[float, float] = (1.0, 1.0),
     ) -> None:
+        """`raw_size`: the sensor mode to read (None: libcamera's pick). `sensor`: the sensor whose
+        field of view and pixels the rig's camera model describes (libcamera's name, as `imx219`),
+        read in `raw_size`; CameraError where the camera is another or reads another mode, for
+        every range would be off by their difference (None: not checked)."""
         try:
             from picamera2 import Picamera2
         except ImportError:
@@ -130,7 +136,8 @@ class Picamera2Camera:
         self.closed = False
         self._first_t: int | None = None
         self._flush = True  # picamera2 picks frames by timestamp itself (capture_request(flush=))
-        tuning = _tuning_for_ranging(Picamera2, camera_num, settings.gamma)
+        model = _sensor_model(Picamera2, camera_num)
+        tuning = _tuning_for_ranging(Picamera2, model, settings.gamma)
         try:
             self._cam = Picamera2(camera_num) if tuning is None else Picamera2(camera_num, tuning=tuning)
         except Exception as exc:
@@ -159,6 +166,10 @@ class Picamera2Camera:
         except Exception as exc:
             self._close_quietly()
             raise CameraError(f"camera: cannot configure the Pi camera: {exc}") from None
+        problem = _mode_problem(self._cam, model, sensor, raw_size)
+        if problem is not None:
+            self._close_quietly()
+            raise CameraError(problem)
         # The readout (row 0 to the last row) is not in the metadata. The shortest frame duration
         # of the sensor mode bounds it (that is the readout plus the least vertical blanking).
         # FrameDuration − exposure would not bound it: a longer exposure does not make the rows read
@@ -277,7 +288,36 @@ class Picamera2Camera:
 IDENTITY_CCM = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
 
-def _tuning_for_ranging(picamera2: Any, camera_num: int, gamma: float) -> dict | None:
+def _sensor_model(picamera2: Any, camera_num: int) -> str:
+    """libcamera's name of camera `camera_num`'s sensor (as `imx219`), "?" where it tells none."""
+    try:
+        return str(picamera2.global_camera_info()[camera_num]["Model"])
+    except Exception:
+        return "?"
+
+
+def _mode_problem(cam: Any, model: str, sensor: str | None, raw_size: tuple[int, int] | None) -> str | None:
+    """What is wrong, for ranging, with the sensor and the mode the camera `cam` was configured in,
+    where the rig's camera model describes `sensor` read at `raw_size` (None: nothing to check)."""
+    if sensor is None:
+        return None
+    fix = ("set rig.camera's fx, fy, cx and cy (and dist) to this camera's own, measured with OpenCV's "
+           "calibrateCamera, which also turns this check off")
+    if model not in ("?", sensor):
+        return (f"camera: this Pi camera's sensor is an {model}, not the {sensor} whose field of view and pixels "
+                f"rig.camera.model describes: every range would be off by their difference; {fix}")
+    try:
+        read = tuple(cam.camera_configuration()["raw"]["size"])
+    except Exception:
+        return None  # (a picamera2 that tells no raw size: nothing to check against)
+    if raw_size is not None and read != tuple(raw_size):
+        return (f"camera: the Pi camera reads its sensor at {read[0]}x{read[1]}, not at {raw_size[0]}x{raw_size[1]} "
+                f"over its whole field of view as rig.camera.model describes (another field of view, or "
+                f"another binning); update picamera2 and libcamera (sudo apt full-upgrade), or {fix}")
+    return None
+
+
+def _tuning_for_ranging(picamera2: Any, model: str, gamma: float) -> dict | None:
     """The camera's own tuning file (by its sensor's model), changed where the ISP would reshape
     what ranging measures; None, with a warning, where it cannot be read (the ISP then applies its
     own curve, which ranging cannot undo exactly, and its own colour matrix).
@@ -293,9 +333,7 @@ def _tuning_for_ranging(picamera2: Any, camera_num: int, gamma: float) -> dict |
       a truly hot pixel is in the laser-off frame too, and the difference cancels it.
 
     A stage that the file lacks is not run, so there is nothing to change there."""
-    model = "?"
     try:
-        model = str(picamera2.global_camera_info()[camera_num]["Model"])
         tuning = picamera2.load_tuning_file(f"{model}.json")
     except Exception as exc:
         log.warning("camera: cannot read the %s tuning file to set its tone curve and colour matrix (%s); "
