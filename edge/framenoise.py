@@ -283,8 +283,8 @@ def centroid_growth(used: np.ndarray, du: float, dv: float, lags: tuple[float, f
     over the pixels `used` (a (2r + 1)² window, 1 where used, 0 not; the centroid at (du, dv) from
     its centre): per axis (u, v), at least 1. `Texture.area` is the growth of a sum over many
     pixels; a centroid weighs its pixels by their offset from it, which changes sign across the
-    spot, so that neighbours' shared noise partly cancels along its own axis (about a third of the
-    way to no growth for a spot 5 px across, all of it for 3 px)."""
+    spot, so that neighbours' shared noise partly cancels along its own axis (over 5 pixels in a
+    row, the correlation 1 px apart grows it 0.4 × as much as a sum's; over 3, not at all)."""
     r = used.shape[0] // 2
     offsets = np.arange(-r, r + 1, dtype=np.float64)
     ru1, ru2, rv1, rv2 = lags
