@@ -207,7 +207,6 @@ class SpotFinder:
         # spread (`ScalingLook`: their parities and the chroma's correlation): then spots are placed
         # as in frames without a filter, with none of demosaicing's σ, and no filter is looked for.
         self._scaling = ScalingLook()
-        self._resampled = False
         self._weights = CHANNEL_WEIGHTS["red" if self._auto else channel]  # (B, G, R) of a colour frame
         names = list(lasers) if lasers is not None else list(rig.laser_names)
         self.strips = Strips(rig, names, band_halfwidth_px)  # the pixels it reads of each frame
@@ -306,9 +305,7 @@ class SpotFinder:
         if (texture.parity is None or self._jpeg or self._paired or self._sites.parity is not None
                 or not self._scaling.looking):
             return False
-        self._resampled = self._scaling.look(texture.parity,
-                                             rho if rho is not None else self._chroma_correlation(on, off))
-        return self._resampled
+        return self._scaling.look(texture.parity, rho if rho is not None else self._chroma_correlation(on, off))
 
     @staticmethod
     def _auto_weights(told: Sequence[float]) -> tuple[float, float, float]:
@@ -426,7 +423,8 @@ class SpotFinder:
         refined = self._place(seeds, on, off, gain, shot, texture, strays, wanted)
         if texture.bayer is not None:  # (only then are spots placed by their red pixels)
             self._place_again(refined)
-        elif self._sites.looking and on[0].ndim == 3 and not self._aside and not self._paired and not self._resampled:
+        elif (self._sites.looking and on[0].ndim == 3 and not self._aside and not self._paired
+              and not self._scaling.told):
             told = self._sites.look([c for out in refined.values() for _, c in out], on, off, gain)
             if told and self._auto:  # (then red is read, if the channel is `auto`'s to choose)
                 self._weights = CHANNEL_WEIGHTS["red"]
@@ -652,7 +650,7 @@ class SpotFinder:
             # made YUYV: placed by red pixels, |error| ÷ floor 2.27 and 94 % of `ok` zones within
             # 2σ; by the centroid, 1.96 and 98 %.)
             texture.bayer = None
-        elif self._resampled and colour:
+        elif self._scaling.told and colour:
             # No filter's pixels at this size: its red noise is spread, but a spot is locked to no
             # grid. (Office and kitchen, Bayer frames at 1640 × 1232 scaled to 640 × 480: placed
             # as demosaiced, σ 0.5 px against the 3-colour sensor's 0.02 for the same errors.)
