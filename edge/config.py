@@ -20,6 +20,7 @@ from edge.grid import GridConfig
 from edge.hw.camera import CameraSettings
 from edge.hw.lasers import DEFAULT_WIRING, LasersConfig, LaserWiring
 from edge.hw.ptu import PtuConfig
+from edge.isp import OUT as ISP_OUT
 from edge.modes import Mode
 from edge.modes.blindaid.logic import BlindAidConfig
 from edge.modes.guard import GuardConfig
@@ -366,6 +367,11 @@ class Config:
                 "ranging.frame_gamma",
                 f"must be camera.gamma ({self.camera.gamma:g}) with the Pi camera, whose frames come through that "
                 f"curve; got {self.ranging.frame_gamma:g}")
+        if self.sim.sensor.isp:
+            cam = self.rig.camera.build()
+            require((cam.width, cam.height) == (ISP_OUT.width, ISP_OUT.height), "sim.sensor.isp",
+                    f"the Pi camera's ISP hands over {ISP_OUT.width}x{ISP_OUT.height} frames (picam-v2); "
+                    f"rig.camera is {cam.width}x{cam.height}")
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> Config:

@@ -10,6 +10,10 @@ name it.
     .venv/bin/python tools/doctor_family.py --first 128 --conditions 32            # after ./dev
     .venv/bin/python tools/doctor_family.py --first 128 --conditions 16 --json out.json \\
         --set 'sim.laser_faults=[{laser="center", kind="stuck"}]'
+    .venv/bin/python tools/doctor_family.py --first 0 --conditions 64 --isp    # the Pi camera's frames
+
+`--isp` keeps the conditions whose frames are the Pi camera's ISP's (rendered live through it:
+`sim.sensor.isp`), and counts the frames line's verdict on them too.
 
 It asserts nothing: it prints the counts (and writes every line as JSON with --json).
 """
@@ -33,6 +37,11 @@ def kind(status: str, detail: str) -> str:
     return next((k for k in KINDS if k in detail), detail[:40])
 
 
+def frames_kind(detail: str) -> str:
+    return ("scaled" if "scaled after demosaicing" in detail else "Bayer" if "colour filter" in detail
+            else "JPEG" if "JPEG (" in detail else "other")
+
+
 def one(args: tuple[int, int, tuple[str, ...]]) -> tuple[int, int, dict[str, list[str]]]:
     index, pose_index, extra = args
     from edge.accuracy.conditions import family
@@ -43,8 +52,10 @@ def one(args: tuple[int, int, tuple[str, ...]]) -> tuple[int, int, dict[str, lis
     aimed = family("tuning", 1, index)[0].aimed(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms,
                                                 base.camera.frame_rate_hz, pose_index)
     result = examine(None, [*aimed, "mqtt.enabled=false", *extra])
-    return index, pose_index, {line.check: [line.status, kind(line.status, line.detail), line.detail]
-                               for line in result.checks.lines if line.check.startswith("laser ")}
+    lines = [line for line in result.checks.lines if line.check.startswith("laser ") or line.check == "frames"]
+    return index, pose_index, {
+        x.check: [x.status, frames_kind(x.detail) if x.check == "frames" else kind(x.status, x.detail), x.detail]
+        for x in lines}
 
 
 def main() -> None:
@@ -54,8 +65,14 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", action="append", default=[], help="a configuration override for every run")
     parser.add_argument("--json", help="write every laser line here")
+    parser.add_argument("--isp", action="store_true", help="only the conditions whose frames are the Pi camera's ISP's")
     args = parser.parse_args()
-    jobs = [(i, p, tuple(args.set)) for i in range(args.first, args.first + args.conditions) for p in POSES]
+    from edge.accuracy.conditions import family
+
+    indices = range(args.first, args.first + args.conditions)
+    if args.isp:
+        indices = [i for i, c in zip(indices, family("tuning", args.conditions, args.first)) if c.isp]
+    jobs = [(i, p, tuple(args.set)) for i in indices for p in POSES]
     with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         runs = list(pool.map(one, jobs))
     counts = Counter((check, line[1]) for _, _, lines in runs for check, line in lines.items())

@@ -143,18 +143,22 @@ class Condition:
         return round(min(max(wanted, 500.0), 30000.0, 0.9e6 / frame_rate_hz), 1)
 
     def overrides(self, beam_e_per_ms_at_1m: float, white_e_per_ms: float, zones: int,
-                  frame_rate_hz: float = 30.0) -> tuple[str, ...]:
+                  frame_rate_hz: float = 30.0, live: bool = False) -> tuple[str, ...]:
         """``--set`` overrides that make this condition of a base configuration whose beam, room
-        light and frame rate are these (the scales multiply them)."""
+        light and frame rate are these (the scales multiply them). `live`: for the live simulator,
+        which renders an ISP condition's frames through the ISP itself (`sim.sensor.isp`)."""
         poses = json.dumps([list(p) for p in self.poses(zones)])
-        # (An ISP condition records its 1640 × 1232 sensor, which sees the room as the 640 × 480
-        # camera does, per area; its recording is scaled afterwards: edge.sim.isp.scale_recording.)
-        camera = self.camera if not self.isp else isp.sensor_camera(self.camera)
+        # (Recorded, an ISP condition is its 1640 × 1232 sensor, which sees the room as the 640 × 480
+        # camera does, per area; its recording is scaled afterwards: edge.sim.isp.scale_recording.
+        # That keeps the sensor's own truth, the floor, which the live simulator does not give.)
+        sensor = self.isp and not live
+        camera = self.camera if not sensor else isp.sensor_camera(self.camera)
         white, well, blur, grain = (white_e_per_ms * self.room_light, self.full_well_e, self.psf_sigma_px,
                                     self.speckle_grain)
-        if self.isp:
+        if sensor:
             white, well, blur, grain = isp.per_area(white, well, blur, grain)
         return (
+            f"sim.sensor.isp={str(self.isp and live).lower()}",
             f"camera.exposure_us={self.exposure_us(white_e_per_ms, frame_rate_hz)!r}",
             f"sim.scene={json.dumps(self.scene)}",
             f"sim.seed={self.seed}",
@@ -197,10 +201,10 @@ class Condition:
               ) -> tuple[str, ...]:
         """`overrides` for the condition seen from its pose number `pose` alone, its rig built as
         configured (no mounting errors, no sweep): the range finder aimed there, and so
-        `edge doctor`'s laser checks. (An ISP condition's camera is then its 1640 × 1232 sensor:
-        the live simulator renders frames, not the ISP's scaling of them.)"""
+        `edge doctor`'s laser checks. (An ISP condition's frames are then the ISP's, made live:
+        `sim.sensor.isp`.)"""
         pan, tilt = self.poses(pose + 1)[pose]
-        kept = [o for o in self.overrides(beam_e_per_ms_at_1m, white_e_per_ms, 1, frame_rate_hz)
+        kept = [o for o in self.overrides(beam_e_per_ms_at_1m, white_e_per_ms, 1, frame_rate_hz, live=True)
                 if not o.startswith(("sweep.", "sim.rig_error"))]
         return (*kept, f"rangefinder.pan_deg={pan}", f"rangefinder.tilt_deg={tilt}")
 

@@ -21,9 +21,10 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from edge.errors import CameraError
+from edge.errors import CameraError, ConfigError
 from edge.hw.camera import CameraSettings
 from edge.rig import Laser, Pose, Rig
+from edge.sim import isp as sim_isp
 from edge.sim import optics
 from edge.sim.materials import TEXTURE_FLOOR
 from edge.sim.scene import Scene, SceneGeometry
@@ -124,12 +125,20 @@ class Renderer:
         self.camera = camera
         cam = rig.camera
         self.channels = 3 if sim.sensor.colour else 1
+        self._base_to_world = scene.base_to_world()
+        # `sim.sensor.isp`: the Pi camera's sensor, rendered at its own size, whose frames and
+        # spots this renderer hands over as the ISP does (`_isp_rows`: each sensor row's frame row,
+        # for a laser switched mid-frame).
+        self._sensor: Renderer | None = None
+        if sim.sensor.isp:
+            sensor_rig, sensor_sim, self._isp_rows = sim_isp.sensor_parts(rig, sim)
+            self._sensor = Renderer(scene, sensor_rig, sensor_sim, camera)
+            return
         v, u = np.mgrid[0 : cam.height, 0 : cam.width]
         self._pixel_rays = cam.rays(np.stack([u, v], axis=-1).reshape(-1, 2).astype(np.float64))
         # cos⁴ fall-off of a simple lens, the same for room light and spots.
         cos = self._pixel_rays[:, 2].reshape(cam.height, cam.width)
         self._vignette = (cos**4 if sim.optics.vignetting else np.ones_like(cos)).astype(np.float32)
-        self._base_to_world = scene.base_to_world()
         # Views by key; a view being rendered (by a prefetch) is a Future the others wait on.
         self._views: dict[tuple, Future[_View]] = {}
         self._patched: dict[tuple, Future[_View]] = {}  # views with movers, by the movers' poses
@@ -194,6 +203,9 @@ class Renderer:
         """Render the view at (pan, tilt) now (without movers: they are patched in per frame), so
         that frames there later cost little more than their noise (the simulated camera calls
         this from a thread while the unit is on its way)."""
+        if self._sensor is not None:
+            self._sensor.prefetch(pan_deg, tilt_deg, t_s)
+            return
         key = (round(pan_deg, 9), round(tilt_deg, 9), None)
         self._cached(key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
 
@@ -275,6 +287,8 @@ class Renderer:
 
     def spots(self, pan_deg: float, tilt_deg: float, t_s: float = 0.0) -> dict[str, SpotTruth]:
         """Where each laser meets the scene in this view, and whether the camera sees it."""
+        if self._sensor is not None:
+            return sim_isp.scaled_spots(self._sensor.spots(pan_deg, tilt_deg, t_s), self.rig.camera)
         view = self._view(pan_deg, tilt_deg, t_s)
         return {laser.name: self._lit_spot(view, laser.name)[0] for laser in self.rig.lasers}
 
@@ -382,7 +396,10 @@ class Renderer:
         return cov, total, key
 
     def spot_model(self, pan_deg: float, tilt_deg: float, laser: str, t_s: float = 0.0) -> SpotModel | None:
-        """`laser`'s spot in this view as the sensor receives it, or None when it is not visible."""
+        """`laser`'s spot in this view as the sensor receives it, or None when it is not visible.
+        (Not through an ISP: the accuracy family records the sensor, whose spot this is, and
+        scales the recording: `edge.sim.isp.scale_recording`.)"""
+        self._no_isp("a spot's model")
         view = self._view(pan_deg, tilt_deg, t_s)
         truth = self._lit_spot(view, laser)[0]
         if not truth.visible or truth.pixel is None:
@@ -410,6 +427,7 @@ class Renderer:
         `lasers_on` maps a laser's name to the fraction of the exposure it was on: a number, or an
         (H,) array with one fraction per row (a rolling shutter sees a switch mid-frame).
         """
+        self._no_isp("photo-electrons")
         view = self._view(pan_deg, tilt_deg, t_s)
         img = view.electrons * np.float32(ambient_scale)
         for name, fraction in lasers_on.items():
@@ -437,9 +455,17 @@ class Renderer:
         noise: bool = True,
     ) -> np.ndarray:
         """A frame as the camera delivers it: (H, W, 3) BGR or (H, W) grey, uint8 or uint16."""
+        if self._sensor is not None:
+            rows = {n: f if np.ndim(f) == 0 else np.asarray(f)[self._isp_rows] for n, f in lasers_on.items()}
+            return sim_isp.scaled_frame(self._sensor.render(pan_deg, tilt_deg, rows, t_s, rng, noise))
         flicker = 1.0 + self.sim.ambient.flicker * (2.0 * rng.random() - 1.0) if noise else 1.0
         electrons = self.render_electrons(pan_deg, tilt_deg, lasers_on, t_s, flicker)
         return self.digitise(electrons, rng if noise else None)
+
+    def _no_isp(self, what: str) -> None:
+        if self._sensor is not None:
+            raise ConfigError(f"sim.sensor.isp: the simulator gives {what} of the sensor only; "
+                              f"render with sim.sensor.isp = false")
 
     def _normals(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """`n` standard normal numbers: a slice at a random offset of a bank made once. Drawing a
@@ -455,6 +481,7 @@ class Renderer:
 
     def digitise(self, electrons: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
         """Photo-electrons → the frame the camera delivers (noise when `rng` is given)."""
+        self._no_isp("frames of photo-electrons")
         sensor = self.sim.sensor
         e = np.array(electrons, dtype=np.float32)  # a copy, worked on in place from here
         mosaic = sensor.bayer != "none" and e.ndim == 3 and e.shape[-1] == 3

@@ -53,6 +53,12 @@ class SensorConfig:
     # nearest of them; 0: none. (A generic rule, as open ISPs write it; the Pi's own is in its
     # hardware. edge turns the Pi's off: edge.hw.camera.)
     dpc: float = 0.0
+    # The Pi camera as it is: its 1640 × 1232 sensor rendered (with `bayer`'s demosaicing), a row
+    # cropped off the top and the bottom and the rest scaled by area to the rig's 640 × 480, as its
+    # ISP hands frames over (edge.isp). The room's light, the well, the lens blur and the speckle
+    # grain stay those of the 640 × 480 camera (each sensor pixel gets its share: per area). False:
+    # frames rendered at the rig camera's own size, as a sensor of that size would make them.
+    isp: bool = False
 
     def __post_init__(self) -> None:
         require(self.full_well_e > 0, "full_well_e", "must be positive")
@@ -75,6 +81,9 @@ class SensorConfig:
         require(not (self.yuyv and self.output_bits == 16), "yuyv", "YUYV frames are 8-bit; set output_bits = 8")
         require(self.bayer == "none" or self.colour, "bayer", "a grey sensor has no colour filter; set colour = true")
         require(self.bayer != "vng" or self.output_bits == 8, "bayer", "OpenCV's vng demosaics 8-bit frames only")
+        require(not (self.isp and (self.jpeg_quality or self.yuyv)), "isp",
+                "the Pi camera's ISP hands over uncompressed frames; set jpeg_quality = 0 and yuyv = false")
+        require(not self.isp or self.colour, "isp", "the Pi camera's sensor is a colour one; set colour = true")
 
 
 @dataclass(frozen=True)
