@@ -8,6 +8,7 @@ holds (`local_noise`).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -277,6 +278,24 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
     return Texture(area, sites, bayer, demosaiced, shares, lags)
 
 
+@functools.lru_cache(maxsize=16)
+def _pair_index(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For an n × n window, flat, with a 0 and a 1 appended (at n², n² + 1): the index pairs whose
+    products are the window's pixels (each with the 1) and its pairs of pixels 1 and 2 apart
+    along rows, then along columns (0 where the partner lies outside), each at the first pixel of
+    the pair, (5, n²) each; and (1, x, y, x², y²) of every pixel (n², 5), offsets from the centre."""
+    v, u = np.divmod(np.arange(n * n), n)
+    zero, one = n * n, n * n + 1
+    first = np.broadcast_to(np.arange(n * n), (5, n * n))
+    second = [np.full(n * n, one)]
+    for du, dv in ((1, 0), (2, 0), (0, 1), (0, 2)):
+        inside = (u + du < n) & (v + dv < n)
+        second.append(np.where(inside, (v + dv) * n + u + du, zero))
+    r = n // 2
+    x, y = (u - r).astype(np.float64), (v - r).astype(np.float64)
+    return np.ascontiguousarray(first), np.stack(second), np.stack([np.ones_like(x), x, y, x * x, y * y], axis=1)
+
+
 def centroid_growth(used: np.ndarray, du: float, dv: float, lags: tuple[float, float, float, float]
                     ) -> tuple[float, float]:
     """How much the noise's correlation (`lags`, `Texture.lags`) grows the variance of a centroid
@@ -284,21 +303,37 @@ def centroid_growth(used: np.ndarray, du: float, dv: float, lags: tuple[float, f
     its centre): per axis (u, v), at least 1. `Texture.area` is the growth of a sum over many
     pixels; a centroid weighs its pixels by their offset from it, which changes sign across the
     spot, so that neighbours' shared noise partly cancels along its own axis (over 5 pixels in a
-    row, the correlation 1 px apart grows it 0.4 × as much as a sum's; over 3, not at all)."""
-    r = used.shape[0] // 2
-    offsets = np.arange(-r, r + 1, dtype=np.float64)
+    row, the correlation 1 px apart grows it 0.4 × as much as a sum's; over 3, not at all).
+
+    A pixel's weight on the u axis is its offset x − du: over the pairs of used pixels s apart,
+    Σ (x − du)(x + s − du) along a row, Σ (x − du)² down a column, and so on, which the moments of
+    each kind of pair give (one product of all five kinds: numpy's calls, not the arithmetic on a
+    few dozen pixels, are what this costs)."""
+    first, second, mono = _pair_index(used.shape[0])
+    flat = np.concatenate([used.ravel(), (0.0, 1.0)])
+    pairs = flat.take(first)
+    pairs *= flat.take(second)
+    moments = pairs.dot(mono).tolist()  # per kind: Σ 1, Σ x, Σ y, Σ x², Σ y² at the pair's first pixel
+
+    def about_u(k: int) -> float:
+        c, sx, _, sxx, _ = moments[k]
+        return sxx - 2.0 * du * sx + du * du * c
+
+    def about_v(k: int) -> float:
+        c, _, sy, _, syy = moments[k]
+        return syy - 2.0 * dv * sy + dv * dv * c
+
     ru1, ru2, rv1, rv2 = lags
+    (c1, x1, _, _, _), (c2, x2, _, _, _), (c3, _, y3, _, _), (c4, _, y4, _, _) = moments[1:]
+    total_u, total_v = about_u(0), about_v(0)
     grown = []
-    for weights in (used * (offsets - du)[None, :], used * (offsets - dv)[:, None]):
-        total = float(np.einsum("ij,ij->", weights, weights))
-        if total <= 0.0:
-            grown.append(1.0)
-            continue
-        along_u = (ru1 * float(np.einsum("ij,ij->", weights[:, 1:], weights[:, :-1]))
-                   + ru2 * float(np.einsum("ij,ij->", weights[:, 2:], weights[:, :-2])))
-        along_v = (rv1 * float(np.einsum("ij,ij->", weights[1:], weights[:-1]))
-                   + rv2 * float(np.einsum("ij,ij->", weights[2:], weights[:-2])))
-        grown.append(max((1.0 + 2.0 * along_u / total) * (1.0 + 2.0 * along_v / total), 1.0))
+    for total, along_u, along_v in (
+        (total_u, ru1 * (about_u(1) + x1 - du * c1) + ru2 * (about_u(2) + 2.0 * (x2 - du * c2)),
+         rv1 * about_u(3) + rv2 * about_u(4)),
+        (total_v, ru1 * about_v(1) + ru2 * about_v(2),
+         rv1 * (about_v(3) + y3 - dv * c3) + rv2 * (about_v(4) + 2.0 * (y4 - dv * c4))),
+    ):
+        grown.append(1.0 if total <= 0.0 else max((1.0 + 2.0 * along_u / total) * (1.0 + 2.0 * along_v / total), 1.0))
     return grown[0], grown[1]
 
 

@@ -13,6 +13,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 # Fitting a spot's red pixels behind a Bayer filter: what the interpolation between them adds to the
@@ -47,17 +48,24 @@ def fit_gaussian(signal: np.ndarray, use: np.ndarray, r: int, round_: bool = Fal
     val = signal.ravel()[idx].astype(np.float64)
     if round_:
         mono = np.stack([mono[:, 0], mono[:, 1], mono[:, 2], mono[:, 3] + mono[:, 4]], axis=1)
-    design = mono * val[:, None]
-    try:
-        coef = np.linalg.solve(design.T @ design, design.T @ (np.log(val) * val))
-    except np.linalg.LinAlgError:
+    # The weighted design and, as its last column, the weighted logs: their products in one go.
+    # (OpenCV's LU solve of 6 equations: a third of numpy's time, which its checks and dispatch take.)
+    design = np.empty((idx.size, mono.shape[1] + 1))
+    np.multiply(mono, val[:, None], out=design[:, :-1])
+    np.log(val, out=design[:, -1])
+    design[:, -1] *= val
+    gram = design.T @ design
+    solved, coef = cv2.solve(gram[:-1, :-1], gram[:-1, -1:], flags=cv2.DECOMP_LU)
+    if not solved:
+        return None
+    coef = coef.ravel()
+    got = coef.tolist()
+    d, e, f = (got[3], got[3], 0.0) if round_ else got[3:]
+    if d >= 0 or e >= 0 or 4.0 * d * e - f * f <= 0:
         return None
     fitted = np.exp(np.minimum(mono @ coef, 60.0))
     if round_:
-        coef = np.array([coef[0], coef[1], coef[2], coef[3], coef[3], 0.0])
-    _, _, _, d, e, f = coef
-    if d >= 0 or e >= 0 or 4.0 * d * e - f * f <= 0:
-        return None
+        coef = np.array([*got, got[3], 0.0])
     return coef, idx, fitted
 
 
