@@ -58,8 +58,9 @@ def bench_render(config: Config, repeats: int = 20) -> list[str]:
     renderer.render(0.0, 0.0, {}, 0.0, rng)
     off_ms = _median_ms(lambda: renderer.render(0.0, 0.0, {}, 0.0, rng), repeats)
     on_ms = _median_ms(lambda: renderer.render(0.0, 0.0, names, 0.0, rng), repeats)
+    through = " (its sensor's 1640x1232, scaled by the ISP: sim.sensor.isp)" if config.sim.sensor.isp else ""
     return [
-        f"render {cam.width}x{cam.height}, scene {renderer.scene.name} (median / p90 of {repeats}):",
+        f"render {cam.width}x{cam.height}{through}, scene {renderer.scene.name} (median / p90 of {repeats}):",
         f"  new view (ray cast + shading + frame): {view_ms[0]:7.1f} / {view_ms[1]:.1f} ms",
         f"  frame of a cached view, lasers off:    {off_ms[0]:7.1f} / {off_ms[1]:.1f} ms",
         f"  frame of a cached view, lasers on:     {on_ms[0]:7.1f} / {on_ms[1]:.1f} ms",
@@ -67,17 +68,26 @@ def bench_render(config: Config, repeats: int = 20) -> list[str]:
 
 
 def bench_ranging(config: Config, repeats: int = 200) -> list[str]:
-    """Time ranging one laser-off/laser-on pair, decoded frames in memory, at 640 × 480 and at
-    1640 × 1232, beside the thesis' straightforward full-frame numpy pipeline on the same frames."""
+    """Time ranging one laser-off/laser-on pair, decoded frames in memory, at 640 × 480 (rendered at
+    that size, and as the Pi camera's ISP hands them over) and at 1640 × 1232, beside the thesis'
+    straightforward full-frame numpy pipeline on the same frames."""
     from edge import thesis
     from edge.config import CameraConfig
     from edge.ranging import FrameGroup, Ranger
     from edge.sim.record import scene_for, true_rig
     from edge.sim.render import Renderer
 
+    sensor = config.sim.sensor
+    # The product's own camera: a Bayer sensor, demosaiced at 1640 × 1232 and scaled (sim.sensor.isp).
+    bayer = sensor.bayer if sensor.bayer != "none" else "ea"
+    pi = replace(sensor, isp=True, colour=True, bayer=bayer, jpeg_quality=0, yuyv=False)
+    kinds = (("picam-v2", replace(sensor, isp=False), ""),
+             ("picam-v2", pi, f" from the sensor's 1640x1232 through the ISP (demosaiced {bayer})"),
+             ("picam-v2-1640", replace(sensor, isp=False), ""))
     lines = [f"ranging one on/off pair (median / p90 of {repeats} runs, one core, the thesis' interleaved):"]
-    for model in ("picam-v2", "picam-v2-1640"):
-        cfg = replace(config, rig=replace(config.rig, camera=CameraConfig(model=model)))
+    for model, frames, through in kinds:
+        cfg = replace(config, rig=replace(config.rig, camera=CameraConfig(model=model)),
+                      sim=replace(config.sim, sensor=frames))
         rig = cfg.rig.build()
         renderer = Renderer(scene_for(cfg), true_rig(cfg), cfg.sim)
         rng = np.random.default_rng(0)
@@ -97,7 +107,7 @@ def bench_ranging(config: Config, repeats: int = 200) -> list[str]:
              (baseline, max(3, repeats // (5 * rounds)))], rounds)
         cam = rig.camera
         lines += [
-            f"  {cam.width}x{cam.height}: triangulate {ours[0]:.3f} / {ours[1]:.3f} ms "
+            f"  {cam.width}x{cam.height}{through}: triangulate {ours[0]:.3f} / {ours[1]:.3f} ms "
             f"(range {result.range_m:.3f} m, {result.status}); thesis full-frame "
             f"{theirs[0]:.2f} / {theirs[1]:.2f} ms (range {r_thesis:.3f} m); "
             f"{theirs[0] / ours[0]:.1f}x faster (fastest runs: {theirs[2] / ours[2]:.1f}x)",
