@@ -25,13 +25,18 @@ SWITCHES = 10
 RADIUS = 6  # px: the spot-sum window's half-size (spots are ~2 px wide at 1.5 m)
 
 
+# The frames: rendered at 640 × 480, or as the Pi camera's ISP hands them over from its 1640 × 1232
+# sensor (whose rows the rolling shutter reads out, each frame row from two or three of them).
+FRAMES = {"640x480": [], "isp": ["sim.sensor.isp=true", 'sim.sensor.bayer="ea"']}
+
+
 class Rig:
     """The simulated lasers and camera in front of a flat wall at 1.5 m, with noise-free
     references: the spots fully lit for a whole exposure, and the room alone."""
 
-    def __init__(self) -> None:
+    def __init__(self, frames: list[str]) -> None:
         # No flicker and dim room light: the spots' sums then vary by ~1 % from frame to frame.
-        self.config = load_config(None, ["sim.ambient.flicker=0.0", "sim.ambient.white_e_per_ms=60.0"])
+        self.config = load_config(None, ["sim.ambient.flicker=0.0", "sim.ambient.white_e_per_ms=60.0", *frames])
         self.clock = SimClock()
         self.lasers = open_lasers(self.config, clock=self.clock)
         rig = true_rig(self.config)
@@ -69,9 +74,9 @@ class Rig:
         self.clock.sleep_until_ns(cam.frame_start_ns(k) + phase_ns)
 
 
-@pytest.fixture(scope="module")
-def rig():
-    r = Rig()
+@pytest.fixture(scope="module", params=list(FRAMES))
+def rig(request):
+    r = Rig(FRAMES[request.param])
     r.camera.start()
     yield r
     r.lasers.close()
