@@ -4,7 +4,9 @@ A frame is rendered in two steps. Per view (pan, tilt, and the time when movers 
 per pixel is cast into the scene and shaded under room light; that image of photo-electrons is
 cached, because a zone's on and off frames share it. Per frame the ambient level flickers, the
 visible laser spots are added (``edge.sim.optics``), then shot and read noise, full-well clipping,
-the ADC, the output bit depth and, for a webcam, JPEG compression.
+the ADC, the output bit depth and, for a webcam, JPEG compression. For the Pi camera as it is
+(``sim.sensor.isp``) a renderer of its 1640 × 1232 sensor does all that, and every frame it makes
+is scaled to the rig's 640 × 480 as the camera's ISP hands it over (``edge.sim.isp``).
 
 The renderer works with the *true* rig (which may differ from the nominal one: see
 :func:`perturb_rig`); what ranging believes is the recording's business.
@@ -115,7 +117,10 @@ def _vec3(v: np.ndarray) -> tuple[float, float, float]:
 
 
 class Renderer:
-    """Renders frames of `rig`'s camera in `scene` with the optics and sensor of `sim`."""
+    """Renders frames of `rig`'s camera in `scene` with the optics and sensor of `sim` (through
+    the Pi camera's ISP where `sim.sensor.isp` says so: then a renderer of the sensor behind it
+    makes the frames and the spots, and this one scales them; the sensor's photo-electrons and
+    spot models, which only the accuracy family's truth reads, are refused)."""
 
     def __init__(self, scene: Scene, rig: Rig, sim: SimConfig,
                  camera: CameraSettings = CameraSettings()) -> None:
