@@ -3,6 +3,7 @@ person walking through it."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Sequence
@@ -14,10 +15,11 @@ from hypothesis import strategies as st
 
 from edge.config import load_config
 from edge.errors import ConfigError
-from edge.modes.guard import CLEARED, INTRUSION, MOVED, Guard, GuardConfig, GuardEvent
+from edge.modes.guard import CLEARED, INTRUSION, MOVED, Guard, GuardConfig, GuardEvent, glimpse
 from edge.ranging import AMBIGUOUS, FAULT, NO_SPOT, OK, OUT_OF_RANGE, ZoneResult
 from edge.schema import FieldError, build
 from edge.sim.record import scene_for, true_rig
+from edge.triangulation import LaserMeasurement
 
 N = 64
 STEP = 360.0 / N
@@ -331,6 +333,63 @@ def test_sparse_zone_alarms_only_nearer_than_anything_it_showed():
     for s in range(5, 40):
         st_ = {} if s % 3 == 0 else {44: NO_SPOT}
         assert guard.update(sweep(bg, rng, statuses=st_), s, float(s)) == []
+
+
+def _beside(zone_result: ZoneResult, depths: dict[str, float], snr: float = 35.0) -> ZoneResult:
+    """`zone_result` (a no_spot) with the default rig's other lasers' spots at `depths` (m), each
+    where its beam meets a surface at that depth, as ranging lists them (`ZoneResult.lasers`)."""
+    rig = load_config(None).rig.build()
+    spots = {}
+    for name, depth in depths.items():
+        laser = rig.laser(name)
+        along = (depth - laser.origin_m[2]) / laser.direction[2]
+        point = np.asarray(laser.origin_m) + np.asarray(laser.direction) * along
+        spots[name] = LaserMeasurement(name, np.array([320.0, 240.0]), 0.1, point, depth, 0.03, snr, 1)
+    return dataclasses.replace(zone_result, lasers=spots)
+
+
+def test_a_glimpse_is_another_laser_s_spot_beside_the_reference_s_beam() -> None:
+    """The parallel laser lands 4 cm beside the center's beam at every depth; the sloped one 0.35 m
+    below it at 2 m, on another surface as likely as not."""
+    reference = load_config(None).rig.build().reference
+    dim = zone(10, None, NO_SPOT)
+    assert glimpse(_beside(dim, {"parallel": 2.28, "sloped": 1.1}), reference) == 2.28
+    assert glimpse(_beside(dim, {"sloped": 2.0}), reference) is None
+    assert glimpse(_beside(dim, {"sloped": 0.4}), reference) == 0.4  # (7 cm below it)
+    assert glimpse(_beside(dim, {"parallel": 2.28}, snr=6.0), reference) is None
+    assert glimpse(_beside(zone(10, None, OUT_OF_RANGE), {"parallel": 2.28}), reference) is None
+
+
+@pytest.mark.parametrize("told", [True, False])
+def test_a_zone_too_dim_for_its_reference_spot_is_judged_by_the_spot_beside_it(told: bool) -> None:
+    """Zone 10's wall (2.3 m) is too dim for the center laser's spot in every learning sweep, while
+    the parallel laser's, beside it, shows: a sparse zone at the parallel's depth, not an open one.
+    When the center's spot shows after all, twice in a row, nothing is raised (taken for open, the
+    guard raised an intrusion: `told` False, no reference laser given); something nearer still is."""
+    config = GuardConfig(learn_sweeps=3)
+    reference = load_config(None).rig.build().reference if told else None
+    guard = Guard(config, N, reference=reference)
+    bg = list(room())
+    bg[10] = 2.3
+    rng = np.random.default_rng(4)
+
+    def dim_sweep(status: str = NO_SPOT, at: float = 2.3) -> list[ZoneResult]:
+        results = sweep(with_object(bg, {10: at}), rng, statuses={10: status} if status != OK else None)
+        if status == NO_SPOT:
+            results[10] = _beside(results[10], {"parallel": 2.3 + rng.normal(0.0, 0.01)})
+        return results
+
+    for s in range(3):
+        assert guard.update(dim_sweep(), s, float(s)) == []
+    assert (10 in guard.state()["open_zones"]) is not told
+    events = []
+    for s, status in enumerate([NO_SPOT, OK, OK, NO_SPOT, NO_SPOT, NO_SPOT, OK, NO_SPOT], start=3):
+        events += guard.update(dim_sweep(status), s, float(s))
+    assert [e.event for e in events] == ([] if told else [INTRUSION, CLEARED])
+    events = []
+    for s in range(11, 14):  # somebody 1.5 m away in that zone
+        events += guard.update(dim_sweep(OK, 1.5), s, float(s))
+    assert [e.event for e in events] == [INTRUSION]
 
 
 def test_background_adapts_to_a_removed_object():

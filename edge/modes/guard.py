@@ -15,6 +15,12 @@ it gave (with their reported σ) and the statuses it gave (``ok``, ``no_spot``, 
   than the median by more than the threshold — so that an edge zone's normal flicker never alarms.
 * *sparse* zone (ranges, but too few or too rarely ``ok``: a dark armchair): the reference is the
   nearest range seen, so only something nearer than anything seen there counts.
+* *glimpsed* zone (no range of its own, but where its reference spot was not found another laser's
+  spot beside the reference's beam was: a surface too dim for the reference laser most of the time,
+  which a camera's noisier frames leave often): a sparse zone whose reference is the median depth of
+  those spots (`glimpse`). Taken for open, such a zone alarmed whenever its reference spot showed
+  after all, at the same range, twice in a row (the Pi camera's frames through the simulator's ISP:
+  a wall 2.3 m away in 6 sweeps of 20).
 * *open* zone (no range at all: a doorway onto a dark corridor, beyond the working range): the
   reference is ``open_max_m`` (the working range's far limit): any ``ok`` range nearer than it by more
   than the threshold is foreground — an object in the doorway. Its usual status (``out_of_range``,
@@ -83,7 +89,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge.ranging import NO_SPOT, OK, OUT_OF_RANGE, ZoneResult
-from edge.rig import wrap_deg
+from edge.rig import Laser, wrap_deg
 from edge.schema import require
 
 INTRUSION, MOVED, CLEARED = "intrusion", "moved", "cleared"
@@ -94,6 +100,30 @@ _USUAL_FRACTION = 0.25  # a non-ok status this common in a zone is part of its b
 _KEPT_STATUSES = (OK, NO_SPOT, OUT_OF_RANGE)  # statuses that tell something about the room
 _FG, _BG, _UNKNOWN = "foreground", "background", "unknown"
 _OPEN, _SPARSE, _RANGED = "open", "sparse", "ranged"
+# Another laser's spot tells the reference's background where it lands this near the reference's beam
+# (across the view, at its own depth: a surface goes on that far, mostly) and is bright enough to
+# believe. (The default rig's parallel laser lands 4 cm beside it at every depth; the sloped one
+# 0.17 × the depth below it, on another surface beyond about 0.6 m.)
+GLIMPSE_APART_M = 0.1
+GLIMPSE_MIN_SNR = 10.0
+
+
+def glimpse(res: ZoneResult, reference: Laser) -> float | None:
+    """The depth (m) of the nearest spot of another laser than `reference` that a zone whose
+    reference spot was not found (``no_spot``) holds within GLIMPSE_APART_M of where the reference's
+    beam would be at that depth, of SNR GLIMPSE_MIN_SNR or more; None where there is none."""
+    if res.status != NO_SPOT:
+        return None
+    (ox, oy, oz), (dx, dy, dz) = reference.origin_m, reference.direction
+    near = []
+    for name, m in res.lasers.items():
+        x, y, z = m.point_m.tolist()
+        if name == reference.name or m.snr < GLIMPSE_MIN_SNR or not z > 0 or dz <= 0:
+            continue
+        t = (z - oz) / dz  # (along the reference's beam to that depth)
+        if math.hypot(x - (ox + t * dx), y - (oy + t * dy)) <= GLIMPSE_APART_M:
+            near.append(float(m.depth_m))
+    return min(near, default=None)
 
 
 @dataclass(frozen=True)
@@ -215,10 +245,14 @@ class _Zone:
     def __init__(self, window: int) -> None:
         self.ranges: deque[tuple[float, float]] = deque(maxlen=window)  # (range, reported σ)
         self.statuses: deque[str] = deque(maxlen=window)
+        self.glimpses: deque[float] = deque(maxlen=window)  # depths of `glimpse`
         self.learned = False
         self._bg: _Background | None = None
 
-    def add(self, status: str, range_m: float | None = None, sigma_m: float | None = None) -> None:
+    def add(self, status: str, range_m: float | None = None, sigma_m: float | None = None,
+            glimpsed_m: float | None = None) -> None:
+        if glimpsed_m is not None:
+            self.glimpses.append(glimpsed_m)
         if status == OK:
             if range_m is None:
                 raise ValueError("an ok reading needs its range")
@@ -226,12 +260,12 @@ class _Zone:
         self.statuses.append(status)
         self._bg = None
 
-    def learn(self, res: ZoneResult) -> None:
+    def learn(self, res: ZoneResult, reference: Laser | None) -> None:
         r = _ok_range(res)
         if r is not None:
             self.add(OK, r, res.sigma_m)
         elif res.status in _KEPT_STATUSES and res.status != OK:
-            self.add(res.status)
+            self.add(res.status, glimpsed_m=None if reference is None else glimpse(res, reference))
 
     @property
     def observations(self) -> int:
@@ -247,13 +281,17 @@ class _Zone:
         counts = Counter(self.statuses)
         ok_fraction = counts[OK] / n if n else 0.0
         usual = frozenset(s for s, c in counts.items() if s != OK and c >= _USUAL_FRACTION * n)
+
+        def floor(at: float) -> float:
+            return cfg.sigma_floor_m + cfg.sigma_floor_frac * at
+
+        if not self.ranges and self.glimpses:  # dim, not empty: the median, one stray spot aside
+            ref = float(np.median(self.glimpses))
+            return _Background(_SPARSE, ref, floor(ref), ok_fraction, usual)
         if not self.ranges:
             return _Background(_OPEN, cfg.open_max_m, 0.0, ok_fraction, usual)
         r = np.array([x for x, _ in self.ranges])
         reported = float(np.median([s for _, s in self.ranges]))
-
-        def floor(at: float) -> float:
-            return cfg.sigma_floor_m + cfg.sigma_floor_frac * at
 
         if len(r) < 3 or ok_fraction < cfg.min_ok_fraction:
             ref = float(r.min())
@@ -389,11 +427,15 @@ class Guard:
     Track ids are ``t1``, ``t2``, … or, given `new_id`, whatever it returns for each new track (the
     service's are unique across restarts and across guards: ``b7-t1``)."""
 
-    def __init__(self, config: GuardConfig, zone_count: int, new_id: Callable[[], str] | None = None) -> None:
+    def __init__(self, config: GuardConfig, zone_count: int, new_id: Callable[[], str] | None = None,
+                 reference: Laser | None = None) -> None:
+        """`reference`: the rig's reference laser, whose beam says which other lasers' spots tell
+        a zone's background where its own spot was not found (`glimpse`; None: none do)."""
         if zone_count < 1:
             raise ValueError(f"zone_count must be >= 1, got {zone_count}")
         self.config = config
         self.zone_count = zone_count
+        self.reference = reference
         numbers = itertools.count(1)
         self._new_id = new_id or (lambda: f"t{next(numbers)}")
         self._last_sweep: int | None = None
@@ -469,7 +511,7 @@ class Guard:
         self._last_sweep = sweep
         if self.learning:
             for k, res in by_zone.items():
-                self._zones[k].learn(res)
+                self._zones[k].learn(res, self.reference)
             self._learned_sweeps += 1
             if not self.learning:
                 for z in self._zones:
@@ -496,7 +538,7 @@ class Guard:
             if res is None:
                 continue
             if not zone.learned:
-                zone.learn(res)
+                zone.learn(res, self.reference)
                 zone.learned = zone.observations >= self._zone_min_observations
                 continue
             bg = zone.background(cfg)
@@ -517,7 +559,7 @@ class Guard:
                 if res.status in bg.usual:
                     states[k] = _BG
                 if adapt:
-                    zone.add(res.status)
+                    zone.add(res.status, glimpsed_m=None if self.reference is None else glimpse(res, self.reference))
         return states, readings
 
     def _blobs(self, readings: Mapping[int, _Reading], states: Sequence[str]) -> list[_Blob]:

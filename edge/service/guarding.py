@@ -18,6 +18,7 @@ from typing import Any
 
 from edge.modes.guard import Guard, GuardConfig, Track
 from edge.ranging import ZoneResult
+from edge.rig import Laser
 from edge.service.identity import BootId
 
 log = logging.getLogger(__name__)
@@ -31,10 +32,13 @@ class GuardWatch:
     start's `boot` id (random when none is given)."""
 
     def __init__(self, config: GuardConfig, publish_alert: Callable[[dict[str, Any]], object],
-                 boot: BootId | None = None, doorways: Doorways | None = None) -> None:
+                 boot: BootId | None = None, doorways: Doorways | None = None,
+                 reference: Callable[[], Laser] | None = None) -> None:
         """`doorways(results)`: for the zones of a sweep, those whose rays leave the room through a
-        doorway and where it ends along them (the map's); used with ``ignore_beyond_doorways``."""
+        doorway and where it ends along them (the map's); used with ``ignore_beyond_doorways``.
+        `reference()`: the rig's reference laser when a guard starts learning (`Guard`'s)."""
         self.config = config
+        self._reference = reference
         self.guard: Guard | None = None  # none before the first complete guard sweep
         self._publish_alert = publish_alert
         self._boot = boot if boot is not None else BootId(None)
@@ -60,7 +64,8 @@ class GuardWatch:
               zone_t_s: Mapping[int, float] | None = None) -> None:
         """Take one complete sweep (see `Guard.update`)."""
         if self.guard is None or self.guard.zone_count != len(results):
-            self.guard = Guard(self.config, len(results), self._new_track_id)
+            self.guard = Guard(self.config, len(results), self._new_track_id,
+                               None if self._reference is None else self._reference())
             self._outside_m = {}
         was_learning = self.guard.learning
         events = self.guard.update(results, sweep, t_s, zone_t_s, outside_m=self._outside_m)

@@ -95,7 +95,8 @@ class Service:
         # The occupancy grid of every sweep, kept in state_dir (its picture: self.map.png()).
         self.map = GridKeeper(config.map, believed.rig, config.service.resolved_state_dir())
         self.guard = GuardWatch(config.guard, lambda alert: self.link.publish_event("alert", alert), boot,
-                                doorways=lambda results: self.map.outside_m(self.ranger.rig, results))
+                                doorways=lambda results: self.map.outside_m(self.ranger.rig, results),
+                                reference=lambda: self.ranger.rig.reference)
         self.ha = HomeAssistantFeed(lambda kind, p, interval: self.link.publish_snapshot(kind, p, interval),
                                     device_id=self.device_id, range_limit_m=config.rig.range_limits_m[1])
         self.steps = ModeSteps(self.health, self.guard, boot,
