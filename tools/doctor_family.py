@@ -42,14 +42,14 @@ def frames_kind(detail: str) -> str:
             else "JPEG" if "JPEG (" in detail else "other")
 
 
-def one(args: tuple[int, int, tuple[str, ...]]) -> tuple[int, int, dict[str, list[str]]]:
-    index, pose_index, extra = args
+def one(args: tuple[str, int, int, tuple[str, ...]]) -> tuple[int, int, dict[str, list[str]]]:
+    name, index, pose_index, extra = args
     from edge.accuracy.conditions import family
     from edge.config import load_config
     from edge.doctor import examine
 
     base = load_config(None)
-    aimed = family("tuning", 1, index)[0].aimed(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms,
+    aimed = family(name, 1, index)[0].aimed(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms,
                                                 base.camera.frame_rate_hz, pose_index)
     result = examine(None, [*aimed, "mqtt.enabled=false", *extra])
     lines = [line for line in result.checks.lines if line.check.startswith("laser ") or line.check == "frames"]
@@ -60,7 +60,9 @@ def one(args: tuple[int, int, tuple[str, ...]]) -> tuple[int, int, dict[str, lis
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--first", type=int, default=0, help="the first tuning condition (default 0)")
+    parser.add_argument("--family", default="tuning", choices=("tuning", "evaluation"),
+                        help="which family (default tuning; report the evaluation family's counts only)")
+    parser.add_argument("--first", type=int, default=0, help="the first condition (default 0)")
     parser.add_argument("--conditions", type=int, default=32)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", action="append", default=[], help="a configuration override for every run")
@@ -71,8 +73,8 @@ def main() -> None:
 
     indices = range(args.first, args.first + args.conditions)
     if args.isp:
-        indices = [i for i, c in zip(indices, family("tuning", args.conditions, args.first)) if c.isp]
-    jobs = [(i, p, tuple(args.set)) for i in indices for p in POSES]
+        indices = [i for i, c in zip(indices, family(args.family, args.conditions, args.first)) if c.isp]
+    jobs = [(args.family, i, p, tuple(args.set)) for i in indices for p in POSES]
     with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         runs = list(pool.map(one, jobs))
     counts = Counter((check, line[1]) for _, _, lines in runs for check, line in lines.items())
