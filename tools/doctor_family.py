@@ -38,8 +38,9 @@ def kind(status: str, detail: str) -> str:
 
 
 def frames_kind(detail: str) -> str:
-    return ("scaled" if "scaled after demosaicing" in detail else "Bayer" if "colour filter" in detail
-            else "JPEG" if "JPEG (" in detail else "other")
+    return ("scaled" if "scaled after demosaicing" in detail
+            else "Bayer" if "colour filter" in detail or "Bayer filter" in detail
+            else "JPEG" if "JPEG (" in detail and "not JPEG" not in detail else "other")
 
 
 def one(args: tuple[str, int, int, tuple[str, ...]]) -> tuple[int, int, dict[str, list[str]]]:
