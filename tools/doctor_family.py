@@ -68,6 +68,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", action="append", default=[], help="a configuration override for every run")
     parser.add_argument("--json", help="write every laser line here")
+    parser.add_argument("--poses", default=",".join(map(str, POSES)),
+                        help=f"which of each condition's poses to aim at (default {','.join(map(str, POSES))})")
     parser.add_argument("--isp", action="store_true", help="only the conditions whose frames are the Pi camera's ISP's")
     args = parser.parse_args()
     from edge.accuracy.conditions import family
@@ -75,7 +77,8 @@ def main() -> None:
     indices = range(args.first, args.first + args.conditions)
     if args.isp:
         indices = [i for i, c in zip(indices, family(args.family, args.conditions, args.first)) if c.isp]
-    jobs = [(args.family, i, p, tuple(args.set)) for i in indices for p in POSES]
+    poses = [int(p) for p in args.poses.split(",")]
+    jobs = [(args.family, i, p, tuple(args.set)) for i in indices for p in poses]
     with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         runs = list(pool.map(one, jobs))
     counts = Counter((check, line[1]) for _, _, lines in runs for check, line in lines.items())
