@@ -13,7 +13,9 @@ name it.
     .venv/bin/python tools/doctor_family.py --first 0 --conditions 64 --isp    # the Pi camera's frames
 
 `--isp` keeps the conditions whose frames are the Pi camera's ISP's (rendered live through it:
-`sim.sensor.isp`), and counts the frames line's verdict on them too.
+`sim.sensor.isp`), and counts the frames line's verdict on them too. `--family evaluation` runs the
+evaluation family's conditions (report their counts only: no tuning looks at them one by one);
+`--poses 1,6,11` aims at other poses than the two by default.
 
 It asserts nothing: it prints the counts (and writes every line as JSON with --json).
 """
