@@ -41,6 +41,7 @@ def kind(status: str, detail: str) -> str:
 
 def frames_kind(detail: str) -> str:
     return ("scaled" if "scaled after demosaicing" in detail
+            else "demosaiced, no filter seen" if "no Bayer filter's pattern seen" in detail
             else "Bayer" if "colour filter" in detail or "Bayer filter" in detail
             else "JPEG" if "JPEG (" in detail and "not JPEG" not in detail else "other")
 
