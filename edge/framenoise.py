@@ -279,21 +279,20 @@ def noise_texture(block: np.ndarray, centre: float, noise: float, red_of_colour:
 
 
 @functools.lru_cache(maxsize=16)
-def _pair_index(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For an n × n window, flat, with a 0 and a 1 appended (at n², n² + 1): the index pairs whose
-    products are the window's pixels (each with the 1) and its pairs of pixels 1 and 2 apart
-    along rows, then along columns (0 where the partner lies outside), each at the first pixel of
-    the pair, (5, n²) each; and (1, x, y, x², y²) of every pixel (n², 5), offsets from the centre."""
+def _pair_index(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """For an n × n window, flat, with a 0 and a 1 appended (at n², n² + 1): each pixel's partner
+    in the window's pixels (the 1: the pixel alone) and in its pairs of pixels 1 and 2 apart along
+    rows, then along columns (the 0 where the partner lies outside), the pair at its first pixel,
+    (5, n²); and (1, x, y, x², y²) of every pixel (n², 5), offsets from the centre."""
     v, u = np.divmod(np.arange(n * n), n)
     zero, one = n * n, n * n + 1
-    first = np.broadcast_to(np.arange(n * n), (5, n * n))
-    second = [np.full(n * n, one)]
+    partner = [np.full(n * n, one)]
     for du, dv in ((1, 0), (2, 0), (0, 1), (0, 2)):
         inside = (u + du < n) & (v + dv < n)
-        second.append(np.where(inside, (v + dv) * n + u + du, zero))
+        partner.append(np.where(inside, (v + dv) * n + u + du, zero))
     r = n // 2
     x, y = (u - r).astype(np.float64), (v - r).astype(np.float64)
-    return np.ascontiguousarray(first), np.stack(second), np.stack([np.ones_like(x), x, y, x * x, y * y], axis=1)
+    return np.stack(partner), np.stack([np.ones_like(x), x, y, x * x, y * y], axis=1)
 
 
 def centroid_growth(used: np.ndarray, du: float, dv: float, lags: tuple[float, float, float, float]
@@ -309,10 +308,10 @@ def centroid_growth(used: np.ndarray, du: float, dv: float, lags: tuple[float, f
     Σ (x − du)(x + s − du) along a row, Σ (x − du)² down a column, and so on, which the moments of
     each kind of pair give (one product of all five kinds: numpy's calls, not the arithmetic on a
     few dozen pixels, are what this costs)."""
-    first, second, mono = _pair_index(used.shape[0])
+    partner, mono = _pair_index(used.shape[0])
     flat = np.concatenate([used.ravel(), (0.0, 1.0)])
-    pairs = flat.take(first)
-    pairs *= flat.take(second)
+    pairs = flat.take(partner)
+    pairs *= flat[:-2]
     moments = pairs.dot(mono).tolist()  # per kind: Σ 1, Σ x, Σ y, Σ x², Σ y² at the pair's first pixel
 
     def about_u(k: int) -> float:

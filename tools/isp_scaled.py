@@ -23,6 +23,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from edge.errors import EdgeError
 from edge.isp import OUT
 from edge.sim.isp import scale_recording
 
@@ -34,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         zones = scale_recording(args.raw, args.out)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, EdgeError) as exc:
         print(f"isp_scaled: {args.raw / 'sweep.json'}: cannot be read as a 1640x1232 recording: {exc}",
               file=sys.stderr)
         return 2

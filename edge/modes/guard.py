@@ -112,13 +112,13 @@ def glimpse(res: ZoneResult, reference: Laser) -> float | None:
     """The depth (m) of the nearest spot of another laser than `reference` that a zone whose
     reference spot was not found (``no_spot``) holds within GLIMPSE_APART_M of where the reference's
     beam would be at that depth, of SNR GLIMPSE_MIN_SNR or more; None where there is none."""
-    if res.status != NO_SPOT:
-        return None
     (ox, oy, oz), (dx, dy, dz) = reference.origin_m, reference.direction
+    if res.status != NO_SPOT or dz <= 0:
+        return None
     near = []
     for name, m in res.lasers.items():
         x, y, z = m.point_m.tolist()
-        if name == reference.name or m.snr < GLIMPSE_MIN_SNR or not z > 0 or dz <= 0:
+        if name == reference.name or m.snr < GLIMPSE_MIN_SNR or not z > 0:
             continue
         t = (z - oz) / dz  # (along the reference's beam to that depth)
         if math.hypot(x - (ox + t * dx), y - (oy + t * dy)) <= GLIMPSE_APART_M:
@@ -260,12 +260,12 @@ class _Zone:
         self.statuses.append(status)
         self._bg = None
 
-    def learn(self, res: ZoneResult, reference: Laser | None) -> None:
+    def learn(self, res: ZoneResult, glimpsed_m: float | None = None) -> None:
         r = _ok_range(res)
         if r is not None:
             self.add(OK, r, res.sigma_m)
         elif res.status in _KEPT_STATUSES and res.status != OK:
-            self.add(res.status, glimpsed_m=None if reference is None else glimpse(res, reference))
+            self.add(res.status, glimpsed_m=glimpsed_m)
 
     @property
     def observations(self) -> int:
@@ -511,7 +511,7 @@ class Guard:
         self._last_sweep = sweep
         if self.learning:
             for k, res in by_zone.items():
-                self._zones[k].learn(res, self.reference)
+                self._zones[k].learn(res, self._glimpsed(res))
             self._learned_sweeps += 1
             if not self.learning:
                 for z in self._zones:
@@ -523,6 +523,9 @@ class Guard:
         return self._follow(blobs, states, sweep)
 
     # --- zones ----------------------------------------------------------------------------
+
+    def _glimpsed(self, res: ZoneResult) -> float | None:
+        return None if self.reference is None else glimpse(res, self.reference)
 
     def _classify(
         self, by_zone: Mapping[int, ZoneResult], times: Mapping[int, float], t_s: float,
@@ -538,7 +541,7 @@ class Guard:
             if res is None:
                 continue
             if not zone.learned:
-                zone.learn(res, self.reference)
+                zone.learn(res, self._glimpsed(res))
                 zone.learned = zone.observations >= self._zone_min_observations
                 continue
             bg = zone.background(cfg)
@@ -559,7 +562,7 @@ class Guard:
                 if res.status in bg.usual:
                     states[k] = _BG
                 if adapt:
-                    zone.add(res.status, glimpsed_m=None if self.reference is None else glimpse(res, self.reference))
+                    zone.add(res.status, glimpsed_m=self._glimpsed(res))
         return states, readings
 
     def _blobs(self, readings: Mapping[int, _Reading], states: Sequence[str]) -> list[_Blob]:

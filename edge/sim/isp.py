@@ -70,13 +70,12 @@ def scale_recording(sensor: Path, out: Path) -> int:
     """Write to `out` (replaced) the recording `sensor` of a 1640 × 1232 sensor as the ISP hands it
     over: every frame cropped and scaled, the camera :func:`scaled_camera`'s, each laser's true pixel
     moved to match and its floor's pixel σ scaled (the floor's range σ is the sensor's, the bound
-    that no processing beats). Returns the number of zones. ValueError for a sensor of another size;
-    OSError and ValueError (JSON) for a recording that cannot be read."""
-    from edge.recording import camera_to_json
+    that no processing beats). Returns the number of zones. RecordingError for a recording that
+    cannot be read, ValueError for a sensor of another size, OSError for a frame."""
+    from edge.recording import camera_to_json, read_recording
 
+    given = read_recording(sensor, check_images=False).rig.camera  # (checked: the file and key named)
     sweep = json.loads((sensor / "sweep.json").read_text())
-    cam = sweep["camera"]
-    given = CameraModel(cam["width"], cam["height"], cam["fx"], cam["fy"], cam["cx"], cam["cy"], tuple(cam["dist"]))
     sweep["camera"] = camera_to_json(scaled_camera(given))
     for zone in sweep["zones"]:
         truth = zone.get("truth") or {}
