@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edge.spotshape import monomials
+
 # The pixel noise a spot is judged against follows the room's level where it falls
 # (`noise_by_level`): bins of equal steps of √level (shot noise's scale), each told by at least
 # NOISE_BIN_SAMPLES background samples; and at most a factor NOISE_FLOOR_FRACTION below the
@@ -283,16 +285,14 @@ def _pair_index(n: int) -> tuple[np.ndarray, np.ndarray]:
     """For an n × n window, flat, with a 0 and a 1 appended (at n², n² + 1): each pixel's partner
     in the window's pixels (the 1: the pixel alone) and in its pairs of pixels 1 and 2 apart along
     rows, then along columns (the 0 where the partner lies outside), the pair at its first pixel,
-    (5, n²); and (1, x, y, x², y²) of every pixel (n², 5), offsets from the centre."""
+    (5, n²); and (1, x, y, x², y²) of every pixel (n², 5), offsets from the centre (`monomials`')."""
     v, u = np.divmod(np.arange(n * n), n)
     zero, one = n * n, n * n + 1
     partner = [np.full(n * n, one)]
     for du, dv in ((1, 0), (2, 0), (0, 1), (0, 2)):
         inside = (u + du < n) & (v + dv < n)
         partner.append(np.where(inside, (v + dv) * n + u + du, zero))
-    r = n // 2
-    x, y = (u - r).astype(np.float64), (v - r).astype(np.float64)
-    return np.stack(partner), np.stack([np.ones_like(x), x, y, x * x, y * y], axis=1)
+    return np.stack(partner), np.ascontiguousarray(monomials(n // 2)[:, :5])
 
 
 def centroid_growth(used: np.ndarray, du: float, dv: float, lags: tuple[float, float, float, float]
