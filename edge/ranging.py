@@ -33,6 +33,7 @@ from edge.fusion import (
     same_blob,
     scatter_grown,
 )
+from edge.motion import Steadier
 from edge.rig import Laser, Rig
 from edge.schema import require
 from edge.tone import linear_table, require_gamma
@@ -346,6 +347,8 @@ class Ranger:
         # a margin for rounding a spot's pixel), so that most spots need no search of the path.
         self._near_path = {name: self.finder.strips.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
         self._inv_depths = self.finder.strips.inv_depth_range()
+        self.steadier = Steadier(rig.camera, [b.path for b in self.finder.bands.values()])
+        self.turns: list[float] = []  # the last zone's turns between its laser-on and laser-off frames (px)
 
     def linear(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
         """The frame groups with `frame_gamma`'s curve undone: 16-bit values proportional to light
@@ -359,6 +362,21 @@ class Ranger:
         apply = (lambda f: cv2.LUT(f, lut)) if first.dtype == np.uint8 else lut.take
         return [replace(g, on=[apply(f) for f in g.on], off=[apply(f) for f in g.off]) for g in groups]
 
+    def steadied(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
+        """The frame groups with their laser-off frames turned back onto their laser-on frames where
+        the room moved between them (`edge.motion`: a rig that turns, or is carried, while it
+        ranges); as they are where it did not. `turns` keeps how far each moved (px)."""
+        out, self.turns = [], []
+        for g in groups:
+            steady = self.steadier.steady(g.on, g.off)
+            if steady is None:
+                out.append(g)
+                continue
+            self.finder.told_by(g.off[0])  # (as delivered: interpolation hides JPEG's blocks)
+            out.append(replace(g, off=steady[0]))
+            self.turns.extend(t.shift_px for t in steady[1])
+        return out
+
     def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:
         """Range one zone from its frame groups; the result is for the zone's pose."""
         rig = self.rig
@@ -367,6 +385,7 @@ class Ranger:
             return ZoneResult(index, pan_deg, tilt_deg, FAULT, detail="no usable frame pair")
         if self.config.frame_gamma != 1.0:
             groups = self.linear(groups)
+        groups = self.steadied(groups)
         tracks = self._tracks(groups)
         cands = {name: [self._measure(t) for t in ts] for name, ts in tracks.items()}
         # How many of the frame groups each spot showed in, against how many it could have.

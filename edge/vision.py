@@ -246,6 +246,15 @@ class SpotFinder:
         # before the values' step was measured.
         self._step = 1.0
 
+    def told_by(self, frame: np.ndarray) -> None:
+        """Told, before frames that were turned back onto others (`edge.motion`) are found in, a
+        laser-off frame as the camera delivered it: whether it is JPEG's, and the step of its
+        values, which interpolation would hide (once: as `find` tells them from its first)."""
+        if self._jpeg is None:
+            self._jpeg = jpeg_blockiness(frame) > JPEG_BLOCKINESS
+        if self._step is None:
+            self._step = value_step(frame)
+
     full_scale = staticmethod(full_scale)
 
     def _plane(self, image: np.ndarray, rows, cols) -> np.ndarray:

@@ -165,7 +165,11 @@ class Renderer:
     def _view(self, pan_deg: float, tilt_deg: float, t_s: float) -> _View:
         """The view at (pan, tilt) at time `t_s`. Rendering a view is the costly part (one ray per
         pixel), so the scene without its movers is rendered once per pose and cached; while a
-        mover is present, only the pixels its box can cover are cast again, at each instant."""
+        mover is present, only the pixels its box can cover are cast again, at each instant. A
+        swaying platform (`sim.sway`) turns the pose by its turn at `t_s`."""
+        if self.sim.sway.deg:
+            turned = self.sim.sway.turn(t_s)
+            pan_deg, tilt_deg = pan_deg + turned[0], tilt_deg + turned[1]
         static_key = (round(pan_deg, 9), round(tilt_deg, 9), None)
 
         def static_view() -> _View:

@@ -156,6 +156,26 @@ class SurfacesConfig:
 
 
 @dataclass(frozen=True)
+class SwayConfig:
+    """The rig's platform turning under it while it works (``[sim.sway]``): a robot that turns, a
+    wearer's walk, a head still ringing. The camera and its lasers turn together, by `deg` in pan
+    at `hz` (a sine of the rig's time) and by half that in tilt at 1.618 × `hz`, so that no two
+    frames see the room from quite the same way."""
+
+    deg: float = 0.0  # 0: the platform is still
+    hz: float = 1.0
+
+    def __post_init__(self) -> None:
+        require(0 <= self.deg <= 30, "deg", "must be 0-30 degrees")
+        require(0 < self.hz <= 50, "hz", "must be in (0, 50] Hz")
+
+    def turn(self, t_s: float) -> tuple[float, float]:
+        """(pan, tilt) the platform has turned by at the rig's time `t_s` (degrees)."""
+        phase = 2.0 * math.pi * self.hz * t_s
+        return self.deg * math.sin(phase), 0.5 * self.deg * math.sin(1.618 * phase + 1.0)
+
+
+@dataclass(frozen=True)
 class RigErrorConfig:
     """How the simulated rig differs from the nominal one (seeded): real rigs are never exact."""
 
@@ -228,6 +248,7 @@ class SimConfig:
     ambient: AmbientConfig = field(default_factory=AmbientConfig)
     surfaces: SurfacesConfig = field(default_factory=SurfacesConfig)
     rig_error: RigErrorConfig = field(default_factory=RigErrorConfig)
+    sway: SwayConfig = field(default_factory=SwayConfig)
     camera_faults: tuple[CameraFault, ...] = ()  # for trying the service's fault handling
     laser_faults: tuple[LaserFault, ...] = ()  # broken lasers, for trying fault reporting
     ptu_faults: tuple[PtuFault, ...] = ()  # a unit that does not answer, for trying `edge doctor`

@@ -1,0 +1,316 @@
+"""The room moving between a zone's frames, and the laser-off frames turned back onto the lit ones.
+
+The lasers ride with the camera: their spots stay where the surface's depth puts them however the
+camera turns. The room does not. A rig on a robot that turns, worn by someone walking, or on a head
+still ringing after a move sees the room slide between its laser-on and laser-off frames, and the
+difference keeps the room's edges. They raise the noise that spots must stand above and pull the
+centroids of those that do: on the office, the off frame turned 0.1° (1 px) lost 5 of 60 `ok`
+zones and put four 3–5 % off; turned 1°, 21 were lost.
+
+`Steadier` tells, for a few tens of microseconds a pair, whether a laser-off frame moved against its
+laser-on frame: a Lucas–Kanade step on a sparse grid of pixels away from the laser paths, at three
+baselines (1, 4 and 12 px: sub-pixel ringing to a few degrees' turn), against what the pixel noise
+alone gives. Where one did, it finds how the camera turned between them (a rotation: the homography
+K·R·K⁻¹ moves the whole room, parallax aside), coarse by phase correlation and then by Gauss–Newton on
+the same grid made dense, and turns the off frame back onto the on frame. A lit frame is never
+moved: its spots are where the ranging reads them. Pure (numpy and OpenCV).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from edge.rig import CameraModel
+
+# The gate: baselines (px) of the gradients that the difference is set against; a pair moved where
+# the difference that one explains is this many times the noise's (χ² with 2 degrees of freedom:
+# 14 at 1 in 1000). Still frames of the office came to at most 31 over 90 pairs; turned 0.02°
+# (0.2 px), at least 176.
+GATE_BASELINES_PX = (1, 4, 12)
+GATE_CHI2 = 100.0
+# ... and where the difference's energy is this many times that of neighbouring pixels' differences
+# within the frames (still frames: 0.02–0.7 on the office and kitchen, to 1.1 through the Pi
+# camera's ISP, whose noise neighbouring pixels share; turned 2°, 1.8–31).
+GATE_ENERGY = 2.0
+GATE_SAMPLES = 500  # (about: a grid over the picture, less the laser paths)
+GATE_MARGIN_PX = 12  # (a gate sample is at least this far from the picture's edge: its farthest neighbour)
+# Pixels at least this far from every laser path only are read by the gate and the fit (spots are
+# not the room).
+PATH_CLEARANCE_PX = 12
+# The fit: a grid of this step (px) over the picture; this many Gauss–Newton steps at most, ending when
+# the turn moves the picture's centre by less than STEADY_PX.
+FIT_STEP_PX = 6
+FIT_STEPS = 8
+STEADY_PX = 0.01
+PHASE_LEVELS = (1, 2, 3)  # the pyramid levels whose phase correlation may start the fit (surest first)
+# A turn that moves no pixel of the picture by this much is no turn: the frames are left as they are.
+LEAST_SHIFT_PX = 0.05
+# A turn is taken where it explains this many times the noise's share of the unturned difference
+# (the fitted samples' squared difference that it took away, over the residual's per sample: χ²
+# with 3 degrees of freedom, past any chance), and moves no pixel by more than this share of the
+# picture's side (phase correlation's reach, and more than a frame's turn of anything that ranges
+# while it moves).
+TURN_CHI2 = 50.0
+TURN_EXPLAINS = 0.85  # ... and leaves at most this share of the unturned difference's RMS
+TURN_SURE = 0.5  # a turn that leaves less than this share is taken without trying the other starts
+MAX_SHIFT = 0.25
+
+
+@dataclass(frozen=True)
+class Turn:
+    """How the camera turned from a laser-on frame to a laser-off frame: `rotation` (3 × 3, the on
+    frame's rays to the off frame's), `shift_px` how far it moved the picture's centre, and
+    `residual`, the fit's RMS difference (full scale) where the room was read."""
+
+    rotation: np.ndarray
+    shift_px: float
+    residual: float
+
+
+def _grid(cam: CameraModel, clear: np.ndarray, step: int, margin: int) -> tuple[np.ndarray, np.ndarray]:
+    """(v, u) of a grid of `step` px inside `margin` of the edges, where `clear` (H × W bool) holds."""
+    v, u = np.mgrid[margin : cam.height - margin : step, margin : cam.width - margin : step]
+    keep = clear[v, u]
+    return v[keep].astype(np.intp), u[keep].astype(np.intp)
+
+
+class Steadier:
+    """Laser-off frames turned back onto laser-on frames, for one camera: `paths` (each (N, 2) u, v)
+    are the laser paths, whose pixels neither the gate nor the fit reads."""
+
+    def __init__(self, cam: CameraModel, paths: Sequence[np.ndarray]) -> None:
+        self.cam = cam
+        clear = np.ones((cam.height, cam.width), np.uint8)
+        for path in paths:
+            pts = np.round(np.asarray(path, np.float64)).astype(np.int32).reshape(-1, 1, 2)
+            cv2.polylines(clear, [pts], False, 0, thickness=2 * PATH_CLEARANCE_PX + 1)
+        self._clear = clear.astype(bool)
+        step = max(8, int(math.sqrt(cam.width * cam.height / GATE_SAMPLES)))
+        v, u = _grid(cam, self._clear, step, GATE_MARGIN_PX + 1)
+        self._gate_n = v.size
+        offsets = [(0, 0)] + [(s * b, 0) for b in GATE_BASELINES_PX for s in (1, -1)] \
+            + [(0, s * b) for b in GATE_BASELINES_PX for s in (1, -1)]
+        self._gate_pixels = np.concatenate([(v + dv) * cam.width + (u + du) for du, dv in offsets])
+        nb = len(GATE_BASELINES_PX)
+        # rows of a gather: each baseline's neighbours ahead and behind, u then v; the next pixel right and down
+        self._ahead = np.array([1 + 2 * k for k in range(nb)] + [1 + 2 * nb + 2 * k for k in range(nb)])
+        self._behind = self._ahead + 1
+        self._next = np.array([1, 1 + 2 * nb])
+        self._gate_index: dict[int, np.ndarray] = {}
+        fv, fu = _grid(cam, self._clear, FIT_STEP_PX, 2)
+        self._fit_uv = np.column_stack([fu, fv]).astype(np.float64)
+        self._k = np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
+        self._k_inv = np.linalg.inv(self._k)
+        self._windows: dict[tuple[int, int], np.ndarray] = {}
+
+    # --- the gate ---------------------------------------------------------------------------------
+
+    def _gather(self, image: np.ndarray) -> np.ndarray:
+        """The gate's samples of `image`'s read plane (red of BGR: the grid's pixels and their
+        neighbours at each baseline), float32, (1 + 4·baselines, samples)."""
+        channels = image.shape[2] if image.ndim == 3 else 1
+        index = self._gate_index.get(channels)
+        if index is None:
+            index = self._gate_pixels * channels + (2 if channels == 3 else 0)
+            self._gate_index[channels] = index
+        values = image.reshape(-1).take(index, mode="wrap").astype(np.float32)
+        return values.reshape(-1, self._gate_n)
+
+    def moved(self, lit: np.ndarray, dark: np.ndarray) -> bool:
+        """Did the room move between `lit` and `dark`, by what it leaves in their difference?
+
+        Two tests. A turn of a pixel or so leaves the room's gradient times the shift: the
+        difference that the gradient at some baseline explains is GATE_CHI2 times the noise's
+        share. A bigger one leaves two unrelated views of the room's texture: the difference
+        (less the room light's change, fitted) is GATE_ENERGY times the frames' own differences
+        between neighbouring pixels, which still frames' noise alone brings to about 1."""
+        if self._gate_n < 16:
+            return False
+        a, b = self._gather(lit), self._gather(dark)
+        nb = len(GATE_BASELINES_PX)
+        n = float(self._gate_n)
+        # The frames' samples less their means (so that no large sums cancel below), and every sum
+        # the tests need by one product of these rows with themselves: those two, the lit frame's
+        # gradients at each baseline, and its steps to the next pixel right and down.
+        ac = a[0] - np.float32(float(np.add.reduce(a[0])) / n)
+        bc = b[0] - np.float32(float(np.add.reduce(b[0])) / n)
+        rows = np.concatenate([ac[None], bc[None], a[self._ahead] - a[self._behind], a[self._next] - a[:1]])
+        g = rows.dot(rows.T).tolist()
+        # b − (gain·a + offset), least squares: a flickering lamp is not motion
+        vaa, vab, vbb = g[0][0], g[0][1], g[1][1]
+        gain = vab / vaa if vaa > 0.0 else 1.0
+        energy = max(vbb - gain * vab, 0.0) / n  # the fit's residual, per sample
+        last = 2 + 2 * nb
+        nearby = (g[last][last] + g[last + 1][last + 1]) / (2.0 * n)
+        if energy > GATE_ENERGY * nearby:
+            return True
+        noise2 = max(energy, 1e-12)
+        for k in range(nb):
+            ix, iy = 2 + k, 2 + nb + k
+            gx, gy = g[ix], g[iy]
+            sxx, sxy, syy = gx[ix], gx[iy], gy[iy]
+            # Σ gradient·(b − gain·a − offset)
+            rx = gx[1] - gain * gx[0]
+            ry = gy[1] - gain * gy[0]
+            det = sxx * syy - sxy * sxy
+            if det <= 0.0:
+                continue
+            # rᵀ (GᵀG)⁻¹ r: the difference's energy along the gradients, over the noise's
+            explained = (syy * rx * rx - 2.0 * sxy * rx * ry + sxx * ry * ry) / det
+            if explained > GATE_CHI2 * noise2:
+                return True
+        return False
+
+    # --- the turn ---------------------------------------------------------------------------------
+
+    @staticmethod
+    def _plane(image: np.ndarray) -> np.ndarray:
+        """The plane the room is matched in (red of BGR, as ranging reads), float32."""
+        plane = image[..., 2] if image.ndim == 3 else image
+        return plane.astype(np.float32)
+
+    def _homography(self, rotation: np.ndarray) -> np.ndarray:
+        """The picture's map from the on frame's pixels to the off frame's, for `rotation`."""
+        return self._k @ rotation @ self._k_inv
+
+    def _mapped(self, rotation: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        h = self._homography(rotation)
+        p = uv @ h[:, :2].T + h[:, 2]
+        return p[:, :2] / p[:, 2:3]
+
+    def _shift_px(self, rotation: np.ndarray) -> float:
+        """How far `rotation` moves the picture's centre or corners, whichever most (px)."""
+        w, h = self.cam.width - 1, self.cam.height - 1
+        points = np.array([[self.cam.cx, self.cam.cy], [0, 0], [w, 0], [0, h], [w, h]], np.float64)
+        return float(np.hypot(*(self._mapped(rotation, points) - points).T).max())
+
+    def turn(self, lit: np.ndarray, dark: np.ndarray) -> Turn:
+        """How the camera turned from `lit` to `dark`: by Gauss–Newton on the room's pixels (three
+        angles, and the room light's gain and offset between the frames: flicker), from where
+        phase correlation of the whole picture puts it (coarse: a whole-pixel shift at the
+        centre), and where that start does not lead to a turn, from no turn. No turn (identity,
+        0 px) where neither explains the difference as a turn does (see TURN_EXPLAINS)."""
+        a, b = self._plane(lit), self._plane(dark)
+        uv = self._fit_uv
+        cols, rows = uv[:, 0].astype(np.intp), uv[:, 1].astype(np.intp)
+        ref = a[rows, cols].astype(np.float64)
+        # Unturned, the room's difference (the light's gain and offset fitted alike).
+        still = b[rows, cols].astype(np.float64)
+        design = np.column_stack([ref, np.ones_like(ref)])
+        fitted = design @ np.linalg.lstsq(design, still, rcond=None)[0]
+        unturned = float(np.sqrt(np.mean((still - fitted) ** 2)))
+        gradients = (cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3, scale=0.125),
+                     cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3, scale=0.125))
+        # A shift (du, dv) at the centre is a turn about the camera's y and x axes.
+        starts = [np.array([-math.atan2(dv, self.cam.fy), math.atan2(du, self.cam.fx), 0.0])
+                  for du, dv in self._shifts(a, b)] + [np.zeros(3)]
+        best = None
+        for start in starts:
+            angles, residual = self._fit(start, ref, b, gradients)
+            rotation = cv2.Rodrigues(angles)[0]
+            shift = self._shift_px(rotation)
+            # A turn that explains no more of the difference than noise could, or only a little
+            # of it (a lit frame's glow and JPEG's blocks are not the room moving: still frames'
+            # fits kept 0.91–0.97 of it, turns of 0.05° or more at most 0.73), or that would
+            # move the picture farther than the fit can reach (a bare wall, whose few gradients
+            # let it wander), is not taken.
+            if (residual < TURN_EXPLAINS * unturned
+                    and ref.size * (unturned**2 - residual**2) > TURN_CHI2 * residual**2
+                    and shift < MAX_SHIFT * max(self.cam.width, self.cam.height)
+                    and (best is None or residual < best.residual)):
+                best = Turn(rotation, shift, residual)
+                if residual < TURN_SURE * unturned:
+                    break  # (else another start may find a deeper fit: a 33 px turn was once taken for 20 px)
+        return best or Turn(np.eye(3), 0.0, unturned)
+
+    def _shifts(self, a: np.ndarray, b: np.ndarray) -> list[tuple[float, float]]:
+        """Where phase correlation puts `b` against `a` (px) at each of PHASE_LEVELS of the
+        picture's pyramid, the surest (by the correlation's peak) first. No one level always
+        finds it: whitening raises the pixel noise, which at full size outweighed a bare view's
+        shapes (100 px off for a 9 px turn), and the smallest pictures lose a fine texture."""
+        out = []
+        small_a, small_b = a, b
+        for level in range(max(PHASE_LEVELS) + 1):
+            if level in PHASE_LEVELS:
+                size = (small_a.shape[1], small_a.shape[0])
+                window = self._windows.get(size)
+                if window is None:
+                    window = self._windows[size] = cv2.createHanningWindow(size, cv2.CV_32F)
+                (du, dv), peak = cv2.phaseCorrelate(small_a, small_b, window)
+                out.append((-peak, du * 2**level, dv * 2**level))
+            small_a, small_b = cv2.pyrDown(small_a), cv2.pyrDown(small_b)
+        return [(du, dv) for _, du, dv in sorted(out)]
+
+    def _fit(self, angles: np.ndarray, ref: np.ndarray, b: np.ndarray,
+             gradients: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:
+        """Gauss–Newton from `angles`: the turn that carries the on frame's samples `ref` (at
+        `_fit_uv`) onto the off frame `b` (with its `gradients`), and the RMS difference left."""
+        uv = self._fit_uv
+        gain, offset = 1.0, 0.0
+        eps = 1e-6
+        residual = float("inf")
+        settled = False
+        for step in range(FIT_STEPS + 1):
+            at = self._mapped(cv2.Rodrigues(angles)[0], uv)
+            mx, my = at[:, 0].astype(np.float32).reshape(1, -1), at[:, 1].astype(np.float32).reshape(1, -1)
+            inside = ((at[:, 0] >= 1) & (at[:, 0] <= self.cam.width - 2) & (at[:, 1] >= 1)
+                      & (at[:, 1] <= self.cam.height - 2))
+            if np.count_nonzero(inside) < uv.shape[0] // 2:
+                return angles, float("inf")  # turned out of the picture
+            seen = cv2.remap(b, mx, my, cv2.INTER_LINEAR).ravel().astype(np.float64)
+            r = (seen - (gain * ref + offset))[inside]
+            residual = float(np.sqrt(np.mean(r * r)))
+            if settled or step == FIT_STEPS:
+                break  # (the residual where it ended)
+            sx, sy = (cv2.remap(g, mx, my, cv2.INTER_LINEAR).ravel().astype(np.float64) for g in gradients)
+            # ∂(u, v)/∂angle, by differences: three small turns more
+            cols = []
+            for k in range(3):
+                nudged = angles.copy()
+                nudged[k] += eps
+                d = (self._mapped(cv2.Rodrigues(nudged)[0], uv) - at) / eps
+                cols.append(sx * d[:, 0] + sy * d[:, 1])
+            jm = np.column_stack([*cols, -ref, -np.ones_like(ref)])[inside]
+            # Huber weights: the spots of the lit frame, and whatever moved in the room, are not the turn.
+            scale = 1.4826 * float(np.median(np.abs(r))) + 1e-9
+            w = np.minimum(1.0, 2.0 * scale / np.maximum(np.abs(r), 1e-12))
+            jw = jm * w[:, None]
+            try:
+                delta = np.linalg.solve(jw.T @ jm, -(jw.T @ r))
+            except np.linalg.LinAlgError:
+                return angles, float("inf")
+            angles = angles + delta[:3]
+            gain, offset = gain + float(delta[3]), offset + float(delta[4])
+            settled = self.cam.fx * float(np.hypot(delta[0], delta[1])) < STEADY_PX
+        return angles, residual
+
+    def turned_back(self, dark: np.ndarray, turn: Turn) -> np.ndarray:
+        """`dark` as the on frame's camera saw it: each pixel the value of the pixel that `turn`
+        carried it to (linear interpolation; the picture's edges repeated where it saw nothing)."""
+        return cv2.warpPerspective(dark, self._homography(turn.rotation), (self.cam.width, self.cam.height),
+                                   flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+
+    def steady(self, lit: Sequence[np.ndarray], dark: Sequence[np.ndarray]
+               ) -> tuple[list[np.ndarray], list[Turn]] | None:
+        """Laser-off frames for the laser-on frames `lit`, turned back onto each, or None where none
+        of `dark` moved against `lit` (the frames are read as they are). One off frame per on frame
+        (the i-th on frame takes off frame i modulo their count), so that the on frames' mean less
+        the off frames' leaves the spots alone however the room moved between them; with the turns
+        found (one per on frame)."""
+        if not lit or not dark:
+            return None
+        pairs = [(lit[0], d) for d in dark] + [(on, dark[i % len(dark)]) for i, on in enumerate(lit) if i]
+        if not any(self.moved(on, off) for on, off in pairs):
+            return None
+        out, turns = [], []
+        for i, on in enumerate(lit):
+            off = dark[i % len(dark)]
+            t = self.turn(on, off)
+            turns.append(t)
+            out.append(off if t.shift_px < LEAST_SHIFT_PX else self.turned_back(off, t))
+        return out, turns
