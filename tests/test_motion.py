@@ -13,6 +13,7 @@ import pytest
 
 from edge.config import load_config
 from edge.errors import ConfigError
+from edge.motion import Turn
 from edge.ranging import Ranger
 from edge.sim.record import scene_for, true_rig
 from edge.sim.render import Renderer
@@ -122,3 +123,18 @@ def test_a_swaying_platform_is_configured_and_checked() -> None:
     for bad, key in (("sim.sway.deg=-1", "deg"), ("sim.sway.hz=0", "hz")):
         with pytest.raises(ConfigError, match=key):
             load_config(None, [bad])
+
+
+def test_a_turn_that_does_not_steady_the_room_is_not_taken() -> None:
+    """The gate's own look decides, after the fit: a still pair turned by a made-up 1 px turn
+    (what a fit to JPEG's blocks of a still dark room once found) is less steady than it was, and
+    a turned pair turned back by its fitted turn is steadier."""
+    ranger = Ranger(_office().rig)
+    steadier = ranger.steadier
+    lit, dark = _pair(-84.375, (0.0, 0.0), 4)
+    made_up = cv2.Rodrigues(np.radians([0.0, 0.11, 0.0]))[0]  # (1 px at 530 px focal length)
+    wrong = steadier.turned_back(dark, Turn(made_up, 1.0, 0.0))
+    assert not steadier._steadier(lit, dark, wrong)
+    lit, dark = _pair(-84.375, (0.3, 0.1), 4)
+    turn = steadier.turn(lit, dark)
+    assert turn.shift_px > 2.0 and steadier._steadier(lit, dark, steadier.turned_back(dark, turn))
