@@ -476,6 +476,11 @@ class Renderer:
         if self._sensor is not None:
             rows = {n: f if np.ndim(f) == 0 else np.asarray(f)[self._isp_rows] for n, f in lasers_on.items()}
             return sim_isp.scaled_frame(self._sensor.render(pan_deg, tilt_deg, rows, t_s, rng, noise))
+        jolt = self.sim.sway.jolt_deg
+        if jolt and not any(np.any(np.asarray(f) > 0) for f in lasers_on.values()):
+            # (a dark frame, turned by `sim.sway.jolt_deg` in a direction of its own)
+            direction = float(rng.uniform(0.0, 2.0 * np.pi))
+            pan_deg, tilt_deg = pan_deg + jolt * np.cos(direction), tilt_deg + jolt * np.sin(direction)
         flicker = 1.0 + self.sim.ambient.flicker * (2.0 * rng.random() - 1.0) if noise else 1.0
         electrons = self.render_electrons(pan_deg, tilt_deg, lasers_on, t_s, flicker)
         return self.digitise(electrons, rng if noise else None)

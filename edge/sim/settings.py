@@ -164,10 +164,15 @@ class SwayConfig:
 
     deg: float = 0.0  # 0: the platform is still
     hz: float = 1.0
+    # Each frame with every laser off taken with the camera turned this much more (degrees), in a
+    # direction drawn afresh for each: a head that rings or a hand that shakes between the lit
+    # frame and the dark one, while the lit frames keep the pose (so that the truth is the pose's).
+    jolt_deg: float = 0.0
 
     def __post_init__(self) -> None:
         require(0 <= self.deg <= 30, "deg", "must be 0-30 degrees")
         require(0 < self.hz <= 50, "hz", "must be in (0, 50] Hz")
+        require(0 <= self.jolt_deg <= 10, "jolt_deg", "must be 0-10 degrees")
 
     def turn(self, t_s: float) -> tuple[float, float]:
         """(pan, tilt) the platform has turned by at the rig's time `t_s` (degrees)."""
