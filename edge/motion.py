@@ -104,6 +104,8 @@ class Steadier:
         self._gate_index: dict[int, np.ndarray] = {}
         fv, fu = _grid(cam, self._clear, FIT_STEP_PX, 2)
         self._fit_uv = np.column_stack([fu, fv]).astype(np.float64)
+        # (their rays, K⁻¹·(u, v, 1): no lens distortion in a turn's homography)
+        self._fit_rays = np.column_stack([(fu - cam.cx) / cam.fx, (fv - cam.cy) / cam.fy, np.ones(fu.size)])
         self._k = np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
         self._k_inv = np.linalg.inv(self._k)
         self._windows: dict[tuple[int, int], np.ndarray] = {}
@@ -215,8 +217,7 @@ class Steadier:
                   for du, dv in self._shifts(a, b)] + [np.zeros(3)]
         best = None
         for start in starts:
-            angles, residual = self._fit(start, ref, b, gradients)
-            rotation = cv2.Rodrigues(angles)[0]
+            rotation, residual = self._fit(cv2.Rodrigues(start)[0], ref, b, gradients)
             shift = self._shift_px(rotation)
             # A turn that explains no more of the difference than noise could, or only a little
             # of it (a lit frame's glow and JPEG's blocks are not the room moving: still frames'
@@ -250,36 +251,37 @@ class Steadier:
             small_a, small_b = cv2.pyrDown(small_a), cv2.pyrDown(small_b)
         return [(du, dv) for _, du, dv in sorted(out)]
 
-    def _fit(self, angles: np.ndarray, ref: np.ndarray, b: np.ndarray,
+    def _fit(self, rotation: np.ndarray, ref: np.ndarray, b: np.ndarray,
              gradients: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:
-        """Gauss–Newton from `angles`: the turn that carries the on frame's samples `ref` (at
-        `_fit_uv`) onto the off frame `b` (with its `gradients`), and the RMS difference left."""
-        uv = self._fit_uv
+        """Gauss–Newton from `rotation`: the turn that carries the on frame's samples `ref` (at
+        `_fit_uv`) onto the off frame `b` (with its `gradients`), and the RMS difference left.
+        Each step turns the rays a little more (R ← exp([δ]×)·R), whose effect on a pixel is
+        known in closed form: one projection a step."""
+        cam = self.cam
+        rays = self._fit_rays
         gain, offset = 1.0, 0.0
-        eps = 1e-6
         residual = float("inf")
         settled = False
         for step in range(FIT_STEPS + 1):
-            at = self._mapped(cv2.Rodrigues(angles)[0], uv)
-            mx, my = at[:, 0].astype(np.float32).reshape(1, -1), at[:, 1].astype(np.float32).reshape(1, -1)
-            inside = ((at[:, 0] >= 1) & (at[:, 0] <= self.cam.width - 2) & (at[:, 1] >= 1)
-                      & (at[:, 1] <= self.cam.height - 2))
-            if np.count_nonzero(inside) < uv.shape[0] // 2:
-                return angles, float("inf")  # turned out of the picture
+            q = rays @ rotation.T
+            x, y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+            mu, mv = cam.fx * x + cam.cx, cam.fy * y + cam.cy
+            inside = (mu >= 1) & (mu <= cam.width - 2) & (mv >= 1) & (mv <= cam.height - 2)
+            if np.count_nonzero(inside) < rays.shape[0] // 2:
+                return rotation, float("inf")  # turned out of the picture
+            mx, my = mu.astype(np.float32).reshape(1, -1), mv.astype(np.float32).reshape(1, -1)
             seen = cv2.remap(b, mx, my, cv2.INTER_LINEAR).ravel().astype(np.float64)
             r = (seen - (gain * ref + offset))[inside]
             residual = float(np.sqrt(np.mean(r * r)))
             if settled or step == FIT_STEPS:
                 break  # (the residual where it ended)
             sx, sy = (cv2.remap(g, mx, my, cv2.INTER_LINEAR).ravel().astype(np.float64) for g in gradients)
-            # ∂(u, v)/∂angle, by differences: three small turns more
-            cols = []
-            for k in range(3):
-                nudged = angles.copy()
-                nudged[k] += eps
-                d = (self._mapped(cv2.Rodrigues(nudged)[0], uv) - at) / eps
-                cols.append(sx * d[:, 0] + sy * d[:, 1])
-            jm = np.column_stack([*cols, -ref, -np.ones_like(ref)])[inside]
+            # ∂(u, v)/∂δ of a ray turned by δ × itself: u = fx·x + cx with x = q_x/q_z, so
+            # ∂x/∂δ = (−x·y, 1 + x², −y) and ∂y/∂δ = (−1 − y², x·y, x)
+            xy = x * y
+            gu, gv = sx * cam.fx, sy * cam.fy
+            jm = np.column_stack([-gu * xy - gv * (1.0 + y * y), gu * (1.0 + x * x) + gv * xy, gv * x - gu * y,
+                                  -ref, -np.ones_like(ref)])[inside]
             # Huber weights: the spots of the lit frame, and whatever moved in the room, are not the turn.
             scale = 1.4826 * float(np.median(np.abs(r))) + 1e-9
             w = np.minimum(1.0, 2.0 * scale / np.maximum(np.abs(r), 1e-12))
@@ -287,11 +289,11 @@ class Steadier:
             try:
                 delta = np.linalg.solve(jw.T @ jm, -(jw.T @ r))
             except np.linalg.LinAlgError:
-                return angles, float("inf")
-            angles = angles + delta[:3]
+                return rotation, float("inf")
+            rotation = cv2.Rodrigues(delta[:3])[0] @ rotation
             gain, offset = gain + float(delta[3]), offset + float(delta[4])
-            settled = self.cam.fx * float(np.hypot(delta[0], delta[1])) < STEADY_PX
-        return angles, residual
+            settled = cam.fx * float(np.hypot(delta[0], delta[1])) < STEADY_PX
+        return rotation, residual
 
     def turned_back(self, dark: np.ndarray, turn: Turn) -> np.ndarray:
         """`dark` as the on frame's camera saw it: each pixel the value of the pixel that `turn`
