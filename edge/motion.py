@@ -7,10 +7,11 @@ difference keeps the room's edges. They raise the noise that spots must stand ab
 centroids of those that do: on the office, the off frame turned 0.1° (1 px) lost 5 of 60 `ok`
 zones and put four 3–5 % off; turned 1°, 21 were lost.
 
-`Steadier` tells, for a few tens of microseconds a pair, whether a laser-off frame moved against its
-laser-on frame: a Lucas–Kanade step on a sparse grid of pixels away from the laser paths, at three
-baselines (1, 4 and 12 px: sub-pixel ringing to a few degrees' turn), against what the pixel noise
-alone gives. Where one did, it finds how the camera turned between them (a rotation: the homography
+`Steadier` tells, for about 20 µs a pair, whether a laser-off frame moved against its laser-on
+frame, from a sparse grid of pixels away from the laser paths: a Lucas–Kanade step at baselines of
+1 and 4 px against what the pixel noise alone gives (sub-pixel ringing to a few pixels), and the
+difference's energy against the frames' own steps from pixel to pixel (a turn larger than the
+texture's grain). Where one did, it finds how the camera turned between them (a rotation: the homography
 K·R·K⁻¹ moves the whole room, parallax aside), coarse by phase correlation and then by Gauss–Newton on
 the same grid made dense, and turns the off frame back onto the on frame. A lit frame is never
 moved: its spots are where the ranging reads them. Pure (numpy and OpenCV).
@@ -30,15 +31,16 @@ from edge.rig import CameraModel
 # The gate: baselines (px) of the gradients that the difference is set against; a pair moved where
 # the difference that one explains is this many times the noise's (χ² with 2 degrees of freedom:
 # 14 at 1 in 1000). Still frames of the office came to at most 31 over 90 pairs; turned 0.02°
-# (0.2 px), at least 176.
-GATE_BASELINES_PX = (1, 4, 12)
+# (0.2 px), at least 176. (A third baseline, 12 px, found no turn that these and the energy below
+# missed, on the office turned 0.02–2°, and cost a fifth of the gate.)
+GATE_BASELINES_PX = (1, 4)
 GATE_CHI2 = 100.0
 # ... and where the difference's energy is this many times that of neighbouring pixels' differences
 # within the frames (still frames: 0.02–0.7 on the office and kitchen, to 1.1 through the Pi
 # camera's ISP, whose noise neighbouring pixels share; turned 2°, 1.8–31).
 GATE_ENERGY = 2.0
 GATE_SAMPLES = 500  # (about: a grid over the picture, less the laser paths)
-GATE_MARGIN_PX = 12  # (a gate sample is at least this far from the picture's edge: its farthest neighbour)
+GATE_MARGIN_PX = 4  # (a gate sample is at least this far from the picture's edge: its farthest neighbour)
 # Pixels at least this far from every laser path only are read by the gate and the fit (spots are
 # not the room).
 PATH_CLEARANCE_PX = 12
