@@ -348,7 +348,6 @@ class Ranger:
         self._near_path = {name: self.finder.strips.path_mask(name, DEBLEND_PX + 1.5) for name in self.finder.bands}
         self._inv_depths = self.finder.strips.inv_depth_range()
         self.steadier = Steadier(rig.camera, [b.path for b in self.finder.bands.values()])
-        self.turns: list[float] = []  # the last zone's turns between its laser-on and laser-off frames (px)
 
     def linear(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
         """The frame groups with `frame_gamma`'s curve undone: 16-bit values proportional to light
@@ -365,8 +364,8 @@ class Ranger:
     def steadied(self, groups: Sequence[FrameGroup]) -> list[FrameGroup]:
         """The frame groups with their laser-off frames turned back onto their laser-on frames where
         the room moved between them (`edge.motion`: a rig that turns, or is carried, while it
-        ranges); as they are where it did not. `turns` keeps how far each moved (px)."""
-        out, self.turns = [], []
+        ranges); as they are where it did not."""
+        out = []
         for g in groups:
             steady = self.steadier.steady(g.on, g.off)
             if steady is None:
@@ -374,7 +373,6 @@ class Ranger:
                 continue
             self.finder.told_by(g.off[0])  # (as delivered: interpolation hides JPEG's blocks)
             out.append(replace(g, off=steady[0]))
-            self.turns.extend(t.shift_px for t in steady[1])
         return out
 
     def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:
