@@ -307,10 +307,10 @@ class Steadier:
     def steady(self, lit: Sequence[np.ndarray], dark: Sequence[np.ndarray]
                ) -> tuple[list[np.ndarray], list[Turn]] | None:
         """Laser-off frames for the laser-on frames `lit`, turned back onto each, or None where none
-        of `dark` moved against `lit` (the frames are read as they are). One off frame per on frame
-        (the i-th on frame takes off frame i modulo their count), so that the on frames' mean less
-        the off frames' leaves the spots alone however the room moved between them; with the turns
-        found (one per on frame)."""
+        of `dark` moved against `lit` or no turn was taken (the frames are then read as they
+        came). One off frame per on frame (the i-th on frame takes off frame i modulo their
+        count), so that the on frames' mean less the off frames' leaves the spots alone however
+        the room moved between them; with the turns found (one per on frame)."""
         if not lit or not dark:
             return None
         pairs = [(lit[0], d) for d in dark] + [(on, dark[i % len(dark)]) for i, on in enumerate(lit) if i]
@@ -328,6 +328,8 @@ class Steadier:
                     continue
             out.append(off)
             turns.append(Turn(np.eye(3), 0.0, t.residual))
+        if not any(t.shift_px for t in turns):
+            return None  # (no turn taken: every off frame as it came, not one per on frame)
         return out, turns
 
     def _steadier(self, lit: np.ndarray, dark: np.ndarray, back: np.ndarray) -> bool:

@@ -138,3 +138,13 @@ def test_a_turn_that_does_not_steady_the_room_is_not_taken() -> None:
     lit, dark = _pair(-84.375, (0.3, 0.1), 4)
     turn = steadier.turn(lit, dark)
     assert turn.shift_px > 2.0 and steadier._steadier(lit, dark, steadier.turned_back(dark, turn))
+
+
+def test_a_group_whose_turns_are_all_refused_keeps_every_laser_off_frame() -> None:
+    """Two laser-off frames for one laser-on frame, the gate fooled into looking (a made-up turn
+    refused): the group is read as it came, both off frames, not one per on frame."""
+    steadier = Ranger(_office().rig).steadier
+    lit, dark = _pair(-84.375, (0.0, 0.0), 6)
+    _, other = _pair(-84.375, (0.0, 0.0), 7)
+    steadier.moved = lambda on, off: True  # type: ignore[method-assign]  # (the gate fooled)
+    assert steadier.steady([lit], [dark, other]) is None
