@@ -46,7 +46,7 @@ GATE_MARGIN_PX = 4  # (a gate sample is at least this far from the picture's edg
 PATH_CLEARANCE_PX = 12
 # The fit: a grid of this step (px) over the picture; this many Gauss–Newton steps at most, ending when
 # the turn moves the picture's centre by less than STEADY_PX.
-FIT_STEP_PX = 6
+FIT_STEP_PX = 8
 FIT_STEPS = 8
 STEADY_PX = 0.01
 PHASE_LEVELS = (1, 2, 3)  # the pyramid levels whose phase correlation may start the fit (surest first)
