@@ -238,18 +238,18 @@ class SpotFinder:
         """Told, before the first frames of a sweep are found in, a frame as the camera delivered
         it where the frames the finder is given were made linear from it (ranging's
         `frame_gamma`): whether it is JPEG's, and the step of its values, are read from it."""
-        if self._jpeg is None:
-            self._jpeg = jpeg_blockiness(frame) > JPEG_BLOCKINESS
         self._delivered_scale = self.full_scale(frame)
         # Through a curve, the gaps between delivered values are the curve's (a steep toe spreads
         # the shadows' few levels apart), not the sensor's: one level of the delivered scale, as
         # before the values' step was measured.
         self._step = 1.0
+        self.told_by(frame)  # (JPEG or not; the step is told above)
 
     def told_by(self, frame: np.ndarray) -> None:
-        """Told, before frames that were turned back onto others (`edge.motion`) are found in, a
-        laser-off frame as the camera delivered it: whether it is JPEG's, and the step of its
-        values, which interpolation would hide (once: as `find` tells them from its first)."""
+        """Told, once, by a laser-off frame as the camera delivered it, whether the frames are
+        JPEG's and the step of their values (1 where `delivered` told it first): `find` tells
+        them by its first; frames turned back onto others (`edge.motion`), whose interpolation
+        hides both, are told by the frame before it."""
         if self._jpeg is None:
             self._jpeg = jpeg_blockiness(frame) > JPEG_BLOCKINESS
         if self._step is None:
@@ -408,15 +408,12 @@ class SpotFinder:
             if rho is not None:
                 self._chroma_lag2.append(rho)
                 self._weights = self._auto_weights(self._chroma_lag2)
-        if self._jpeg is None:  # told once, by the first laser-off frame
-            self._jpeg = jpeg_blockiness(off[0]) > JPEG_BLOCKINESS
+        self.told_by(off[0])  # (JPEG or not, and the values' step: once, by the first laser-off frame)
         if not self._aside and on[0].ndim == 3 and not self._jpeg and self._pair_looks < AUTO_GROUPS:
             self._pair_looks += 1
             self._paired = self._pairs_told(self._pair_steps, on[0], off[0])
         diff, off_vals, gain, off_level = self._difference(on, off)
         centre, deviation, noise = self._spread(diff)
-        if self._step is None:  # told once, by the first laser-off frame (or 1: `delivered`)
-            self._step = value_step(off[0])
         quantum = self._quantum(on[0], off[0], len(on))
         noise = max(noise, quantum)  # quantisation
         # Shot noise grows with the signal: estimate its scale from the background, whose
