@@ -106,7 +106,7 @@ class Steadier:
         self._next = np.array([1, 1 + 2 * nb])
         self._gate_index: dict[int, np.ndarray] = {}
         fv, fu = _grid(cam, self._clear, FIT_STEP_PX, 2)
-        self._fit_uv = np.column_stack([fu, fv]).astype(np.float64)
+        self._fit_v, self._fit_u = fv, fu
         # (their rays, K⁻¹·(u, v, 1): no lens distortion in a turn's homography)
         self._fit_rays = np.column_stack([(fu - cam.cx) / cam.fx, (fv - cam.cy) / cam.fy, np.ones(fu.size)])
         self._k = np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
@@ -129,8 +129,7 @@ class Steadier:
     def moved(self, lit: np.ndarray, dark: np.ndarray) -> bool:
         """Did the room move between `lit` and `dark`, by what it leaves in their difference?
         (`_score` over either of its lines.)"""
-        energy, explained = self._score(lit, dark)
-        return energy > GATE_ENERGY or explained > GATE_CHI2
+        return _moving(self._score(lit, dark))
 
     def _score(self, lit: np.ndarray, dark: np.ndarray) -> tuple[float, float]:
         """What the room's moving between `lit` and `dark` leaves in their difference: its energy
@@ -205,8 +204,7 @@ class Steadier:
         centre), and where that start does not lead to a turn, from no turn. No turn (identity,
         0 px) where neither explains the difference as a turn does (see TURN_EXPLAINS)."""
         a, b = self._plane(lit), self._plane(dark)
-        uv = self._fit_uv
-        cols, rows = uv[:, 0].astype(np.intp), uv[:, 1].astype(np.intp)
+        rows, cols = self._fit_v, self._fit_u
         ref = a[rows, cols].astype(np.float64)
         # Unturned, the room's difference (the light's gain and offset fitted alike).
         still = b[rows, cols].astype(np.float64)
@@ -257,7 +255,7 @@ class Steadier:
     def _fit(self, rotation: np.ndarray, ref: np.ndarray, b: np.ndarray,
              gradients: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:
         """Gauss–Newton from `rotation`: the turn that carries the on frame's samples `ref` (at
-        `_fit_uv`) onto the off frame `b` (with its `gradients`), and the RMS difference left.
+        `_fit_v`, `_fit_u`) onto the off frame `b` (with its `gradients`), and the RMS difference left.
         Each step turns the rays a little more (R ← exp([δ]×)·R), whose effect on a pixel is
         known in closed form: one projection a step."""
         cam = self.cam
@@ -304,39 +302,42 @@ class Steadier:
         return cv2.warpPerspective(dark, self._homography(turn.rotation), (self.cam.width, self.cam.height),
                                    flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
 
-    def steady(self, lit: Sequence[np.ndarray], dark: Sequence[np.ndarray]
-               ) -> tuple[list[np.ndarray], list[Turn]] | None:
+    def steady(self, lit: Sequence[np.ndarray], dark: Sequence[np.ndarray]) -> list[np.ndarray] | None:
         """Laser-off frames for the laser-on frames `lit`, turned back onto each, or None where none
         of `dark` moved against `lit` or no turn was taken (the frames are then read as they
         came). One off frame per on frame (the i-th on frame takes off frame i modulo their
         count), so that the on frames' mean less the off frames' leaves the spots alone however
-        the room moved between them; with the turns found (one per on frame)."""
+        the room moved between them."""
         if not lit or not dark:
             return None
-        pairs = [(lit[0], d) for d in dark] + [(on, dark[i % len(dark)]) for i, on in enumerate(lit) if i]
-        if not any(self.moved(on, off) for on, off in pairs):
+        paired = [dark[i % len(dark)] for i in range(len(lit))]
+        scores = [self._score(on, off) for on, off in zip(lit, paired)]  # (the gate's, kept for `_steadier`)
+        if not any(_moving(score) for score in scores) and not any(self.moved(lit[0], d) for d in dark[1:]):
             return None
-        out, turns = [], []
-        for i, on in enumerate(lit):
-            off = dark[i % len(dark)]
+        out, taken = [], False
+        for on, off, score in zip(lit, paired, scores):
             t = self.turn(on, off)
             if t.shift_px >= LEAST_SHIFT_PX:
                 back = self.turned_back(off, t)
-                if self._steadier(on, off, back):
+                if self._steadier(on, back, score):
                     out.append(back)
-                    turns.append(t)
+                    taken = True
                     continue
             out.append(off)
-            turns.append(Turn(np.eye(3), 0.0, t.residual))
-        if not any(t.shift_px for t in turns):
-            return None  # (no turn taken: every off frame as it came, not one per on frame)
-        return out, turns
+        return out if taken else None  # (no turn taken: every off frame as it came, not one per on frame)
 
-    def _steadier(self, lit: np.ndarray, dark: np.ndarray, back: np.ndarray) -> bool:
-        """Is `back` (`dark` turned back) steadier against `lit` than `dark` was, by the gate's own
-        look: less of the difference's energy, and no more of it along the room's gradient (or no
-        more than the gate lets pass)? A turn fitted to what is not the room moving (JPEG's
-        blocks of a still dark room: a 1 px turn, tuning-23 zone 3) turns the room off."""
-        energy, explained = self._score(lit, dark)
+    def _steadier(self, lit: np.ndarray, back: np.ndarray, before: tuple[float, float]) -> bool:
+        """Is `back` (an off frame turned back) steadier against `lit` than the off frame was, whose
+        `_score` was `before`: less of the difference's energy, and no more of it along the room's
+        gradient (or no more than the gate lets pass)? A turn fitted to what is not the room
+        moving (JPEG's blocks of a still dark room: a 1 px turn, tuning-23 zone 3) turns the room
+        off."""
+        energy, explained = before
         energy_back, explained_back = self._score(lit, back)
         return energy_back < energy and explained_back < max(explained, GATE_CHI2)
+
+
+def _moving(score: tuple[float, float]) -> bool:
+    """Does a `Steadier._score` say the room moved (either test over its line)?"""
+    energy, explained = score
+    return energy > GATE_ENERGY or explained > GATE_CHI2

@@ -372,7 +372,7 @@ class Ranger:
                 out.append(g)
                 continue
             self.finder.told_by(g.off[0])  # (as delivered: interpolation hides JPEG's blocks)
-            out.append(replace(g, off=steady[0]))
+            out.append(replace(g, off=steady))
         return out
 
     def range_zone(self, index: int, pan_deg: float, tilt_deg: float, groups: Sequence[FrameGroup]) -> ZoneResult:

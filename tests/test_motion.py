@@ -134,17 +134,23 @@ def test_a_turn_that_does_not_steady_the_room_is_not_taken() -> None:
     lit, dark = _pair(-84.375, (0.0, 0.0), 4)
     made_up = cv2.Rodrigues(np.radians([0.0, 0.11, 0.0]))[0]  # (1 px at 530 px focal length)
     wrong = steadier.turned_back(dark, Turn(made_up, 1.0, 0.0))
-    assert not steadier._steadier(lit, dark, wrong)
+    assert not steadier._steadier(lit, wrong, steadier._score(lit, dark))
     lit, dark = _pair(-84.375, (0.3, 0.1), 4)
     turn = steadier.turn(lit, dark)
-    assert turn.shift_px > 2.0 and steadier._steadier(lit, dark, steadier.turned_back(dark, turn))
+    assert turn.shift_px > 2.0 and steadier._steadier(lit, steadier.turned_back(dark, turn), steadier._score(lit, dark))
 
 
 def test_a_group_whose_turns_are_all_refused_keeps_every_laser_off_frame() -> None:
-    """Two laser-off frames for one laser-on frame, the gate fooled into looking (a made-up turn
-    refused): the group is read as it came, both off frames, not one per on frame."""
+    """A lamp that brightens a corner of the room between the frames (60 levels at its middle,
+    fading over 90 px) fires the gate, and no turn explains it: the group, one laser-on frame and
+    two laser-off frames, is read as it came (both off frames, not one per on frame)."""
     steadier = Ranger(_office().rig).steadier
-    lit, dark = _pair(-84.375, (0.0, 0.0), 6)
-    _, other = _pair(-84.375, (0.0, 0.0), 7)
-    steadier.moved = lambda on, off: True  # type: ignore[method-assign]  # (the gate fooled)
-    assert steadier.steady([lit], [dark, other]) is None
+    v, u = np.mgrid[0:480, 0:640]
+    glow = 60.0 * np.exp(-((u - 160) ** 2 + (v - 120) ** 2) / (2 * 90.0**2))
+    for pan in (-84.375, 0.0, 56.25):
+        lit, dark = _pair(pan, (0.0, 0.0), 6)
+        _, other = _pair(pan, (0.0, 0.0), 7)
+        lamp = np.clip(dark + glow[..., None], 0, 255).astype(np.uint8)
+        assert steadier.moved(lit, lamp), pan
+        assert steadier.turn(lit, lamp).shift_px == 0.0, pan
+        assert steadier.steady([lit], [lamp, other]) is None, pan
