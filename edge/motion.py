@@ -20,7 +20,7 @@ moved: its spots are where the ranging reads them. Pure (numpy and OpenCV).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -44,12 +44,17 @@ GATE_MARGIN_PX = 4  # (a gate sample is at least this far from the picture's edg
 # Pixels at least this far from every laser path only are read by the gate and the fit (spots are
 # not the room).
 PATH_CLEARANCE_PX = 12
-# The fit: a grid of this step (px) over the picture; this many Gauss–Newton steps at most, ending when
-# the turn moves the picture's centre by less than STEADY_PX.
+# The fit: a grid of this step (px) over the picture; Gauss–Newton steps, at most FIT_STEPS, first on
+# every COARSE_EVERY-th row and column of it until a step moves the picture's centre by less than
+# COARSE_STEADY_PX (a step's cost is the samples it reads, and far from the turn a sparse grid
+# leads as well), then on the whole grid until a step moves it by less than STEADY_PX.
 FIT_STEP_PX = 8
 FIT_STEPS = 8
+COARSE_EVERY = 2
+COARSE_STEADY_PX = 0.1
 STEADY_PX = 0.01
 PHASE_LEVELS = (1, 2, 3)  # the pyramid levels whose phase correlation may start the fit (surest first)
+AGREE_PX = 3.0  # (full-size px: the smallest level's shift is known to about a pixel of its own, 8 of these)
 # A turn that moves no pixel of the picture by this much is no turn: the frames are left as they are.
 LEAST_SHIFT_PX = 0.05
 # A turn is taken where it explains this many times the noise's share of the unturned difference
@@ -107,8 +112,10 @@ class Steadier:
         self._gate_index: dict[int, np.ndarray] = {}
         fv, fu = _grid(cam, self._clear, FIT_STEP_PX, 2)
         self._fit_v, self._fit_u = fv, fu
+        self._coarse = ((fv - 2) // FIT_STEP_PX % COARSE_EVERY == 0) & ((fu - 2) // FIT_STEP_PX % COARSE_EVERY == 0)
         # (their rays, K⁻¹·(u, v, 1): no lens distortion in a turn's homography)
         self._fit_rays = np.column_stack([(fu - cam.cx) / cam.fx, (fv - cam.cy) / cam.fy, np.ones(fu.size)])
+        self._coarse_rays = self._fit_rays[self._coarse]
         self._k = np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
         self._k_inv = np.linalg.inv(self._k)
         self._windows: dict[tuple[int, int], np.ndarray] = {}
@@ -208,16 +215,16 @@ class Steadier:
         ref = a[rows, cols].astype(np.float64)
         # Unturned, the room's difference (the light's gain and offset fitted alike).
         still = b[rows, cols].astype(np.float64)
-        design = np.column_stack([ref, np.ones_like(ref)])
-        fitted = design @ np.linalg.lstsq(design, still, rcond=None)[0]
-        unturned = float(np.sqrt(np.mean((still - fitted) ** 2)))
+        ref_c, still_c = ref - ref.mean(), still - still.mean()
+        var_ref, cov = float(ref_c.dot(ref_c)), float(ref_c.dot(still_c))
+        left = float(still_c.dot(still_c)) - (cov * cov / var_ref if var_ref > 0.0 else 0.0)
+        unturned = math.sqrt(max(left, 0.0) / ref.size)
         gradients = (cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3, scale=0.125),
                      cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3, scale=0.125))
-        # A shift (du, dv) at the centre is a turn about the camera's y and x axes.
-        starts = [np.array([-math.atan2(dv, self.cam.fy), math.atan2(du, self.cam.fx), 0.0])
-                  for du, dv in self._shifts(a, b)] + [np.zeros(3)]
         best = None
-        for start in starts:
+        for du, dv in self._shifts(a, b):
+            # A shift (du, dv) at the centre is a turn about the camera's y and x axes.
+            start = np.array([-math.atan2(dv, self.cam.fy), math.atan2(du, self.cam.fx), 0.0])
             rotation, residual = self._fit(cv2.Rodrigues(start)[0], ref, b, gradients)
             shift = self._shift_px(rotation)
             # A turn that explains no more of the difference than noise could, or only a little
@@ -234,33 +241,66 @@ class Steadier:
                     break  # (else another start may find a deeper fit: a 33 px turn was once taken for 20 px)
         return best or Turn(np.eye(3), 0.0, unturned)
 
-    def _shifts(self, a: np.ndarray, b: np.ndarray) -> list[tuple[float, float]]:
-        """Where phase correlation puts `b` against `a` (px) at each of PHASE_LEVELS of the
-        picture's pyramid, the surest (by the correlation's peak) first. No one level always
-        finds it: whitening raises the pixel noise, which at full size outweighed a bare view's
-        shapes (100 px off for a 9 px turn), and the smallest pictures lose a fine texture."""
-        out = []
-        small_a, small_b = a, b
-        for level in range(max(PHASE_LEVELS) + 1):
-            if level in PHASE_LEVELS:
-                size = (small_a.shape[1], small_a.shape[0])
-                window = self._windows.get(size)
-                if window is None:
-                    window = self._windows[size] = cv2.createHanningWindow(size, cv2.CV_32F)
-                (du, dv), peak = cv2.phaseCorrelate(small_a, small_b, window)
-                out.append((-peak, du * 2**level, dv * 2**level))
+    def _shifts(self, a: np.ndarray, b: np.ndarray) -> Iterator[tuple[float, float]]:
+        """Where phase correlation puts `b` against `a` (px) at each level of the picture's
+        pyramid (PHASE_LEVELS), the surest (by the correlation's peak) first, then no shift. No
+        one level always finds it: whitening raises the pixel noise, which at full size
+        outweighed a bare view's shapes (100 px off for a 9 px turn), and the smallest pictures
+        lose a fine texture. The half-size picture costs twice as much as the smaller two
+        together: where those two agree, their shifts come first, and it only where `turn` asks
+        for more (no start before it led to a sure turn)."""
+        half = cv2.pyrDown(a), cv2.pyrDown(b)
+        small_a, small_b = half
+        found = []
+        for level in range(2, max(PHASE_LEVELS) + 1):
             small_a, small_b = cv2.pyrDown(small_a), cv2.pyrDown(small_b)
-        return [(du, dv) for _, du, dv in sorted(out)]
+            if level in PHASE_LEVELS:
+                found.append(self._phase(small_a, small_b, level))
+        agree = len(found) > 1 and all(math.hypot(du - found[0][1], dv - found[0][2]) <= AGREE_PX
+                                       for _, du, dv in found[1:])
+        if agree:
+            for _, du, dv in sorted(found):
+                yield du, dv
+            found = []
+        if 1 in PHASE_LEVELS:
+            found.append(self._phase(*half, 1))
+        for _, du, dv in sorted(found):
+            yield du, dv
+        yield 0.0, 0.0
+
+    def _phase(self, a: np.ndarray, b: np.ndarray, level: int) -> tuple[float, float, float]:
+        """(−peak, du, dv): phase correlation of pyramid level `level`'s `a` and `b`, its shift
+        in full-size pixels."""
+        size = (a.shape[1], a.shape[0])
+        window = self._windows.get(size)
+        if window is None:
+            window = self._windows[size] = cv2.createHanningWindow(size, cv2.CV_32F)
+        (du, dv), peak = cv2.phaseCorrelate(a, b, window)
+        return -peak, du * 2**level, dv * 2**level
 
     def _fit(self, rotation: np.ndarray, ref: np.ndarray, b: np.ndarray,
              gradients: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:
         """Gauss–Newton from `rotation`: the turn that carries the on frame's samples `ref` (at
-        `_fit_v`, `_fit_u`) onto the off frame `b` (with its `gradients`), and the RMS difference left.
-        Each step turns the rays a little more (R ← exp([δ]×)·R), whose effect on a pixel is
-        known in closed form: one projection a step."""
+        `_fit_v`, `_fit_u`) onto the off frame `b` (with its `gradients`), and the RMS difference
+        left. The first steps, far from the turn, are taken on a sparser grid (COARSE_EVERY):
+        a step costs as many samples as it reads, and the turn it finds there is only a start."""
+        rotation, gain, offset, residual = self._steps(rotation, 1.0, 0.0, self._coarse_rays, ref[self._coarse], b,
+                                                       gradients, COARSE_STEADY_PX)
+        if not math.isfinite(residual):
+            return rotation, residual
+        rotation, _, _, residual = self._steps(rotation, gain, offset, self._fit_rays, ref, b, gradients, STEADY_PX)
+        return rotation, residual
+
+    def _steps(self, rotation: np.ndarray, gain: float, offset: float, rays: np.ndarray, ref: np.ndarray,
+               b: np.ndarray, gradients: tuple[np.ndarray, np.ndarray],
+               steady_px: float) -> tuple[np.ndarray, float, float, float]:
+        """Gauss–Newton steps from `rotation` and the light's `gain` and `offset` on the samples
+        whose rays are `rays` and whose values in the on frame are `ref`, until a step moves the
+        picture's centre by less than `steady_px` (at most FIT_STEPS): the rotation, gain and
+        offset, and the RMS difference left (inf where the turn left the picture). Each step
+        turns the rays a little more (R ← exp([δ]×)·R), whose effect on a pixel is known in
+        closed form: one projection a step."""
         cam = self.cam
-        rays = self._fit_rays
-        gain, offset = 1.0, 0.0
         residual = float("inf")
         settled = False
         for step in range(FIT_STEPS + 1):
@@ -268,33 +308,42 @@ class Steadier:
             x, y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
             mu, mv = cam.fx * x + cam.cx, cam.fy * y + cam.cy
             inside = (mu >= 1) & (mu <= cam.width - 2) & (mv >= 1) & (mv <= cam.height - 2)
-            if np.count_nonzero(inside) < rays.shape[0] // 2:
-                return rotation, float("inf")  # turned out of the picture
+            kept = np.count_nonzero(inside)
+            if kept < rays.shape[0] // 2:
+                return rotation, gain, offset, float("inf")  # turned out of the picture
+            seen_ref = ref
+            if kept < inside.size:  # (the samples that stay inside only, from here on)
+                x, y, mu, mv, seen_ref = x[inside], y[inside], mu[inside], mv[inside], ref[inside]
             mx, my = mu.astype(np.float32).reshape(1, -1), mv.astype(np.float32).reshape(1, -1)
             seen = cv2.remap(b, mx, my, cv2.INTER_LINEAR).ravel().astype(np.float64)
-            r = (seen - (gain * ref + offset))[inside]
-            residual = float(np.sqrt(np.mean(r * r)))
+            r = seen - (gain * seen_ref + offset)
+            residual = math.sqrt(float(r.dot(r)) / r.size)
             if settled or step == FIT_STEPS:
                 break  # (the residual where it ended)
             sx, sy = (cv2.remap(g, mx, my, cv2.INTER_LINEAR).ravel().astype(np.float64) for g in gradients)
             # ∂(u, v)/∂δ of a ray turned by δ × itself: u = fx·x + cx with x = q_x/q_z, so
-            # ∂x/∂δ = (−x·y, 1 + x², −y) and ∂y/∂δ = (−1 − y², x·y, x)
+            # ∂x/∂δ = (−x·y, 1 + x², −y) and ∂y/∂δ = (−1 − y², x·y, x); then the light's gain and offset.
             xy = x * y
             gu, gv = sx * cam.fx, sy * cam.fy
-            jm = np.column_stack([-gu * xy - gv * (1.0 + y * y), gu * (1.0 + x * x) + gv * xy, gv * x - gu * y,
-                                  -ref, -np.ones_like(ref)])[inside]
+            jacobian = np.empty((5, r.size))
+            jacobian[0] = -gu * xy - gv * (1.0 + y * y)
+            jacobian[1] = gu * (1.0 + x * x) + gv * xy
+            jacobian[2] = gv * x - gu * y
+            jacobian[3] = -seen_ref
+            jacobian[4] = -1.0
             # Huber weights: the spots of the lit frame, and whatever moved in the room, are not the turn.
-            scale = 1.4826 * float(np.median(np.abs(r))) + 1e-9
-            w = np.minimum(1.0, 2.0 * scale / np.maximum(np.abs(r), 1e-12))
-            jw = jm * w[:, None]
+            size = np.abs(r)
+            scale = 1.4826 * _median(size) + 1e-9
+            w = np.minimum(1.0, 2.0 * scale / np.maximum(size, 1e-12))
+            weighted = jacobian * w
             try:
-                delta = np.linalg.solve(jw.T @ jm, -(jw.T @ r))
+                delta = np.linalg.solve(weighted @ jacobian.T, -(weighted @ r))
             except np.linalg.LinAlgError:
-                return rotation, float("inf")
+                return rotation, gain, offset, float("inf")
             rotation = cv2.Rodrigues(delta[:3])[0] @ rotation
             gain, offset = gain + float(delta[3]), offset + float(delta[4])
-            settled = cam.fx * float(np.hypot(delta[0], delta[1])) < STEADY_PX
-        return rotation, residual
+            settled = cam.fx * float(np.hypot(delta[0], delta[1])) < steady_px
+        return rotation, gain, offset, residual
 
     def turned_back(self, dark: np.ndarray, turn: Turn) -> np.ndarray:
         """`dark` as the on frame's camera saw it: each pixel the value of the pixel that `turn`
@@ -335,6 +384,17 @@ class Steadier:
         energy, explained = before
         energy_back, explained_back = self._score(lit, back)
         return energy_back < energy and explained_back < max(explained, GATE_CHI2)
+
+
+def _median(values: np.ndarray) -> float:
+    """The median of `values` (1-D), as np.median gives it, without its checks (a few µs a call
+    in a fit's every step)."""
+    n = values.size
+    k = n // 2
+    if n % 2:
+        return float(np.partition(values, k)[k])
+    lo, hi = np.partition(values, (k - 1, k))[k - 1 : k + 1].tolist()
+    return (lo + hi) / 2.0
 
 
 def _moving(score: tuple[float, float]) -> bool:
