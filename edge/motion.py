@@ -33,7 +33,7 @@ from edge.rig import CameraModel
 # 14 at 1 in 1000). Still frames of the office came to at most 31 over 90 pairs; turned 0.02°
 # (0.2 px), at least 176. (A third baseline, 12 px, found no turn that these and the energy below
 # missed, on the office turned 0.02–2°, and cost a fifth of the gate.)
-GATE_BASELINES_PX = (1, 4)
+GATE_BASELINES_PX = (1, 4)  # (the first 1 px: its neighbours ahead are the next pixels right and down)
 GATE_CHI2 = 100.0
 # ... and where the difference's energy is this many times that of neighbouring pixels' differences
 # within the frames (still frames: 0.02–0.7 on the office and kitchen, to 1.1 through the Pi
@@ -101,14 +101,12 @@ class Steadier:
         step = max(8, int(math.sqrt(cam.width * cam.height / GATE_SAMPLES)))
         v, u = _grid(cam, self._clear, step, GATE_MARGIN_PX + 1)
         self._gate_n = v.size
-        offsets = [(0, 0)] + [(s * b, 0) for b in GATE_BASELINES_PX for s in (1, -1)] \
-            + [(0, s * b) for b in GATE_BASELINES_PX for s in (1, -1)]
+        # Rows of a gather: the grid's pixels; their neighbours ahead at each baseline, along u then
+        # v; then those behind, alike (so that ahead less behind is one subtraction of two blocks, and
+        # the first baseline's neighbours ahead, 1 px, are the next pixels right and down).
+        ahead = [(b, 0) for b in GATE_BASELINES_PX] + [(0, b) for b in GATE_BASELINES_PX]
+        offsets = [(0, 0)] + ahead + [(-du, -dv) for du, dv in ahead]
         self._gate_pixels = np.concatenate([(v + dv) * cam.width + (u + du) for du, dv in offsets])
-        nb = len(GATE_BASELINES_PX)
-        # rows of a gather: each baseline's neighbours ahead and behind, u then v; the next pixel right and down
-        self._ahead = np.array([1 + 2 * k for k in range(nb)] + [1 + 2 * nb + 2 * k for k in range(nb)])
-        self._behind = self._ahead + 1
-        self._next = np.array([1, 1 + 2 * nb])
         self._gate_index: dict[int, np.ndarray] = {}
         fv, fu = _grid(cam, self._clear, FIT_STEP_PX, 2)
         self._fit_v, self._fit_u = fv, fu
@@ -122,14 +120,16 @@ class Steadier:
 
     # --- the gate ---------------------------------------------------------------------------------
 
-    def _gather(self, image: np.ndarray) -> np.ndarray:
-        """The gate's samples of `image`'s read plane (red of BGR: the grid's pixels and their
-        neighbours at each baseline), float32, (1 + 4·baselines, samples)."""
+    def _gather(self, image: np.ndarray, neighbours: bool = True) -> np.ndarray:
+        """The gate's samples of `image`'s read plane (red of BGR), float32: the grid's pixels and,
+        with `neighbours`, theirs at each baseline ((1 + 4·baselines, samples); else (1, samples))."""
         channels = image.shape[2] if image.ndim == 3 else 1
         index = self._gate_index.get(channels)
         if index is None:
             index = self._gate_pixels * channels + (2 if channels == 3 else 0)
             self._gate_index[channels] = index
+        if not neighbours:
+            index = index[: self._gate_n]
         values = image.reshape(-1).take(index, mode="wrap").astype(np.float32)
         return values.reshape(-1, self._gate_n)
 
@@ -150,15 +150,17 @@ class Steadier:
         between neighbouring pixels, which still frames' noise alone brings to about 1."""
         if self._gate_n < 16:
             return 0.0, 0.0
-        a, b = self._gather(lit), self._gather(dark)
+        a, b = self._gather(lit), self._gather(dark, neighbours=False)[0]
         nb = len(GATE_BASELINES_PX)
         n = float(self._gate_n)
         # The frames' samples less their means (so that no large sums cancel below), and every sum
         # the tests need by one product of these rows with themselves: those two, the lit frame's
-        # gradients at each baseline, and its steps to the next pixel right and down.
-        ac = a[0] - np.float32(float(np.add.reduce(a[0])) / n)
-        bc = b[0] - np.float32(float(np.add.reduce(b[0])) / n)
-        rows = np.concatenate([ac[None], bc[None], a[self._ahead] - a[self._behind], a[self._next] - a[:1]])
+        # gradients at each baseline (u, then v), and its steps to the next pixel right and down.
+        rows = np.empty((4 + 2 * nb, self._gate_n), np.float32)
+        np.subtract(a[0], np.float32(float(np.add.reduce(a[0])) / n), out=rows[0])
+        np.subtract(b, np.float32(float(np.add.reduce(b)) / n), out=rows[1])
+        np.subtract(a[1 : 1 + 2 * nb], a[1 + 2 * nb :], out=rows[2 : 2 + 2 * nb])
+        np.subtract(a[1 : 2 + nb : nb], a[0], out=rows[2 + 2 * nb :])
         g = rows.dot(rows.T).tolist()
         # b − (gain·a + offset), least squares: a flickering lamp is not motion
         vaa, vab, vbb = g[0][0], g[0][1], g[1][1]
