@@ -74,6 +74,29 @@ def test_the_turn_is_found_to_a_few_thousandths_of_a_degree(turned: tuple[float,
         assert after < 0.6 * before, (pan, before, after)
 
 
+def test_the_half_size_picture_leads_where_the_smaller_ones_disagree() -> None:
+    """Phase correlation at pyramid levels 2 and 3 costs half of level 1's, which is made only
+    where they disagree (or led to no sure turn). This pair turned 2° put level 3, surer by its
+    peak than level 2, 8 px off; a fit from there once took a minimum 1 px from the turn. Level 1
+    leads, and the turn is found as well as any."""
+    lit, dark = _pair(112.74456521739131, (2.0, 0.8), 19200)
+    steadier = Ranger(_office().rig).steadier
+    starts = list(steadier._shifts(steadier._plane(lit), steadier._plane(dark)))
+    assert len(starts) == 4 and starts[-1] == (0.0, 0.0)  # (levels 1, 2, 3, then none)
+    turn = steadier.turn(lit, dark)
+    centre = steadier._mapped(turn.rotation, np.array([[steadier.cam.cx, steadier.cam.cy]]))[0]
+    moved = centre - (steadier.cam.cx, steadier.cam.cy)
+    assert np.hypot(*(np.array(starts[0]) - moved)) < 2.0  # the half-size picture's, near the turn
+    assert np.hypot(*(np.array(starts[1]) - moved)) > 5.0  # level 3's, 8 px off, next
+    angles = np.degrees(cv2.Rodrigues(turn.rotation)[0].ravel())
+    assert angles[1] == pytest.approx(2.0, abs=0.005) and -angles[0] == pytest.approx(0.8, abs=0.005)
+    # Where the smaller two agree, theirs come first (level 1 only if asked for).
+    lit, dark = _pair(0.0, (0.5, 0.2), 3)
+    shifts = steadier._shifts(steadier._plane(lit), steadier._plane(dark))
+    first, second = next(shifts), next(shifts)
+    assert np.hypot(first[0] - second[0], first[1] - second[1]) <= 3.0
+
+
 def _sweep(turned: tuple[float, float], steady: bool) -> tuple[int, list[float]]:
     """How many of PANS' zones are `ok`, and their |error| ÷ range."""
     ranger = Ranger(_office().rig)
