@@ -34,6 +34,7 @@ class Placed:
     inv_depth: float  # 1/m along its laser's beam
     snr: float  # the spot's peak over the fit's residual noise
     size_px: float  # the Gaussians' shared σ
+    peak: float = 0.0  # the spot's fitted peak (the window's units)
 
 
 def _pixel(laser: Laser, camera: CameraModel, w: float) -> np.ndarray:
@@ -98,7 +99,7 @@ def place_pair(diff: np.ndarray, origin: tuple[int, int], lasers: tuple[Laser, L
         if not (0.0 <= rel[0] <= w - 1 and 0.0 <= rel[1] <= h - 1):
             return None  # a spot outside the window: not this blob's
         sigma_px = math.sqrt(max(float(cov[2 + k, 2 + k]), 0.0)) * scale[k]
-        out.append(Placed(laser.name, p, sigma_px, wk, float(theta[k]) / noise, size))
+        out.append(Placed(laser.name, p, sigma_px, wk, float(theta[k]) / noise, size, float(theta[k])))
     return out[0], out[1]
 
 

@@ -138,6 +138,9 @@ class Candidate:
     # not average over a zone's views as pixel noise and speckle do (tuning 0-191: two views' errors
     # correlate 0.6 behind a Bayer filter with a small spot, 0.03 without one).
     locked_px: float = 0.0
+    # The pixel noise `snr` is against: the local noise along the path where the spot was found
+    # (0: not told). Two spots fitted together out of its blob are told their SNR against it too.
+    noise: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -942,6 +945,7 @@ class SpotFinder:
             misfit,
             site_width=site_width,
             locked_px=locked,
+            noise=noise,
         )
 
     def frame_kind(self, first: np.ndarray, second: np.ndarray) -> FrameKind:
