@@ -68,6 +68,9 @@ SHOULDER_RATIO = 4.0
 # Another laser's spot this near (px) may have merged with a spot and pulled it (the centre and
 # parallel spots are 4 px apart at 5 m).
 MERGE_PX = 6.0
+# ... and one that has not moved by this much (px) between two views has no spot merged into it in
+# either that is not in the other (nudged views move spots by a few tenths of a pixel at most).
+STILL_PX = 1.0
 # Another laser's spot this far from the reference's (m) may be on another surface: the sloped
 # laser's is 17 cm per metre of range away, the parallel's 4 cm. A faint reference seen in some
 # views is not confirmed by such a far one alone (tuning-75, tuning-111: 11 % and 17 % off).
@@ -269,6 +272,19 @@ def _moved_to(spot: LaserMeasurement, refs: Sequence[tuple[Track, LaserMeasureme
             continue
         return math.dist(px.tolist(), spot.pixel.tolist())
     return None
+
+
+def _track_of(spot: LaserMeasurement, tracks: Sequence[Track], measured: Sequence[LaserMeasurement]) -> Track | None:
+    """The track `spot` was measured from (`measured`: each of `tracks`' measurement)."""
+    return next((t for t, m in zip(tracks, measured) if m is spot), None)
+
+
+def _stood_still(track: Track, view: tuple[float, float], others: set[tuple[float, float]]) -> bool:
+    """Was `track`'s spot found in `view` within STILL_PX of where it was found in one of the views
+    `others`: the same spot, not moved by another one merged into it there?"""
+    here = [c.pixel for c, v in zip(track.found, track.seen) if v == view]
+    there = [c.pixel for c, v in zip(track.found, track.seen) if v in others and v != view]
+    return any(math.dist(a.tolist(), b.tolist()) < STILL_PX for a in here for b in there)
 
 
 def _rests_on_a_far_one(fusion: Fusion) -> bool:
@@ -535,7 +551,8 @@ class Ranger:
             # the one frame it changed in (tuning-42: at 0.27 m, the path's near end).
             return AMBIGUOUS, (f"the {ref} spot is faint (SNR {chosen.snr:.0f}) and shows, as does what confirms "
                                f"it, in {seen} of the zone's {shown} views")
-        if seen < shown and self._comes_and_goes(chosen, groups, tracks):
+        if seen < shown and self._comes_and_goes(chosen, groups, tracks, _track_of(chosen, tracks.get(ref, ()),
+                                                                               cands.get(ref, ()))):
             return AMBIGUOUS, (f"the {ref} spot shows in some of the zone's views and not in others: "
                                "the beam is on an edge")
         moved = _moved_to(chosen, list(zip(tracks.get(ref, ()), cands.get(ref, ()))), tracks) if seen < shown else None
@@ -573,13 +590,18 @@ class Ranger:
         return spot.snr >= self.config.min_snr or spot.sigma_px <= FAINT_MAX_SIGMA_PX
 
     def _comes_and_goes(self, spot: LaserMeasurement, groups: Sequence[FrameGroup],
-                        tracks: Mapping[str, Sequence[Track]]) -> bool:
+                        tracks: Mapping[str, Sequence[Track]], mine: Track | None = None) -> bool:
         """Is a bright spot, missing from some of the zone's frame groups, really not there in
         them? The unit is nudged between groups (for new speckle); a beam on a depth edge then
         lights a near surface in one view and a far one, or nothing the camera sees, in the next.
         Speckle alone can dim a small spot to a fifth from one view to the next, so a dim view
         counts only where the finder saw nothing near the spot either (a spot merged with a
-        neighbour's is found as that neighbour's)."""
+        neighbour's is found as that neighbour's) — unless what it saw is another laser's spot
+        that stands where it stood beside this one in the views this one shows in (`mine`, its
+        track): merged, it would have moved toward it. (On a 320-px camera the parallel spot lies
+        within a spot's reach of the centre's at any depth, and excused every centre spot that
+        came and went: tuning-2296 zone 7, a beam past an occluding edge, lit in one view, 14 %
+        short.)"""
         if spot.snr < EDGE_MIN_SNR:
             return False  # a weak spot comes and goes with the noise
         ref = self.rig.reference.name
@@ -589,8 +611,10 @@ class Ranger:
             return False
         dim = shown[light.index(min(light))].view
         reach = 2.0 * self.finder.spot_radius_px
+        apart = mine.views if mine is not None else set()
         return not any(
             dim in t.views and math.dist(t.pixel().tolist(), spot.pixel.tolist()) < reach
+            and not (t.laser != ref and _stood_still(t, dim, apart))
             for ts in tracks.values() for t in ts
         )
 

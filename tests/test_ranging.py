@@ -998,6 +998,43 @@ def test_a_blob_found_twice_in_one_group_is_seen_once() -> None:
     assert "in 1 of the zone's 2 views" in result.detail
 
 
+@pytest.mark.parametrize(("moved_px", "status"), [(0.2, AMBIGUOUS), (2.0, OK)])
+def test_a_bright_spot_in_one_view_is_not_excused_by_a_neighbour_that_stood_still(moved_px: float,
+                                                                                  status: str) -> None:
+    """The centre spot, SNR 30, in one of two nudged views, and the parallel spot 4.5 px beside it
+    in both (a 320-px camera: the two lie that near at any depth). Where the parallel spot stood
+    still between the views, nothing merged into it where the centre spot went missing: the
+    beam is on an edge (tuning-2296 zone 7: past an occluding edge, lit in one view, 14 % short).
+    Where it moved toward the centre's place by 2 px, the centre's spot may have run into it, and
+    the zone ranges."""
+    rig = default_rig()
+    ranger = Ranger(rig)
+    centre = rig.camera.project(rig.laser("center").point_at_depth(2.0))
+    parallel = rig.camera.project(rig.laser("parallel").point_at_depth(2.0))
+    beside = centre + 4.5 * (parallel - centre) / np.linalg.norm(parallel - centre)
+    toward = (centre - beside) / np.linalg.norm(centre - beside)
+    dark = np.full((rig.camera.height, rig.camera.width), 20, np.uint8)
+    v, u = np.mgrid[0 : rig.camera.height, 0 : rig.camera.width]
+    lit = dark.astype(float) + 120.0 * np.exp(-((u - centre[0]) ** 2 + (v - centre[1]) ** 2) / 2.0)
+    frames = [np.clip(lit, 0, 255).astype(np.uint8), dark.copy()]  # (the centre's light in view 0 alone)
+    groups = [FrameGroup([frames[k]], [dark.copy()], rig.laser_names, (0.0514 * k, 0.0)) for k in range(2)]
+
+    def spot(name: str, pixel, snr: float) -> Candidate:
+        return Candidate(name, np.asarray(pixel, float), 0.3, snr, 1.0, 0.5, 0.0, snr)
+
+    def find(on, off, lasers=None, **search):  # (as the finder placed them)
+        if on[0] is groups[0].on[0]:
+            return {"center": [spot("center", centre, 30.0)], "parallel": [spot("parallel", beside, 25.0)],
+                    "sloped": []}
+        return {"center": [], "parallel": [spot("parallel", beside + moved_px * toward, 25.0)], "sloped": []}
+
+    ranger.finder.find = find
+    result = ranger.range_zone(0, 0.0, 0.0, groups)
+    assert result.status == status, result.detail
+    if status == AMBIGUOUS:
+        assert "shows in some of the zone's views and not in others" in result.detail
+
+
 @pytest.mark.parametrize("sightings", [
     # (view, σ px, of which locked to the pixel grid): JPEG placed the spot only to its 8 px block
     # in one view, well in the other (tuning-81 zone 15)
