@@ -260,7 +260,7 @@ def _moved_to(spot: LaserMeasurement, refs: Sequence[tuple[Track, LaserMeasureme
     other; the other lasers confirmed the far one, 22 % off). Not where another laser's spot is
     beside the other blob in its view: a spot merged with a neighbour's is placed between them.
     `refs`: the reference's tracks, each with its measurement; `tracks`: every laser's."""
-    mine = next((t for t, m in refs if m is spot), None)
+    mine = _track_of(spot, [t for t, _ in refs], [m for _, m in refs])
     if spot.snr < EDGE_MIN_SNR or mine is None:
         return None
     for t, m in refs:
@@ -806,7 +806,7 @@ class Ranger:
         """A spot of a pair fitted together, as a candidate: its σ the fit's, grown (DEBLEND_GROW);
         its SNR its fitted peak over `noise`, the pixel noise of the blob it came from, as the
         finder's spots have theirs. (Over the fit's residual, which JPEG's blocks and speckle
-        raise well above the pixels' noise, it was 5 × lower, and a faint ghost that showed in one
+        raise well above the pixels' noise, it was 2–5 × lower, and a faint ghost that showed in one
         view outshone the true spot split out of a blob of SNR 35 in both: tuning-1897 zone 8, the
         ghost and two others on a surface at 83° to the beams, 39 % short.)"""
         # (Demosaiced frames: the fit's red values were interpolated, as the finder's.)
