@@ -80,6 +80,30 @@ def test_conditions_cover_what_the_issue_asks_within_its_ranges() -> None:
     assert min(reds) < 1.6 and max(reds) > 2.1
 
 
+def test_a_share_of_the_rigs_move_between_their_frames() -> None:
+    """About MOVING_SHARE of the conditions turn the rig between each laser-on frame and the
+    laser-off frame after it (sim.sway.jolt_deg), by 0.02-1°; the others are still and keep the
+    configuration's motion, which a `--set` may give. The doctor's aim is at rest. A family kept
+    before the knob was drawn reads as still, and every other draw is as it was."""
+    base = load_config(None, [])
+    family = cond.family("evaluation", 200)
+    moving = [c for c in family if c.jolt_deg]
+    assert 0.2 < len(moving) / len(family) < 0.45
+    assert cond.JOLT_DEG[0] <= min(c.jolt_deg for c in moving) and max(c.jolt_deg for c in moving) <= cond.JOLT_DEG[1]
+    assert max(c.jolt_deg for c in moving) > 10 * min(c.jolt_deg for c in moving)  # (log-uniform: all scales)
+    given = ["sim.sway.jolt_deg=0.3"]
+    for c in (moving[0], next(c for c in family if not c.jolt_deg)):
+        extra = c.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones=5)
+        assert load_config(None, list(extra)).sim.sway.jolt_deg == c.jolt_deg
+        assert load_config(None, [*given, *extra]).sim.sway.jolt_deg == (c.jolt_deg or 0.3)
+        aimed = c.aimed(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, 30.0, 0)
+        assert load_config(None, list(aimed)).sim.sway.jolt_deg == 0.0
+    assert "turned" in moving[0].describe()
+    doc = json.loads(json.dumps(moving[0].to_json()))
+    del doc["jolt_deg"]
+    assert cond.Condition.from_json(doc) == replace(moving[0], jolt_deg=0.0)
+
+
 def test_a_family_kept_before_the_colour_matrix_was_drawn_reads_as_without_one() -> None:
     c = cond.condition("tuning", 321)
     assert c.colour_matrix  # a JPEG colour condition
@@ -288,6 +312,42 @@ def test_a_tiny_family_is_recorded_replayed_and_reported(tmp_path: Path) -> None
     for label in ("tuning-0", "family:", "coverage", "÷ floor", "the oracle's", "by kind of frames", "targets",
                   "wrong ok = 0", "a surer `ok`"):
         assert label in text
+
+
+def test_a_moving_rig_is_judged_on_the_frames_it_would_have_made_still(tmp_path: Path) -> None:
+    """A condition whose rig turns between its frames is recorded turned and ranged from those
+    frames; what is observable, and the oracle, are read from its twin recorded at rest, which is
+    then removed."""
+    from edge.accuracy.bench import _frame_snr, report, run_family
+    from edge.recording import read_recording
+    from edge.replay import zone_groups
+
+    tiny = replace(cond.condition("tuning", 3), width=160, height=120, fx=110.0, cx=79.5, cy=59.5, k1=0.0,
+                   scene="office", isp=False, jolt_deg=1.0)
+    (run,) = run_family(None, [], [tiny], zones=4, rig="true", jobs=1, keep=tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir() if p.is_dir()) == ["tuning-3"]  # (the twin is gone)
+    rec = read_recording(tmp_path / "tuning-3")
+    turned, at_rest, in_turned = [], [], []
+    for zone, row in zip(rec.zones, run.rows):
+        groups, _ = zone_groups(rec, zone)
+        on, off = groups[0].on[0].astype(float), groups[0].off[0].astype(float)
+        turned.append(np.abs(on - off).mean())
+        assert row["visible"] and row["frame_snr"] is not None
+        at_rest.append(row["frame_snr"])
+        in_turned.append(_frame_snr(groups, zone, "center") or 0.0)
+    # Read in the turned frames, the room's edges hid the spots (SNR 2-4 where at rest 4-20).
+    assert np.mean(at_rest) > 2.0 * np.mean(in_turned)
+    # Turned 1° (2 px here), the room's edges stay in the laser-on less laser-off difference.
+    still = replace(tiny, jolt_deg=0.0)
+    run_family(None, [], [still], zones=4, rig="true", jobs=1, keep=tmp_path / "still")
+    rec_still = read_recording(tmp_path / "still" / "tuning-3")
+    calm = []
+    for zone in rec_still.zones:
+        groups, _ = zone_groups(rec_still, zone)
+        calm.append(np.abs(groups[0].on[0].astype(float) - groups[0].off[0].astype(float)).mean())
+    assert np.mean(turned) > 1.5 * np.mean(calm)
+    text = "\n".join(report([run], "tuning", 4, "true"))
+    assert "by the rig's motion between its frames" in text and "    moving " in text
 
 
 def test_kept_recordings_are_ranged_again_by_replay(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

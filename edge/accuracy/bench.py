@@ -74,6 +74,7 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     from edge.accuracy.oracle import ZoneOracle
     from edge.accuracy.truth import floor_truth
     from edge.recording import read_recording
+    from edge.replay import zone_groups
     from edge.sim.record import record_sweep
 
     began = time.monotonic()
@@ -81,18 +82,36 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     out = folder / cond.name
     _recorded(cond, out, lambda to: record_sweep(config, to, extra_truth=floor_truth(config)))
     recording = read_recording(out)
-    if rig == "calibrated":
-        ranging_rig, said = _calibrated(cond, config, recording.rig, folder / f"{cond.name}-calibration")
-    else:
-        ranging_rig, said = _given_rig(cond, config, recording.rig, rig)
-    zone_oracle = ZoneOracle.of(config, scaled=cond.isp) if oracle else None
+    # A moving rig's zones are judged on the frames the rig would have made still (its twin, the
+    # same condition at rest): what is observable, and what the oracle reaches, are the camera's
+    # and the room's, not the motion's, which an estimator may take out (edge.motion). Judged on
+    # the turned frames, the room's edges left in their difference hid spots from the count.
+    still = replace(config, sim=replace(config.sim, sway=replace(config.sim.sway, jolt_deg=0.0)))
+    twin = out.with_name(f"{out.name}-still")
+    observed = recording
+    if cond.jolt_deg:
+        _recorded(cond, twin, lambda to: record_sweep(still, to, extra_truth=floor_truth(still)))
+        observed = read_recording(twin)
+    try:
+        if rig == "calibrated":  # (a board is recorded at rest)
+            ranging_rig, said = _calibrated(cond, still, recording.rig, folder / f"{cond.name}-calibration")
+        else:
+            ranging_rig, said = _given_rig(cond, config, recording.rig, rig)
+        zone_oracle = ZoneOracle.of(still, scaled=cond.isp) if oracle else None
+        twins = {z.index: z for z in observed.zones}
 
-    def seen(zone: ZoneRecord, groups: Sequence[FrameGroup], reference: str) -> tuple[float | None, float | None]:
-        t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
-        return (_frame_snr(groups, zone, reference),
-                zone_oracle.error_m(groups, zone.truth or {}, t_s) if zone_oracle else None)
+        def seen(zone: ZoneRecord, groups: Sequence[FrameGroup], reference: str) -> tuple[float | None, float | None]:
+            if observed is not recording:
+                zone = twins[zone.index]
+                groups = zone_groups(observed, zone)[0]
+            t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
+            return (_frame_snr(groups, zone, reference),
+                    zone_oracle.error_m(groups, zone.truth or {}, t_s) if zone_oracle else None)
 
-    return _ranged(cond, config, recording, ranging_rig, said, began, seen)
+        return _ranged(cond, config, recording, ranging_rig, said, began, seen)
+    finally:
+        if observed is not recording:
+            shutil.rmtree(twin)
 
 
 def condition_config(config_path: str | None, overrides: Sequence[str], cond: Condition, zones: int) -> Config:
@@ -404,15 +423,21 @@ def condition_line(run: Run) -> str:
 
 def _by_frames(runs: Sequence[Run]) -> list[str]:
     """The family's figures by kind of frames (:attr:`Condition.frames`): where the estimator
-    stands furthest from the floor and from the oracle."""
+    stands furthest from the floor and from the oracle; then still rigs beside moving ones."""
+    return (_by(runs, lambda c: c.frames, "by kind of frames")
+            + _by(runs, lambda c: "moving" if c.jolt_deg else "still", "by the rig's motion between its frames"))
+
+
+def _by(runs: Sequence[Run], kind_of: Callable[[Condition], str], title: str) -> list[str]:
+    """The family's figures for each kind of condition `kind_of` tells."""
     kinds: dict[str, list[ZoneOutcome]] = {}
     for r in runs:
-        kinds.setdefault(r.condition.frames, []).extend(r.outcomes)
-    lines = ["  by kind of frames (conditions):"]
+        kinds.setdefault(kind_of(r.condition), []).extend(r.outcomes)
+    lines = [f"  {title} (conditions):"]
     for kind, outcomes in sorted(kinds.items()):
         f = Figures.of(outcomes)
         lines.append(
-            f"    {kind:<19} ({sum(r.condition.frames == kind for r in runs)}): coverage "
+            f"    {kind:<19} ({sum(kind_of(r.condition) == kind for r in runs)}): coverage "
             f"{_pct(f.coverage)} ({f.covered} of {f.observable}), {f.wrong_ok} wrong, |error| ÷ floor mean "
             f"{_num(f.mean_ratio)}, {_num(f.over_oracle)} × the oracle's")
     return lines

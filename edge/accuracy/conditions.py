@@ -75,6 +75,10 @@ SENSOR_COLOUR_MATRICES: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] =
 _POSES_SALT = 0x9053
 ISP_SHARE = 0.5  # of the lossless colour cameras at 640 × 480: the Pi camera's ISP-scaled frames
 ISP_DEMOSAICS = ("bilinear", "vng", "ea")  # for an ISP condition drawn as a 3-colour sensor
+# Of the rigs, this share moves between its frames (on a robot, worn, or ringing after a move), by
+# a turn in this range (degrees): the rest are still, on a shelf or a tripod.
+MOVING_SHARE = 0.3
+JOLT_DEG = (0.02, 1.0)
 
 
 @dataclass(frozen=True)
@@ -121,6 +125,10 @@ class Condition:
     # by its ISP to the condition's 640 × 480 (edge.isp); the camera above is the 640 × 480 one.
     # Drawn after the colour matrix: families kept before read as False.
     isp: bool = False
+    # The rig turned between each laser-on frame and the laser-off frame after it by this much
+    # (degrees), each time in a direction of its own (sim.sway.jolt_deg): a robot that turns, a
+    # walker's head, a head still ringing. Drawn last: families kept before read as still (0).
+    jolt_deg: float = 0.0
 
     @property
     def name(self) -> str:
@@ -194,18 +202,20 @@ class Condition:
             f"sim.rig_error.seed={self.seed}",
             # (Only a webcam's own: other cameras keep the configuration's, which a `--set` may give.)
             *([f"sim.sensor.colour_matrix={list(self.colour_matrix)!r}"] if self.colour_matrix else []),
+            # (Only a moving rig's own: still ones keep the configuration's, which a `--set` may give.)
+            *([f"sim.sway.jolt_deg={self.jolt_deg!r}"] if self.jolt_deg else []),
             f"sweep.poses_deg={poses}",
         )
 
     def aimed(self, beam_e_per_ms_at_1m: float, white_e_per_ms: float, frame_rate_hz: float, pose: int
               ) -> tuple[str, ...]:
         """`overrides` for the condition seen from its pose number `pose` alone, its rig built as
-        configured (no mounting errors, no sweep): the range finder aimed there, and so
+        configured (no mounting errors, no sweep) and at rest: the range finder aimed there, and so
         `edge doctor`'s laser checks. (An ISP condition's frames are then the ISP's, made live:
         `sim.sensor.isp`.)"""
         pan, tilt = self.poses(pose + 1)[pose]
         kept = [o for o in self.overrides(beam_e_per_ms_at_1m, white_e_per_ms, 1, frame_rate_hz, live=True)
-                if not o.startswith(("sweep.", "sim.rig_error"))]
+                if not o.startswith(("sweep.", "sim.rig_error", "sim.sway"))]
         return (*kept, f"rangefinder.pan_deg={pan}", f"rangefinder.tilt_deg={tilt}")
 
     @property
@@ -229,6 +239,8 @@ class Condition:
         frames = f"jpeg{self.jpeg_quality} {self.jpeg_chroma}" if self.jpeg_quality else f"png{self.output_bits}"
         if self.colour_matrix:
             frames += f" ccm {self.colour_matrix[0]:.2f}R{self.colour_matrix[1]:+.2f}G{self.colour_matrix[2]:+.2f}B"
+        if self.jolt_deg:
+            frames += f" turned {self.jolt_deg:.2g}°"
         return (f"{self.scene} {self.width}x{self.height} {sensor} {frames}, laser ×{self.laser_power:.2g} "
                 f"light ×{self.room_light:.2g} fill {self.fill:.2f} albedo ×{self.albedo_scale:.2g} "
                 f"gloss +{self.extra_gloss:.2f} f/{self.f_number:.1f}@{self.focus_m:.1f}m speckle ×{self.speckle:.2g}")
@@ -315,7 +327,8 @@ def condition(family: Family | str, index: int) -> Condition:
         focal_scale=round(float(rng.uniform(0.0, 0.01)), 5),
         colour_matrix=_colour_matrix(rng, colour and bool(jpeg_quality)),
     )
-    return _through_isp(drawn, rng)
+    drawn = _through_isp(drawn, rng)
+    return replace(drawn, jolt_deg=_jolt(rng))
 
 
 def _through_isp(drawn: Condition, rng: np.random.Generator) -> Condition:
@@ -331,6 +344,15 @@ def _through_isp(drawn: Condition, rng: np.random.Generator) -> Condition:
     if bayer == "none":
         bayer = demosaic  # type: ignore[assignment]
     return replace(drawn, isp=True, bayer=bayer, output_bits=8)
+
+
+def _jolt(rng: np.random.Generator) -> float:
+    """How far a moving rig turns between a laser-on frame and the laser-off frame after it
+    (degrees): for MOVING_SHARE of the rigs, log-uniform over JOLT_DEG (a head ringing after a move
+    to a walker turning 30°/s between two frames at 30 fps); 0 for the rest. (Both draws are made
+    for every condition, so that a knob drawn after them keeps its draws.)"""
+    moving, jolt = float(rng.random()), _log_uniform(rng, *JOLT_DEG)
+    return round(jolt, 4) if moving < MOVING_SHARE else 0.0
 
 
 def _colour_matrix(rng: np.random.Generator, webcam: bool) -> tuple[float, ...]:
