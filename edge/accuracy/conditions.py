@@ -21,7 +21,10 @@ A condition draws, from its seed, everything the simulator can vary that real se
   how far a spot must move for a new pattern;
 - how the rig was built (``sim.rig_error``): lasers tilted up to 0.3° and shifted up to 1 mm, the
   focal length off by up to 1 %;
-- where the zones look: pans all round, tilts from 30° down to 15° up.
+- where the zones look: pans all round, tilts from 30° down to 15° up;
+- whether the rig moves between its frames: for 30 % of the rigs (on a robot, worn, or ringing
+  after a move) a turn of 0.02–1° between each laser-on frame and the laser-off frame after it
+  (``sim.sway.jolt_deg``); the bench judges such a rig on a twin recorded at rest.
 
 Ranging is configured as the base configuration says; a condition changes only the simulator, the
 camera model and the sweep's poses. A condition is a set of ``--set`` overrides, so any of them can
