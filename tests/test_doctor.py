@@ -468,6 +468,20 @@ def test_a_stuck_laser_too_faint_for_the_off_frame_alone_is_told_by_turning_the_
     assert not any("does not go off" in x.detail for name, x in lines.items() if name != f"laser {laser}")
 
 
+@pytest.mark.parametrize("laser", [None, "center"])
+def test_a_red_thing_where_the_spots_fall_is_told_from_a_stuck_laser_by_turning_the_head(laser):
+    """Tuning-2325 (a kitchen, a 1280-px colour webcam, JPEG 84, its colour matrix): in the
+    laser-off frame a compact red excess stands where the centre and parallel spots fall, and both
+    lines said 'does not go off' of healthy lasers. Turned, it moves with the room: the lasers
+    are ok. Stuck on, the centre laser's spot stays put, and its line still says so."""
+    faults = [f'sim.laser_faults=[{{laser="{laser}", kind="stuck"}}]'] if laser else []
+    result = examine(None, [*_family_aim(2325, 4), *faults])
+    lines = {x.check: x for x in result.checks.lines}
+    stuck = [name for name, x in lines.items() if "does not go off" in x.detail]
+    assert stuck == ([f"laser {laser}"] if laser else []), result.checks.text()
+    assert lines["laser parallel"].status == "ok", lines["laser parallel"].detail
+
+
 def test_a_head_that_did_not_turn_the_camera_blames_no_laser(office):
     """Told the head turned when the picture did not move (an emulated head beside a real camera),
     every bright thing on a path would 'stay put': the room's edges, which should have cancelled

@@ -10,6 +10,7 @@ parts are the simulator's, wired together as ``open_parts`` wires them, on the r
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import statistics
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -306,6 +307,8 @@ class RigChecks:
         off = first.off.frame.image
         report = judge(name, first.on.frame.image, off, rig, second)
         later = judge(name, first.full.image, off, rig, second)  # lit all through: the spot's whole light
+        if report.lit_when_off and report.pixel is not None and self._room_lit(report.pixel, rig):
+            report = dataclasses.replace(report, lit_when_off=False)
         if report.pixel is None and not report.inverted and not report.lit_when_off:
             if later.pixel is not None and later.from_path_px[name] <= config.ranging.path_tolerance_px:
                 report = later  # it lights, but late: the timing below says by how much
@@ -331,6 +334,18 @@ class RigChecks:
         row_ns = frame.t_start_ns + int(report.pixel[1] * frame.readout_ns / max(rig.camera.height - 1, 1))
         slack_ms = (row_ns - (first.on.laser_switch_ns + settle_ns)) / 1e6
         return f"{line}; {judge_timing(shares, slack_ms, frame.exposure_us / 1e3, config.lasers.settle_ms)}"
+
+    def _room_lit(self, pixel: tuple[float, float], rig: Rig) -> bool:
+        """Is what the laser-off frame showed at a laser's spot (`pixel`) the room's, not the
+        laser's: does it move with the room when the head turns (`moves_with_room`)? A red thing
+        on the path where the spot falls (a colour webcam's matrix makes a warm object's red
+        stand out) read as a spot that does not go off: tuning-2325, the centre and parallel
+        lasers both. Where the head cannot turn the picture, it is not told: the laser's."""
+        from edge.doctor.spots import moves_with_room
+
+        if not self._turn_taken:
+            self._turn, self._turn_taken = self._take_turn(rig), True
+        return self._turn is not None and moves_with_room(self._turn, pixel)
 
     def _stays_put(self, name: str, rig: Rig, config: Config) -> None:
         """A Problem if `name`'s spot, every laser off, stays put in the picture while the room

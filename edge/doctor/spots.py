@@ -357,6 +357,20 @@ def turn(off_here: np.ndarray, off_turned: np.ndarray, rig: Rig, here: np.ndarra
     return Turn(here, turned, diff, seen, _ring_noise(diff), TURN_FLOOR * noise)
 
 
+def moves_with_room(seen_turning: Turn, pixel: tuple[float, float]) -> bool:
+    """Does what the laser-off frames hold at `pixel` move with the room in the turn: seen from
+    both of its frames, and their difference there (the second turned back) under TURN_SNR × the
+    noise beside it? A laser's spot rides with the camera and stands there (`stays_put`); a red
+    thing of the room's cancels. False near the picture's edge, or where the turn saw it once."""
+    t = seen_turning
+    u, v = int(round(pixel[0])), int(round(pixel[1]))
+    h, w = t.diff.shape
+    if not (EDGE_PX <= u < w - EDGE_PX and EDGE_PX <= v < h - EDGE_PX) or not t.seen[v - 2:v + 3, u - 2:u + 3].all():
+        return False
+    peak = float(t.diff[v - 2:v + 3, u - 2:u + 3].max())
+    return peak < TURN_SNR * max(t.least, float(t.local[v, u]))
+
+
 def stays_put(laser: str, seen_turning: Turn, rig: Rig) -> StaysPut:
     """Whether `laser`'s spot shows in the laser-off frames of a turn: a spot on its path in the
     first that stays put in the picture while the room moves, so that the second frame turned
