@@ -215,6 +215,7 @@ class Steadier:
         a, b = self._plane(lit), self._plane(dark)
         rows, cols = self._fit_v, self._fit_u
         ref = a[rows, cols].astype(np.float64)
+        coarse_ref = ref[self._coarse]  # (once a pair: every start's first steps read it)
         # Unturned, the room's difference (the light's gain and offset fitted alike).
         still = b[rows, cols].astype(np.float64)
         ref_c, still_c = ref - ref.mean(), still - still.mean()
@@ -227,7 +228,7 @@ class Steadier:
         for du, dv in self._shifts(a, b):
             # A shift (du, dv) at the centre is a turn about the camera's y and x axes.
             start = np.array([-math.atan2(dv, self.cam.fy), math.atan2(du, self.cam.fx), 0.0])
-            rotation, residual = self._fit(cv2.Rodrigues(start)[0], ref, b, gradients)
+            rotation, residual = self._fit(cv2.Rodrigues(start)[0], ref, coarse_ref, b, gradients)
             shift = self._shift_px(rotation)
             # A turn that explains no more of the difference than noise could, or only a little
             # of it (a lit frame's glow and JPEG's blocks are not the room moving: still frames'
@@ -280,13 +281,14 @@ class Steadier:
         (du, dv), peak = cv2.phaseCorrelate(a, b, window)
         return -peak, du * 2**level, dv * 2**level
 
-    def _fit(self, rotation: np.ndarray, ref: np.ndarray, b: np.ndarray,
+    def _fit(self, rotation: np.ndarray, ref: np.ndarray, coarse_ref: np.ndarray, b: np.ndarray,
              gradients: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:
         """Gauss–Newton from `rotation`: the turn that carries the on frame's samples `ref` (at
         `_fit_v`, `_fit_u`) onto the off frame `b` (with its `gradients`), and the RMS difference
-        left. The first steps, far from the turn, are taken on a sparser grid (COARSE_EVERY):
+        left. The first steps, far from the turn, are taken on a sparser grid (COARSE_EVERY, whose
+        samples of the on frame are `coarse_ref`):
         a step costs as many samples as it reads, and the turn it finds there is only a start."""
-        rotation, gain, offset, residual = self._steps(rotation, 1.0, 0.0, self._coarse_rays, ref[self._coarse], b,
+        rotation, gain, offset, residual = self._steps(rotation, 1.0, 0.0, self._coarse_rays, coarse_ref, b,
                                                        gradients, COARSE_STEADY_PX)
         if not math.isfinite(residual):
             return rotation, residual

@@ -421,7 +421,7 @@ def condition_line(run: Run) -> str:
             f"{_num(f.sigma_over_floor):>7}  {run.condition.describe()}")
 
 
-def _by_frames(runs: Sequence[Run]) -> list[str]:
+def _by_kind(runs: Sequence[Run]) -> list[str]:
     """The family's figures by kind of frames (:attr:`Condition.frames`): where the estimator
     stands furthest from the floor and from the oracle; then still rigs beside moving ones."""
     return (_by(runs, lambda c: c.frames, "by kind of frames")
@@ -490,7 +490,7 @@ def report(runs: Sequence[Run], family_name: str, zones: int, rig: str) -> list[
            "unplaceable)"] if pooled.placeable else []),
         f"  observable by the renderer's SNR, before the camera's JPEG and demosaicing: {pooled.observable_model}, "
         f"{pooled.covered_model} of them ok (coverage {_pct(_share(pooled.covered_model, pooled.observable_model))})",
-        *_by_frames(runs),
+        *_by_kind(runs),
         f"  time: {sum(r.seconds for r in runs):.0f} s of work",
         "targets (to be met on the evaluation family):",
     ]

@@ -343,9 +343,8 @@ class RigChecks:
         lasers both. Where the head cannot turn the picture, it is not told: the laser's."""
         from edge.doctor.spots import moves_with_room
 
-        if not self._turn_taken:
-            self._turn, self._turn_taken = self._take_turn(rig), True
-        return self._turn is not None and moves_with_room(self._turn, pixel)
+        turned = self._the_turn(rig)
+        return turned is not None and moves_with_room(turned, pixel)
 
     def _stays_put(self, name: str, rig: Rig, config: Config) -> None:
         """A Problem if `name`'s spot, every laser off, stays put in the picture while the room
@@ -353,11 +352,10 @@ class RigChecks:
         frame alone to show). Nothing where the head cannot turn the picture, or no spot stays."""
         from edge.doctor.spots import stays_put
 
-        if not self._turn_taken:
-            self._turn, self._turn_taken = self._take_turn(rig), True
-        if self._turn is None:
+        turned = self._the_turn(rig)
+        if turned is None:
             return
-        put = stays_put(name, self._turn, rig)
+        put = stays_put(name, turned, rig)
         suspects = put.suspects(name)
         if not suspects or put.pixel is None:
             return
@@ -370,6 +368,12 @@ class RigChecks:
         raise Problem(f"it or {also} does not go off: {where}, on {also}'s path too",
                       f"{_stuck_remedy(pins[name])}; and {also}'s, on "
                       + ", ".join(f"GPIO{pins[n]}" for n in suspects[1:]))
+
+    def _the_turn(self, rig: Rig) -> Turn | None:
+        """The head's turn, every laser off: taken once, for every laser's line that asks."""
+        if not self._turn_taken:
+            self._turn, self._turn_taken = self._take_turn(rig), True
+        return self._turn
 
     def _take_turn(self, rig: Rig) -> Turn | None:
         """Every laser off, TURN_FRAMES frames where the unit aims and as many turned a little in
