@@ -10,6 +10,7 @@ Pure: pixels, covariances and camera models in, the same out.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TypeVar
 
 import numpy as np
 
@@ -20,6 +21,8 @@ OUT = CAMERA_MODELS["picam-v2"]  # what the ISP hands over
 SCALE = RAW.width / OUT.width  # 2.5625, both ways
 CROP_ROWS = (RAW.height - round(OUT.height * SCALE)) // 2  # 1, off the top and the bottom
 
+Coordinate = TypeVar("Coordinate", float, np.ndarray)  # one pixel's, or an array's
+
 
 def per_area(white_e_per_ms: float, full_well_e: float, psf_sigma_px: float, speckle_grain: float
              ) -> tuple[float, float, float, float]:
@@ -28,12 +31,12 @@ def per_area(white_e_per_ms: float, full_well_e: float, psf_sigma_px: float, spe
     return white_e_per_ms / SCALE**2, full_well_e / SCALE**2, psf_sigma_px * SCALE, speckle_grain * SCALE
 
 
-def scaled_pixel(u: float, v: float) -> tuple[float, float]:
+def scaled_pixel(u: Coordinate, v: Coordinate) -> tuple[Coordinate, Coordinate]:
     """A 1640 × 1232 pixel's place in the 640 × 480 frame (pixel centres at integers)."""
     return (u + 0.5) / SCALE - 0.5, (v - CROP_ROWS + 0.5) / SCALE - 0.5
 
 
-def sensor_pixel(u: float, v: float) -> tuple[float, float]:
+def sensor_pixel(u: Coordinate, v: Coordinate) -> tuple[Coordinate, Coordinate]:
     """A 640 × 480 pixel's place on the 1640 × 1232 sensor (:func:`scaled_pixel` undone)."""
     return (u + 0.5) * SCALE - 0.5, (v + 0.5) * SCALE - 0.5 + CROP_ROWS
 

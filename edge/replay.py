@@ -43,8 +43,11 @@ def straddles_switch(frame: FrameRecord) -> bool:
     )
 
 
-def zone_groups(recording: Recording, zone: ZoneRecord) -> tuple[list[FrameGroup], int]:
-    """The zone's frames as groups of one pose and one set of lasers; and how many were dropped."""
+def zone_groups(recording: Recording, zone: ZoneRecord,
+                image: Callable[[ZoneRecord, FrameRecord], np.ndarray] | None = None) -> tuple[list[FrameGroup], int]:
+    """The zone's frames as groups of one pose and one set of lasers; and how many were dropped.
+    `image` reads a frame (default: as recorded, `Recording.load_image`)."""
+    image = image or recording.load_image
     dropped = 0
     by_view: dict[tuple[float, float], dict[tuple[str, ...], list[np.ndarray]]] = {}
     for frame in zone.frames:
@@ -56,7 +59,7 @@ def zone_groups(recording: Recording, zone: ZoneRecord) -> tuple[list[FrameGroup
             zone.tilt_deg if frame.tilt_deg is None else frame.tilt_deg,
         )
         key = tuple(sorted(frame.lasers_on))
-        by_view.setdefault(view, {}).setdefault(key, []).append(recording.load_image(zone, frame))
+        by_view.setdefault(view, {}).setdefault(key, []).append(image(zone, frame))
     all_off = [img for sets in by_view.values() for img in sets.get((), [])]
     groups = []
     for view, sets in by_view.items():

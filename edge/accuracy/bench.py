@@ -73,8 +73,8 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     False (it takes about as long as the recording). Recordings go to `folder`."""
     from edge.accuracy.oracle import ZoneOracle
     from edge.accuracy.truth import floor_truth
+    from edge.accuracy.unturned import unturned_groups
     from edge.recording import read_recording
-    from edge.replay import zone_groups
     from edge.sim.record import record_sweep
 
     began = time.monotonic()
@@ -82,36 +82,28 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     out = folder / cond.name
     _recorded(cond, out, lambda to: record_sweep(config, to, extra_truth=floor_truth(config)))
     recording = read_recording(out)
-    # A moving rig's zones are judged on the frames the rig would have made still (its twin, the
-    # same condition at rest): what is observable, and what the oracle reaches, are the camera's
-    # and the room's, not the motion's, which an estimator may take out (edge.motion). Judged on
-    # the turned frames, the room's edges left in their difference hid spots from the count.
-    still = replace(config, sim=replace(config.sim, sway=replace(config.sim.sway, jolt_deg=0.0)))
-    twin = out.with_name(f"{out.name}-still")
-    observed = recording
-    if cond.jolt_deg:
-        _recorded(cond, twin, lambda to: record_sweep(still, to, extra_truth=floor_truth(still)))
-        observed = read_recording(twin)
-    try:
-        if rig == "calibrated":  # (a board is recorded at rest)
-            ranging_rig, said = _calibrated(cond, still, recording.rig, folder / f"{cond.name}-calibration")
-        else:
-            ranging_rig, said = _given_rig(cond, config, recording.rig, rig)
-        zone_oracle = ZoneOracle.of(still, scaled=cond.isp) if oracle else None
-        twins = {z.index: z for z in observed.zones}
+    if rig == "calibrated":  # (a board is recorded at rest)
+        still = replace(config, sim=replace(config.sim, sway=replace(config.sim.sway, jolt_deg=0.0)))
+        ranging_rig, said = _calibrated(cond, still, recording.rig, folder / f"{cond.name}-calibration")
+    else:
+        ranging_rig, said = _given_rig(cond, config, recording.rig, rig)
+    zone_oracle = ZoneOracle.of(config, scaled=cond.isp) if oracle or cond.jolt_deg else None
 
-        def seen(zone: ZoneRecord, groups: Sequence[FrameGroup], reference: str) -> tuple[float | None, float | None]:
-            if observed is not recording:
-                zone = twins[zone.index]
-                groups = zone_groups(observed, zone)[0]
-            t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
-            return (_frame_snr(groups, zone, reference),
-                    zone_oracle.error_m(groups, zone.truth or {}, t_s) if zone_oracle else None)
+    def seen(zone: ZoneRecord, groups: Sequence[FrameGroup], reference: str) -> tuple[float | None, float | None]:
+        # A moving rig's zones are judged on its frames with the motion taken out exactly
+        # (edge.accuracy.unturned): what is observable, and what the oracle reaches, are then the
+        # camera's and the room's, and what the motion costs whatever takes it out (JPEG's blocks
+        # that no longer cancel), not the turn's, which an estimator may find (edge.motion).
+        # Judged on the turned frames, the room's edges left in their difference hid spots from
+        # the count.
+        if cond.jolt_deg:
+            assert zone_oracle is not None  # (its renderer made the frames)
+            groups = unturned_groups(recording, zone, zone_oracle.renderer, scaled=cond.isp)
+        t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
+        return (_frame_snr(groups, zone, reference),
+                zone_oracle.error_m(groups, zone.truth or {}, t_s) if zone_oracle and oracle else None)
 
-        return _ranged(cond, config, recording, ranging_rig, said, began, seen)
-    finally:
-        if observed is not recording:
-            shutil.rmtree(twin)
+    return _ranged(cond, config, recording, ranging_rig, said, began, seen)
 
 
 def condition_config(config_path: str | None, overrides: Sequence[str], cond: Condition, zones: int) -> Config:

@@ -24,7 +24,8 @@ A condition draws, from its seed, everything the simulator can vary that real se
 - where the zones look: pans all round, tilts from 30° down to 15° up;
 - whether the rig moves between its frames: for 30 % of the rigs (on a robot, worn, or ringing
   after a move) a turn of 0.02–1° between each laser-on frame and the laser-off frame after it
-  (``sim.sway.jolt_deg``); the bench judges such a rig on a twin recorded at rest.
+  (``sim.sway.jolt_deg``); the bench judges such a rig on its frames with each true turn taken out
+  (:mod:`edge.accuracy.unturned`).
 
 Ranging is configured as the base configuration says; a condition changes only the simulator, the
 camera model and the sweep's poses. A condition is a set of ``--set`` overrides, so any of them can

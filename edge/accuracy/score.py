@@ -5,8 +5,8 @@ The figures of ``edge bench accuracy``, and the issue's targets:
 - **observable**: zones whose reference spot the camera sees with a matched-filter SNR of at least
   6 in the zone's mean difference image (:data:`edge.accuracy.floor.OBSERVABLE_SNR`): the zones an
   estimator could range at all. *Coverage* is the share of them ranged ``ok`` (target ≥ 90 %). The
-  SNR is measured on the recorded frames (:mod:`edge.accuracy.observe`; a moving rig's on its twin
-  recorded at rest, whose frames the room's motion has not touched) where the bench has them:
+  SNR is measured on the recorded frames (:mod:`edge.accuracy.observe`; a moving rig's with each
+  laser-off frame turned back by its true turn, :mod:`edge.accuracy.unturned`) where the bench has them:
   the renderer's own SNR (the floor's) is before JPEG, which can round a dim spot away; coverage by
   that SNR is reported beside it.
 - **|error|**: of ``ok`` zones that are observable, |range − true range|; mean and median.

@@ -133,15 +133,17 @@ def _record(
         for index, (renderer, pan, tilt) in enumerate(views):
             names = list(renderer.rig.laser_names)
             frames: list[tuple[np.ndarray, list[str], dict]] = []
+            turns: list[list[float]] = []  # each laser-off frame's turn (sim.sway.jolt_deg)
             zone_t_s = clock_ns / 1e9
             for nudge in config.sweep.nudges_deg(pairs):
                 frame_pan = pan + nudge
                 for lit in (False, True):
                     t_s = clock_ns / 1e9
-                    rng = np.random.default_rng([config.sim.seed, index, len(frames)])
-                    image = renderer.render(
-                        frame_pan, tilt, {n: 1.0 for n in names} if lit else {}, t_s, rng
-                    )
+                    seed = [config.sim.seed, index, len(frames)]
+                    lasers = {n: 1.0 for n in names} if lit else {}
+                    if not lit:  # (what render will draw first from the same generator)
+                        turns.append([round(a, 9) for a in renderer.jolt(lasers, np.random.default_rng(seed))])
+                    image = renderer.render(frame_pan, tilt, lasers, t_s, np.random.default_rng(seed))
                     extra: dict = {
                         "t_start_ns": clock_ns,
                         "exposure_us": camera.exposure_us,
@@ -153,6 +155,10 @@ def _record(
                     clock_ns += frame_ns
             spots = renderer.spots(pan, tilt, zone_t_s)
             truth = zone_truth(renderer.rig, spots, renderer.rig.camera_to_base(pan, tilt))
+            if any(any(turn) for turn in turns):
+                # The turn that no estimator is told (edge.motion finds it): a bench can take it
+                # out exactly, to judge what the frames hold apart from the motion.
+                truth["off_turn_deg"] = turns
             if extra_truth is not None:
                 pair_views = [(pan + nudge, tilt) for nudge in config.sweep.nudges_deg(pairs)]
                 truth.update(extra_truth(renderer, pair_views, zone_t_s))

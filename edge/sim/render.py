@@ -39,6 +39,7 @@ _AMBIENT_BY_NORMAL_Z = (0.8, 0.2)  # factor = a + b · n_z
 _GREY_WEIGHTS_RGB = np.array([0.299, 0.587, 0.114])
 _MAX_LASER_DISTANCE_M = 50.0
 _CACHE_VIEWS = 8
+_FAR_M = 1e6  # where a ray that meets nothing is taken to end (turned_pixels)
 _VIEW_BAND_RAYS = 1 << 18  # rays cast at once
 # OpenCV's demosaicing of an RGGB sensor (R at even rows and columns), by `sensor.bayer`.
 _DEMOSAIC = {"bilinear": cv2.COLOR_BayerRGGB2BGR, "vng": cv2.COLOR_BayerRGGB2BGR_VNG,
@@ -476,14 +477,41 @@ class Renderer:
         if self._sensor is not None:
             rows = {n: f if np.ndim(f) == 0 else np.asarray(f)[self._isp_rows] for n, f in lasers_on.items()}
             return sim_isp.scaled_frame(self._sensor.render(pan_deg, tilt_deg, rows, t_s, rng, noise))
-        jolt = self.sim.sway.jolt_deg
-        if jolt and not any(np.any(np.asarray(f) > 0) for f in lasers_on.values()):
-            # (a dark frame, turned by `sim.sway.jolt_deg` in a direction of its own)
-            direction = float(rng.uniform(0.0, 2.0 * np.pi))
-            pan_deg, tilt_deg = pan_deg + jolt * np.cos(direction), tilt_deg + jolt * np.sin(direction)
+        turn = self.jolt(lasers_on, rng)
+        pan_deg, tilt_deg = pan_deg + turn[0], tilt_deg + turn[1]
         flicker = 1.0 + self.sim.ambient.flicker * (2.0 * rng.random() - 1.0) if noise else 1.0
         electrons = self.render_electrons(pan_deg, tilt_deg, lasers_on, t_s, flicker)
         return self.digitise(electrons, rng if noise else None)
+
+    def jolt(self, lasers_on: Mapping[str, float | np.ndarray], rng: np.random.Generator) -> tuple[float, float]:
+        """The turn (pan, tilt degrees) that `render` gives a frame with `lasers_on` and `rng`: for
+        a dark frame, `sim.sway.jolt_deg` in a direction drawn first from `rng`; else none. (A
+        recorder that keeps the turn in its truth calls this on a generator seeded as the frame's.)"""
+        jolt = self.sim.sway.jolt_deg
+        if not jolt or any(np.any(np.asarray(f) > 0) for f in lasers_on.values()):
+            return 0.0, 0.0
+        direction = float(rng.uniform(0.0, 2.0 * np.pi))
+        return float(jolt * np.cos(direction)), float(jolt * np.sin(direction))
+
+    def turned_pixels(self, pan_deg: float, tilt_deg: float, turn_deg: tuple[float, float], pixels: np.ndarray,
+                      t_s: float = 0.0) -> np.ndarray:
+        """Where the room seen at `pixels` (..., 2) of the view at (pan, tilt) shows in the view
+        turned by `turn_deg` (pan, tilt): along each pixel's ray to the surface it meets, then into
+        the turned camera. By the room's depth, not by the turn alone: the camera sits off the
+        unit's axes, so a turn moves what is near more than what is far. Nothing hit counts as far
+        away. (The sensor's pixels, as `spot_model`'s.)"""
+        self._no_isp("a view's depth")
+        view = self._view(pan_deg, tilt_deg, t_s)
+        assert view.depth is not None  # (static views are rendered with their depth)
+        cam = self.rig.camera
+        px = np.asarray(pixels, dtype=np.float64)
+        iu = np.clip(np.rint(px[..., 0]).astype(np.intp), 0, cam.width - 1)
+        iv = np.clip(np.rint(px[..., 1]).astype(np.intp), 0, cam.height - 1)
+        depth = view.depth[iv, iu]
+        depth = np.where(np.isfinite(depth), depth, _FAR_M)
+        world = view.camera_to_world.apply(cam.rays(px) * depth[..., None])
+        turned = self.camera_to_world(pan_deg + turn_deg[0], tilt_deg + turn_deg[1]).inverse().apply(world)
+        return cam.project(turned)
 
     def _no_isp(self, what: str) -> None:
         if self._sensor is not None:
