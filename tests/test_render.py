@@ -255,7 +255,8 @@ def test_a_mover_is_patched_into_the_cached_view_exactly() -> None:
     t = 66.0  # standing at (2.9, 1.05), east of the device: bearing -11°
     view = renderer._view(-11.0, 0.0, t)
     pose, geometry = view.camera_to_world, renderer.scene.at(t)
-    full = renderer._shade(geometry, geometry.cast(pose.t, pose.rotate(renderer._pixel_rays)), renderer._pixel_rays)
+    rays = renderer._pixel_rays
+    full = renderer._shade(geometry, geometry.cast(pose.t, pose.rotate(rays)), rays, pose)
     cam = renderer.rig.camera
     # Equal, but for the texture of a face seen through another's edge (float rounding of uv).
     assert np.allclose(view.electrons, full.reshape(cam.height, cam.width, -1), rtol=1e-5, atol=1e-3)
@@ -500,3 +501,24 @@ def test_a_view_cast_in_bands_of_rows_is_the_view_cast_at_once(monkeypatch: pyte
         assert np.array_equal(view.electrons, views[0].electrons)
         assert np.array_equal(view.depth, views[0].depth)
     assert np.isfinite(views[0].depth).mean() > 0.5  # (a view of the room, not of nothing)
+
+
+@pytest.mark.parametrize(("distance_m", "material", "least", "most"),
+                         [(4.0, "carpet-grey", 0.0, 0.3), (0.4, "cardboard", 0.75, 1.05)])
+def test_a_pixel_that_averages_over_its_area_washes_out_only_a_texture_finer_than_itself(
+        distance_m: float, material: str, least: float, most: float) -> None:
+    """sim.optics.pixel_area: carpet's grain (waves of 1.5-15 mm) seen 4 m away by a 160-px camera
+    (a pixel covers 30 mm of it) averages out, where a pixel's centre alone keeps its full contrast;
+    cardboard's (7.5-75 mm) seen 0.4 m away (3 mm a pixel) keeps most of it either way."""
+    from edge.sim.record import flat_target_scene
+
+    def contrast(area: bool) -> float:
+        config = load_config(None, [*_SMALL, "sim.optics.vignetting=false",
+                                    f"sim.optics.pixel_area={str(area).lower()}"])
+        renderer = Renderer(flat_target_scene(distance_m, material), config.rig.build(), config.sim, config.camera)
+        room = renderer.render_electrons(0.0, 0.0, {})[40:80, 60:100, 2]
+        return float(room.std() / room.mean())
+
+    point = contrast(False)
+    assert point > 0.08  # (the materials' texture is 0.15 and 0.25 RMS)
+    assert least * point <= contrast(True) <= most * point

@@ -390,10 +390,23 @@ class SceneGeometry:
         albedo = np.take(self._albedo, f, axis=0)
         return albedo, np.take(self._gloss, f), np.take(self._shininess, f)
 
-    def texture(self, face: np.ndarray, surface_uv: np.ndarray) -> np.ndarray:
-        """Multiplicative texture (N,): mean about 1, at least TEXTURE_FLOOR; 1 for face -1."""
+    def uv_axes(self, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The axes (N, 3) and (N, 3) of each face's `surface_uv` (world frame); zeros for face -1."""
+        f = np.asarray(face, dtype=np.intp)
+        return np.take(self._u, f, axis=0), np.take(self._v, f, axis=0)
+
+    def texture(self, face: np.ndarray, surface_uv: np.ndarray, footprint: np.ndarray | None = None) -> np.ndarray:
+        """Multiplicative texture (N,): mean about 1, at least TEXTURE_FLOOR; 1 for face -1.
+
+        With `footprint` (N, 2, 2: how `surface_uv` moves a pixel's step along the image's u, then
+        v), each point's texture is the mean over the pixel it is seen by, as a sensor's pixel
+        integrates the light over its area: each wave scaled by the mean of a cosine over a step
+        of its phase each way (sinc). Sampled at points only, waves finer than a pixel fold into
+        coarse false patterns (aliasing) that no camera's frames hold, and that do not follow the
+        room when the camera turns."""
         f = np.asarray(face, dtype=np.intp).ravel()
         uv = np.asarray(surface_uv, dtype=np.float64).reshape(-1, 2)
+        steps = None if footprint is None else np.asarray(footprint, dtype=np.float64).reshape(-1, 2, 2)
         out = np.ones(len(f))
         if not len(f):
             return out
@@ -414,6 +427,13 @@ class SceneGeometry:
             # float32 cosines are SIMD and some 30 times quicker; their ~1e-3 rad error at the
             # largest arguments (a few 10⁴ rad) is invisible in a texture.
             wave = np.cos(arg.astype(np.float32))
+            if steps is not None:
+                step = np.take(steps, rows, axis=0).astype(np.float32)  # (n, 2, 2)
+                # Half the waves' phase over a pixel's step along u, and along v: the mean of a
+                # cosine over a step of phase 2x is its value at the middle times sin x / x.
+                half = (k[fi].T / 2.0).astype(np.float32)
+                for along in (step[:, :, 0] @ half, step[:, :, 1] @ half):
+                    wave *= np.divide(np.sin(along), along, out=np.ones_like(along), where=along != 0.0)
             out[rows] = 1.0 + wave @ amp[fi].astype(np.float32)
         return np.maximum(out, TEXTURE_FLOOR, out=out)
 

@@ -41,6 +41,7 @@ _MAX_LASER_DISTANCE_M = 50.0
 _CACHE_VIEWS = 8
 _FAR_M = 1e6  # where a ray that meets nothing is taken to end (turned_pixels)
 _VIEW_BAND_RAYS = 1 << 18  # rays cast at once
+_EDGE_SAMPLES = 4  # rays a side over a pixel that an edge crosses (sim.optics.pixel_area)
 # OpenCV's demosaicing of an RGGB sensor (R at even rows and columns), by `sensor.bayer`.
 _DEMOSAIC = {"bilinear": cv2.COLOR_BayerRGGB2BGR, "vng": cv2.COLOR_BayerRGGB2BGR_VNG,
              "ea": cv2.COLOR_BayerRGGB2BGR_EA}
@@ -225,16 +226,44 @@ class Renderer:
         cam = self.rig.camera
         img = np.empty((cam.height * cam.width, self.channels), np.float32)
         depth = np.empty(cam.height * cam.width)
+        face = np.empty(cam.height * cam.width, np.int32)
         # Bands of rows: a cast's temporaries are some 300 bytes a ray, so a 1640 × 1232 view cast at
         # once held 580 MB (each ray's hit is its own: the same whichever band it is cast in).
         band = max(1, _VIEW_BAND_RAYS // cam.width) * cam.width
         for start in range(0, len(depth), band):
             rays = self._pixel_rays[start : start + band]
             hits = geometry.cast(pose.t, pose.rotate(rays))
-            img[start : start + band] = self._shade(geometry, hits, rays)
+            img[start : start + band] = self._shade(geometry, hits, rays, pose)
             depth[start : start + band] = np.where(hits.hit, hits.distance, np.inf)
+            face[start : start + band] = hits.face
+        if self.sim.optics.pixel_area:
+            self._smooth_edges(img, face.reshape(cam.height, cam.width), geometry, pose)
         return _View(pose, geometry, img.reshape(cam.height, cam.width, self.channels),
                      depth.reshape(cam.height, cam.width))
+
+    def _smooth_edges(self, img: np.ndarray, face: np.ndarray, geometry: SceneGeometry, pose: Pose) -> None:
+        """Each pixel on an edge between faces (or between a face and nothing) given, in `img`
+        (H·W, C), the mean of _EDGE_SAMPLES² rays spread over its area: a sensor's pixel that an
+        edge crosses sees some of each side. Sampled at its centre only, an edge moves in whole
+        pixels as the camera turns, and a frame turned back cannot match one taken from the pose."""
+        edge = np.zeros(face.shape, bool)
+        edge[:, 1:] |= face[:, 1:] != face[:, :-1]
+        edge[:, :-1] |= face[:, :-1] != face[:, 1:]
+        edge[1:, :] |= face[1:, :] != face[:-1, :]
+        edge[:-1, :] |= face[:-1, :] != face[1:, :]
+        index = np.flatnonzero(edge)
+        if not index.size:
+            return
+        v, u = np.divmod(index, face.shape[1])
+        offsets = (np.arange(_EDGE_SAMPLES) + 0.5) / _EDGE_SAMPLES - 0.5
+        du, dv = (a.ravel() for a in np.meshgrid(offsets, offsets))
+        pixels = np.stack([u[:, None] + du, v[:, None] + dv], axis=-1).reshape(-1, 2)
+        shaded = np.empty((len(pixels), self.channels), np.float32)
+        for start in range(0, len(pixels), _VIEW_BAND_RAYS):
+            rays = self.rig.camera.rays(pixels[start : start + _VIEW_BAND_RAYS])
+            hits = geometry.cast(pose.t, pose.rotate(rays))
+            shaded[start : start + _VIEW_BAND_RAYS] = self._shade(geometry, hits, rays, pose)
+        img[index] = shaded.reshape(index.size, du.size, self.channels).mean(axis=1)
 
     def _mover_box(self, pose: Pose, t_s: float) -> tuple[int, int, int, int] | None:
         """The pixel rectangle (u0, v0, u1, v1) that the movers present at `t_s` may cover in the
@@ -277,23 +306,47 @@ class Renderer:
             hits = movers.cast(pose.t, pose.rotate(rays))
             nearer = hits.hit & (hits.distance < static.depth.reshape(-1)[index])
             if nearer.any():
-                shaded = self._shade(movers, hits, rays)
+                shaded = self._shade(movers, hits, rays, pose)
                 electrons = electrons.copy()
                 flat = electrons.reshape(-1, self.channels)
                 flat[index[nearer]] = shaded[nearer]
         return _View(pose, geometry, electrons)
 
-    def _shade(self, geometry: SceneGeometry, hits, rays: np.ndarray) -> np.ndarray:
-        """Room light at the configured exposure for the `hits` of camera `rays` (N, 3, unit):
-        (N, C) float32 photo-electrons, vignetting included."""
+    def _shade(self, geometry: SceneGeometry, hits, rays: np.ndarray, pose: Pose) -> np.ndarray:
+        """Room light at the configured exposure for the `hits` of camera `rays` (N, 3, unit) from
+        `pose` (the camera's in the world): (N, C) float32 photo-electrons, vignetting included."""
         albedo, _, _ = geometry.material(hits.face)
-        albedo, texture = self._surface(albedo, geometry.texture(hits.face, hits.surface_uv))
+        footprint = self._footprint(geometry, hits, rays, pose) if self.sim.optics.pixel_area else None
+        albedo, texture = self._surface(albedo, geometry.texture(hits.face, hits.surface_uv, footprint))
         light = _AMBIENT_BY_NORMAL_Z[0] + _AMBIENT_BY_NORMAL_Z[1] * hits.normal[:, 2]
         radiance = albedo * (texture * np.where(hits.hit, light, 0.0))[:, None]  # (N, 3) RGB
         img = radiance[:, ::-1] if self.channels == 3 else (radiance @ _GREY_WEIGHTS_RGB)[:, None]
         # cos⁴ fall-off of a simple lens: a unit ray's camera-frame z is its cosine.
         fall_off = rays[:, 2] ** 4 if self.sim.optics.vignetting else np.ones(len(rays))
         return (img * (self._ambient_e * fall_off)[:, None]).astype(np.float32)
+
+    def _footprint(self, geometry: SceneGeometry, hits, rays: np.ndarray, pose: Pose) -> np.ndarray:
+        """How far each hit's `surface_uv` moves for a pixel's step along the image's u and v
+        (N, 2, 2): the ray's step (a pinhole's: the lens's distortion changes it by a few tenths at
+        the corners, which does not matter to a blur) carried to the hit's plane."""
+        cam = self.rig.camera
+        out = np.zeros((len(rays), 2, 2))
+        hit = hits.hit
+        if not hit.any():
+            return out
+        rz = rays[hit, 2]
+        ray = pose.rotate(rays[hit] / rz[:, None])  # (world; unit depth along the camera's axis)
+        depth = hits.distance[hit] * rz
+        normal = hits.normal[hit]
+        facing = np.einsum("ij,ij->i", normal, ray)
+        facing = np.where(np.abs(facing) > 1e-9, facing, 1e-9)  # (grazing: a step reaches far, and blurs all)
+        u_axis, v_axis = geometry.uv_axes(hits.face[hit])
+        for j, step in enumerate((pose.R[:, 0] / cam.fx, pose.R[:, 1] / cam.fy)):
+            # Where the stepped ray meets the hit's plane, less where the ray met it.
+            moved = depth[:, None] * (step[None, :] - ((normal @ step) / facing)[:, None] * ray)
+            out[hit, 0, j] = np.einsum("ij,ij->i", moved, u_axis)
+            out[hit, 1, j] = np.einsum("ij,ij->i", moved, v_axis)
+        return out
 
     def _surface(self, albedo: np.ndarray, texture: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Albedo and texture as ``sim.surfaces`` changes every surface's."""

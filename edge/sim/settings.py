@@ -93,6 +93,14 @@ class OpticsConfig:
     focus_m: float = 1.2  # fixed-focus distance
     psf_sigma_px: float = 0.5  # lens + pixel blur of a point in focus
     vignetting: bool = True
+    # Each pixel sees the room averaged over its area, as a sensor's pixel integrates light: the
+    # texture filtered by the pixel's footprint on the surface, and a pixel that an edge crosses
+    # given some of each side. False (the default, which everything here was first measured on):
+    # the room is sampled at each pixel's centre, which folds a texture finer than a pixel into
+    # coarse false patterns and moves edges in whole pixels; what a turned camera's frames then
+    # show cannot be resampled into what the pose would have shown. (Movers are sampled at
+    # pixels' centres either way.)
+    pixel_area: bool = False
 
     def __post_init__(self) -> None:
         require(self.focal_length_mm > 0, "focal_length_mm", "must be positive")
