@@ -104,6 +104,25 @@ def test_a_share_of_the_rigs_move_between_their_frames() -> None:
     assert cond.Condition.from_json(doc) == replace(moving[0], jolt_deg=0.0)
 
 
+def test_a_share_of_the_rigs_sample_the_room_over_their_pixels_area() -> None:
+    """About AREA_SHARE of the conditions render with sim.optics.pixel_area; the others keep the
+    configuration's (a `--set` may give it). A family kept before the knob was drawn reads as
+    sampled at pixels' centres."""
+    base = load_config(None, [])
+    family = cond.family("evaluation", 200)
+    area = [c for c in family if c.pixel_area]
+    assert 0.35 < len(area) / len(family) < 0.65
+    centre = next(c for c in family if not c.pixel_area)
+    for c in (area[0], centre):
+        extra = c.overrides(base.sim.beam.e_per_ms_at_1m, base.sim.ambient.white_e_per_ms, zones=5)
+        assert load_config(None, list(extra)).sim.optics.pixel_area == c.pixel_area
+        assert load_config(None, ["sim.optics.pixel_area=true", *extra]).sim.optics.pixel_area
+    assert "area-sampled" in area[0].describe() and "area-sampled" not in centre.describe()
+    doc = json.loads(json.dumps(area[0].to_json()))
+    del doc["pixel_area"]
+    assert cond.Condition.from_json(doc) == replace(area[0], pixel_area=False)
+
+
 def test_a_family_kept_before_the_colour_matrix_was_drawn_reads_as_without_one() -> None:
     c = cond.condition("tuning", 321)
     assert c.colour_matrix  # a JPEG colour condition
@@ -329,7 +348,7 @@ def test_a_moving_rig_is_judged_on_its_frames_with_the_true_turn_taken_out(tmp_p
     # nearly the frames at rest. A room's strong texture, sampled once a pixel, does not resample:
     # turned back, the difference keeps it, as it would for any estimator.)
     tiny = replace(cond.condition("tuning", 3), width=160, height=120, fx=110.0, cx=79.5, cy=59.5, k1=0.0,
-                   scene="office", isp=False, jolt_deg=1.0, bayer="none", texture_scale=0.2)
+                   scene="office", isp=False, jolt_deg=1.0, bayer="none", texture_scale=0.2, pixel_area=False)
     (run,) = run_family(None, [], [tiny], zones=4, rig="true", jobs=1, keep=tmp_path)
     rec = read_recording(tmp_path / "tuning-3")
     config = condition_config(None, [], tiny, 4)
@@ -636,3 +655,25 @@ def test_honest_sigma_fails_small_conditions_by_chance() -> None:
     # Honest σ over many small conditions: about a fifth of 5-zone conditions fail.
     assert 0.2 < failing_by_chance([5] * 100) / 100 < 0.21
     assert failing_by_chance([10], outside=0.0) == 0.0
+
+
+def test_a_sensor_that_averages_over_its_pixels_turns_back_closer_to_the_pose() -> None:
+    """sim.optics.pixel_area: averaged over each pixel's area, a room's fine texture and its edges
+    resample, and a noise-free frame of the office turned 1° and turned back by its true turn is
+    nearer the frame from the pose than when each pixel samples the room at its centre."""
+    from edge.accuracy.unturned import turned_back
+    from edge.sim.record import scene_for, true_rig
+    from edge.sim.render import Renderer
+
+    def left(area: str) -> float:
+        rest = load_config(None, [f"sim.optics.pixel_area={area}"])
+        moving = load_config(None, [f"sim.optics.pixel_area={area}", "sim.sway.jolt_deg=1.0"])
+        still_renderer = Renderer(scene_for(rest), true_rig(rest), rest.sim, rest.camera)
+        renderer = Renderer(scene_for(moving), true_rig(moving), moving.sim, moving.camera)
+        turn = renderer.jolt({}, np.random.default_rng(3))
+        frame = renderer.render(40.0, 0.0, {}, 0.0, np.random.default_rng(3), noise=False)
+        at_rest = still_renderer.render(40.0, 0.0, {}, 0.0, np.random.default_rng(3), noise=False).astype(float)
+        back = turned_back(frame, renderer, (40.0, 0.0), turn).astype(float)
+        return float(np.sqrt(((back - at_rest)[16:-16, 16:-16] ** 2).mean()))
+
+    assert left("true") < 0.7 * left("false")

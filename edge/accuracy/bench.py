@@ -415,9 +415,13 @@ def condition_line(run: Run) -> str:
 
 def _by_kind(runs: Sequence[Run]) -> list[str]:
     """The family's figures by kind of frames (:attr:`Condition.frames`): where the estimator
-    stands furthest from the floor and from the oracle; then still rigs beside moving ones."""
+    stands furthest from the floor and from the oracle; then still rigs beside moving ones, and
+    sensors that sample the room at their pixels' centres beside those that average it over their
+    area."""
     return (_by(runs, lambda c: c.frames, "by kind of frames")
-            + _by(runs, lambda c: "moving" if c.jolt_deg else "still", "by the rig's motion between its frames"))
+            + _by(runs, lambda c: "moving" if c.jolt_deg else "still", "by the rig's motion between its frames")
+            + _by(runs, lambda c: "pixel's area" if c.pixel_area else "pixel's centre",
+                  "by where the sensor samples the room"))
 
 
 def _by(runs: Sequence[Run], kind_of: Callable[[Condition], str], title: str) -> list[str]:

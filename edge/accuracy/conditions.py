@@ -25,7 +25,9 @@ A condition draws, from its seed, everything the simulator can vary that real se
 - whether the rig moves between its frames: for 30 % of the rigs (on a robot, worn, or ringing
   after a move) a turn of 0.02–1° between each laser-on frame and the laser-off frame after it
   (``sim.sway.jolt_deg``); the bench judges such a rig on its frames with each true turn taken out
-  (:mod:`edge.accuracy.unturned`).
+  (:mod:`edge.accuracy.unturned`);
+- how the sensor samples the room: for half of the rigs each pixel averages it over its area
+  (``sim.optics.pixel_area``), for the rest it is sampled at each pixel's centre.
 
 Ranging is configured as the base configuration says; a condition changes only the simulator, the
 camera model and the sweep's poses. A condition is a set of ``--set`` overrides, so any of them can
@@ -83,6 +85,11 @@ ISP_DEMOSAICS = ("bilinear", "vng", "ea")  # for an ISP condition drawn as a 3-c
 # a turn in this range (degrees): the rest are still, on a shelf or a tripod.
 MOVING_SHARE = 0.3
 JOLT_DEG = (0.02, 1.0)
+# Of the rigs, this share's sensor sees the room averaged over each pixel's area
+# (sim.optics.pixel_area); the rest sample it at each pixel's centre, as the simulator first did.
+# Real sensors lie between: a pixel integrates over its area, and without an anti-aliasing filter
+# (the Pi camera has none) a texture finer than it still folds into its frames.
+AREA_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -133,6 +140,9 @@ class Condition:
     # (degrees), each time in a direction of its own (sim.sway.jolt_deg): a robot that turns, a
     # walker's head, a head still ringing. Drawn last: families kept before read as still (0).
     jolt_deg: float = 0.0
+    # The sensor integrates the room over each pixel's area (sim.optics.pixel_area). Drawn last:
+    # families kept before read as sampled at pixels' centres (False).
+    pixel_area: bool = False
 
     @property
     def name(self) -> str:
@@ -208,6 +218,7 @@ class Condition:
             *([f"sim.sensor.colour_matrix={list(self.colour_matrix)!r}"] if self.colour_matrix else []),
             # (Only a moving rig's own: still ones keep the configuration's, which a `--set` may give.)
             *([f"sim.sway.jolt_deg={self.jolt_deg!r}"] if self.jolt_deg else []),
+            *(["sim.optics.pixel_area=true"] if self.pixel_area else []),
             f"sweep.poses_deg={poses}",
         )
 
@@ -245,6 +256,8 @@ class Condition:
             frames += f" ccm {self.colour_matrix[0]:.2f}R{self.colour_matrix[1]:+.2f}G{self.colour_matrix[2]:+.2f}B"
         if self.jolt_deg:
             frames += f" turned {self.jolt_deg:.2g}°"
+        if self.pixel_area:
+            frames += " area-sampled"
         return (f"{self.scene} {self.width}x{self.height} {sensor} {frames}, laser ×{self.laser_power:.2g} "
                 f"light ×{self.room_light:.2g} fill {self.fill:.2f} albedo ×{self.albedo_scale:.2g} "
                 f"gloss +{self.extra_gloss:.2f} f/{self.f_number:.1f}@{self.focus_m:.1f}m speckle ×{self.speckle:.2g}")
@@ -332,7 +345,8 @@ def condition(family: Family | str, index: int) -> Condition:
         colour_matrix=_colour_matrix(rng, colour and bool(jpeg_quality)),
     )
     drawn = _through_isp(drawn, rng)
-    return replace(drawn, jolt_deg=_jolt(rng))
+    drawn = replace(drawn, jolt_deg=_jolt(rng))
+    return replace(drawn, pixel_area=bool(rng.random() < AREA_SHARE))
 
 
 def _through_isp(drawn: Condition, rng: np.random.Generator) -> Condition:
