@@ -280,18 +280,21 @@ class MqttLink:
             self._stats["live_sent" if ok else "dropped_live"] += 1
         return ok
 
-    def publish_state(self, payload: dict[str, Any]) -> None:
+    def publish_state(self, payload: dict[str, Any], at_once: bool = False) -> None:
         """The state snapshot: retained, QoS 1, remembered and sent again at every connect; at
-        most one every :data:`SNAPSHOT_INTERVAL_S` (the latest wins, none is left behind)."""
-        self.publish_snapshot("state", payload)
+        most one every :data:`SNAPSHOT_INTERVAL_S` (the latest wins, none is left behind), but
+        `at_once` (a part's health changed) now: paced, a fault that ended within the interval
+        was replaced by the recovery before it went out, and nobody saw it (a camera that
+        stalled for 3 s of the simulator's time, which passes in a fraction of a second)."""
+        self.publish_snapshot("state", payload, at_once=at_once)
 
     def publish_snapshot(self, kind: str, payload: dict[str, Any] | bytes,
-                         min_interval_s: float = SNAPSHOT_INTERVAL_S) -> None:
+                         min_interval_s: float = SNAPSHOT_INTERVAL_S, at_once: bool = False) -> None:
         """A snapshot (see the module notes): a JSON object, or bytes sent as they are (the map's
         PNG). Sent now if the topic's last message is at least `min_interval_s` old (never less
-        than :data:`SNAPSHOT_INTERVAL_S`), else when that time is up, unless a newer value
-        replaces it meanwhile (a later call with a shorter interval brings the time forward).
-        Never waits for the broker."""
+        than :data:`SNAPSHOT_INTERVAL_S`) or `at_once`, else when that time is up, unless a newer
+        value replaces it meanwhile (a later call with a shorter interval brings the time
+        forward). Never waits for the broker."""
         if kind not in SNAPSHOT_KINDS:
             raise ValueError(f"publish_snapshot: kind must be one of {', '.join(SNAPSHOT_KINDS)}, got {kind!r}")
         data = bytes(payload) if isinstance(payload, (bytes, bytearray)) else encode(payload)
@@ -306,7 +309,7 @@ class MqttLink:
             due = snap.sent_at + interval
             if snap.due is not None:
                 due = min(due, snap.due)
-            if now >= due:
+            if at_once or now >= due:
                 self._send_snapshot(topic, snap, now)
                 return
             snap.due = due

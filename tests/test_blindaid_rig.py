@@ -36,7 +36,7 @@ class Recorder(NullLink):
         self.lock = threading.Lock()
         self.now = time.monotonic_ns  # the service's rig clock, once there is a service
 
-    def publish_state(self, payload: dict[str, Any]) -> None:
+    def publish_state(self, payload: dict[str, Any], at_once: bool = False) -> None:
         with self.lock:
             self.log.append((self.now(), "state", payload))
 

@@ -32,7 +32,7 @@ class Recorder(NullLink):
     def publish_event(self, kind, payload):
         self.events.append((kind, payload))
 
-    def publish_state(self, payload):
+    def publish_state(self, payload, at_once=False):
         self.states.append(payload)
 
     def last(self, kind: str) -> Any:

@@ -266,6 +266,21 @@ def test_a_snapshot_goes_out_at_most_twice_a_second_and_its_latest_value_always(
         link.publish_snapshot("range", {})
 
 
+def test_a_state_whose_health_changed_goes_out_at_once_and_is_not_replaced(broker, subscriber, make_link):
+    """A part's fault and its recovery within one snapshot interval (3 s of the simulator's time
+    pass in a moment): paced, the fault was replaced by the recovery before it went out, and
+    nobody saw it; sent `at_once`, both go out, in order, whatever the pacing holds back."""
+    link = started(make_link())
+    mark = subscriber.mark()
+    link.publish_state({"camera": "ok", "n": 1})
+    link.publish_state({"camera": "ok", "n": 2})  # (held back by the pacing)
+    link.publish_state({"camera": "fault: no frame", "n": 3}, at_once=True)
+    link.publish_state({"camera": "ok", "n": 4}, at_once=True)
+    got = subscriber.wait_for(T.state, lambda m: json.loads(m.payload)["n"] == 4, since=mark, timeout=5)
+    numbers = [json.loads(m.payload)["n"] for m in subscriber.messages(T.state, since=mark)]
+    assert numbers == [1, 3, 4] and got.qos == 1
+
+
 def test_snapshots_are_retained_sent_again_at_every_connect_and_the_last_before_offline(broker, subscriber,
                                                                                         make_link):
     link = started(make_link())

@@ -58,7 +58,7 @@ class Recorder:
     def ranges(self) -> int:
         return sum(kind == "range" for kind, _ in self.events)
 
-    def publish_state(self, payload):
+    def publish_state(self, payload, at_once=False):
         self.states.append(payload)
 
     def publish_event(self, kind, payload):

@@ -24,7 +24,9 @@ class Link(Protocol):
         """The commands received since the last call, oldest first: (name, raw payload)."""
         ...
 
-    def publish_state(self, payload: dict[str, Any]) -> None: ...
+    def publish_state(self, payload: dict[str, Any], at_once: bool = False) -> None:
+        """The state snapshot; `at_once`: a part's health changed, and it goes out now."""
+        ...
 
     def publish_event(self, kind: str, payload: dict[str, Any]) -> object:
         """A sweep or an alert: kept until the broker has it."""
@@ -54,7 +56,7 @@ class NullLink:
     def commands(self) -> list[tuple[str, bytes]]:
         return []
 
-    def publish_state(self, payload: dict[str, Any]) -> None:
+    def publish_state(self, payload: dict[str, Any], at_once: bool = False) -> None:
         pass
 
     def publish_event(self, kind: str, payload: dict[str, Any]) -> None:

@@ -88,7 +88,7 @@ class Service:
         self.health = RigHealth(believed.rig.laser_names, believed.health,
                                 calibrated=believed.calibration is not None,
                                 camera=lambda: self._parts.camera if self._parts else None,
-                                changed=self._publish_state)
+                                changed=lambda: self._publish_state(at_once=True))
         boot = BootId(config.service.resolved_state_dir())  # in every sweep and alert
         from edge.maps import GridKeeper
 
@@ -341,9 +341,9 @@ class Service:
                 "calibration_age_d": _age_days(self._calibrated_at),
                 **{key: value for key, value in present.items() if value is not None}}
 
-    def _publish_state(self) -> None:
+    def _publish_state(self, at_once: bool = False) -> None:
         self._state_at = time.monotonic()
-        self.link.publish_state(self.state())
+        self.link.publish_state(self.state(), at_once=at_once)
 
     def _publish_live(self, kind: str, payload: dict[str, Any]) -> None:
         """A range or a cue: on the contract's topic, every one, and to Home Assistant's feed."""
