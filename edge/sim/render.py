@@ -550,11 +550,13 @@ class Renderer:
                       t_s: float = 0.0) -> np.ndarray:
         """Where the room seen at `pixels` (..., 2) of the view at (pan, tilt) shows in the view
         turned by `turn_deg` (pan, tilt): along each pixel's ray to the surface it meets, then into
-        the turned camera. By the room's depth, not by the turn alone: the camera sits off the
-        unit's axes, so a turn moves what is near more than what is far. Nothing hit counts as far
-        away. (The sensor's pixels, as `spot_model`'s.)"""
+        the turned camera. By the room's depth, not by the turn alone: a camera mounted off the
+        unit's axes moves what is near more than what is far as it turns. Nothing hit counts as far
+        away; movers are left out (the room's depth behind them), and so is `sim.sway.deg`'s
+        turning. (The sensor's pixels, as `spot_model`'s.)"""
         self._no_isp("a view's depth")
-        view = self._view(pan_deg, tilt_deg, t_s)
+        key = (round(pan_deg, 9), round(tilt_deg, 9), None)
+        view = self._cached(key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
         assert view.depth is not None  # (static views are rendered with their depth)
         cam = self.rig.camera
         px = np.asarray(pixels, dtype=np.float64)
