@@ -11,10 +11,11 @@ zones and doubled the mean error; turned 0.5–2°, a third of them were lost.
 frame, from a sparse grid of pixels away from the laser paths: a Lucas–Kanade step at baselines of
 1 and 4 px against what the pixel noise alone gives (sub-pixel ringing to a few pixels), and the
 difference's energy against the frames' own steps from pixel to pixel (a turn larger than the
-texture's grain). Where one did, it finds how the camera turned between them (a rotation: the homography
-K·R·K⁻¹ moves the whole room, parallax aside), coarse by phase correlation and then by Gauss–Newton on
-the same grid made dense, and turns the off frame back onto the on frame. A lit frame is never
-moved: its spots are where the ranging reads them. Pure (numpy and OpenCV).
+texture's grain). Where one did, it finds how the camera turned between them (a rotation of the
+rays through the lens: the homography K·R·K⁻¹ where the lens has no distortion; it moves the whole
+room, parallax aside), coarse by phase correlation and then by Gauss–Newton on the same grid made
+dense, and turns the off frame back onto the on frame. A lit frame is never moved: its spots are
+where the ranging reads them. Pure (numpy and OpenCV).
 """
 
 from __future__ import annotations

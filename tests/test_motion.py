@@ -177,3 +177,29 @@ def test_a_group_whose_turns_are_all_refused_keeps_every_laser_off_frame() -> No
         assert steadier.moved(lit, lamp), pan
         assert steadier.turn(lit, lamp).shift_px == 0.0, pan
         assert steadier.steady([lit], [lamp, other]) is None, pan
+
+
+def test_a_turn_seen_through_a_wide_lens_is_followed_to_the_corners() -> None:
+    """A wide webcam's barrel (k1 = −0.25) moves the picture's corners less than its centre as the
+    camera turns, which no homography follows: the turn is fitted through the lens, and where it
+    carries a pixel matches, corners and centre, where the room truly went (the renderer's own
+    rays), and the frame turned back matches the lit frame's room."""
+    config = load_config(None, ["rig.camera.dist=[-0.25, 0.0, 0.0, 0.0, 0.0]", "sim.sway.jolt_deg=1.0"])
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+    ranger = Ranger(renderer.rig)
+    cam = renderer.rig.camera
+    corners = np.array([[40.0, 40.0], [cam.width - 41.0, 40.0], [40.0, cam.height - 41.0],
+                        [cam.width - 41.0, cam.height - 41.0], [cam.cx, cam.cy]])
+    for pan, seed in ((-112.5, 1), (0.0, 2)):
+        lit = renderer.render(pan, 0.0, {n: 1.0 for n in renderer.rig.laser_names}, 0.0, np.random.default_rng(seed))
+        turned = renderer.jolt({}, np.random.default_rng(seed + 10))
+        dark = renderer.render(pan, 0.0, {}, 0.0, np.random.default_rng(seed + 10))
+        turn = ranger.steadier.turn(lit, dark)
+        truth = renderer.turned_pixels(pan, 0.0, turned, corners)
+        found = ranger.steadier._mapped(turn.rotation, corners)
+        assert np.hypot(*(found - truth).T).max() < 0.1, (pan, found - truth)
+        back = ranger.steadier.turned_back(dark, turn)
+        rows, left = slice(40, 440), slice(40, 250)  # (the laser paths run down the middle)
+        before = np.abs(lit[rows, left, 2].astype(float) - dark[rows, left, 2]).mean()
+        after = np.abs(lit[rows, left, 2].astype(float) - back[rows, left, 2]).mean()
+        assert after < 0.5 * before, (pan, before, after)
