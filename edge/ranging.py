@@ -108,12 +108,15 @@ NEAR_MISS_SIGMAS = 5.0
 # none fewer, no wrong one.
 NEAR_WITNESS_SIGMAS = 3.0
 # A reference this faint (peak over noise) and placed to worse than LOOSE_WINNER_PX, that only
-# spots fainter than min_snr agree with, is three blobs of the kind noise and JPEG make as often as
-# lasers do, one meeting the others' surface by chance: not ranged. (Tuning-1266 zone 0 and
-# tuning-1509 zone 11, 4:2:0 JPEG read in luma: a reference of SNR 6-10 placed to 1.4-1.9 px at the
-# near end of its path and a partner of SNR 3.5-5.5, 66 % and 98 % short at ± 3.4 and 4.4 %. On
-# seven tuning sets, 7 965 observable zones, it refused those and 2 observable zones that were
-# right.)
+# spots as faint agree with, is three blobs of the kind noise and JPEG make as often as lasers do,
+# one meeting the others' surface by chance: not ranged. (Tuning-1266 zone 0 and tuning-1509 zone
+# 11, 4:2:0 JPEG read in luma: a reference of SNR 6-10 placed to 1.4-1.9 px at the near end of its
+# path and a partner of SNR 3.5-5.5, 66 % and 98 % short at ± 3.4 and 4.4 %. On seven tuning sets,
+# 7 965 observable zones, it refused those and 2 observable zones that were right.) The partners
+# were once held to min_snr (6): one of SNR 6.1 at its path's near end let three blobs make
+# tuning-2377 zone 0, 90 % short at ± 0.8 %. Held to this, on fourteen tuning sets (about 10 000
+# observable zones) it refused 3 more wrong zones, 87-98 % off (tuning-1907 zone 1, tuning-2156
+# zone 9 and that one), and 12 observable zones that were right (15 in all).
 FAINT_TRIO_SNR = EDGE_MIN_SNR
 NEAR_WITNESS_M = FAR_LASER_M  # (a near laser's spot: within this of the reference's)
 LOOK_THRESHOLD = 0.8
@@ -528,7 +531,7 @@ class Ranger:
         if len(fusion.used) == 1 and not any(others.values()) and chosen.snr < self.config.alone_min_snr:
             return AMBIGUOUS, f"the {ref} spot is weak (SNR {chosen.snr:.0f}) and no other laser's spot was found"
         if (len(fusion.used) > 1 and chosen.snr < FAINT_TRIO_SNR and chosen.sigma_px > LOOSE_WINNER_PX
-                and all(m.snr < self.config.min_snr for m in fusion.used[1:])):
+                and all(m.snr < FAINT_TRIO_SNR for m in fusion.used[1:])):
             return AMBIGUOUS, (f"the {ref} spot is faint (SNR {chosen.snr:.0f}) and placed only to "
                                f"{chosen.sigma_px:.1f} px, and only fainter spots agree with it")
         if (len(fusion.used) == 2 and _rests_on_a_far_one(fusion) and self._too_loose_alone(chosen)

@@ -568,8 +568,8 @@ def test_a_reference_too_loose_to_tell_a_far_spots_surface_is_not_ranged_by_it(m
 def test_a_faint_loose_reference_that_only_fainter_spots_agree_with_is_not_ranged() -> None:
     """A reference of SNR 8 placed to 1.2 px at 0.5 m, and the parallel laser's spot beside it on the
     same surface: three blobs of the kind noise and JPEG make as often as lasers do, if the partner
-    is fainter than min_snr (tuning-1266 zone 0, tuning-1509 zone 11: 66 % and 98 % short). The
-    same partner at SNR 7 makes it a range (± 3 %)."""
+    is as faint (tuning-1266 zone 0, tuning-1509 zone 11: 66 % and 98 % short; tuning-2377 zone 0,
+    a partner of SNR 6.1, 90 %). The same partner at SNR 11 makes it a range (± 3 %)."""
     rig = _wall(0.5).rig
     ranger = Ranger(rig)
 
@@ -578,7 +578,7 @@ def test_a_faint_loose_reference_that_only_fainter_spots_agree_with_is_not_range
         return measure(laser, rig.camera, rig.camera.project(laser.point_at_depth(0.5)), sigma_px, snr, 2)
 
     reference = spot("center", 1.2, 8.0)
-    for partner_snr, refused in ((4.5, True), (7.0, False)):
+    for partner_snr, refused in ((4.5, True), (6.1, True), (11.0, False)):
         partner = spot("parallel", 0.8, partner_snr)
         fusion = fuse(rig, reference, [partner])
         assert [m.laser for m in fusion.used] == ["center", "parallel"]
