@@ -367,6 +367,28 @@ def test_a_spot_lit_while_off_tells_an_active_low_driver(office):
     assert ok.nearest == "center" and ok.from_path_px["center"] < 0.5 and not ok.lit_when_off
 
 
+@pytest.mark.parametrize(("snr", "off_px", "built"), [(9.0, 1.6, None), (9.0, 2.5, False), (100.0, 1.8, False),
+                                                    (100.0, 1.2, True)])
+def test_a_faint_spot_just_past_the_paths_reach_does_not_say_the_rig_is_built_wrong(snr, off_px, built):
+    """Ranging keeps spots within 1.5 px of their paths. A spot of SNR 9 placed 1.6 px off (tuning-2399,
+    a rig built exactly as configured) is within what so faint a spot is placed to: the line says
+    so and how to tell, not "not built as configured". Farther, or a bright spot past what it is
+    placed to, it does."""
+    from edge.doctor.spots import SpotReport, placed_to_px
+
+    assert 0.3 < placed_to_px(9.0) < 0.5 and placed_to_px(100.0) < 0.2
+    report = SpotReport("center", (330.0, 240.0), snr, {"center": off_px, "parallel": 9.0, "sloped": 40.0}, 2.0,
+                        inverted=False, lit_when_off=False)
+    if built is False:
+        with pytest.raises(Problem, match="px from where the rig says it can be") as wrong:
+            _verdict(report, 0, load_config(), (0.0, 0.0))
+        assert "not built as configured" in wrong.value.remedy
+        return
+    line = _verdict(report, 0, load_config(), (0.0, 0.0))
+    assert ("no sign that the rig is built otherwise" in line) == (built is None)
+    assert ("nearer or paler wall" in line) == (built is None)
+
+
 def test_the_device_configuration_is_accepted_here_and_its_doctor_says_what_to_do():
     """config/device.toml names real parts this machine does not have: `edge config` reads it all
     the same, and the doctor fails their lines, each with a remedy, instead of stopping."""

@@ -595,6 +595,17 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
                       "its spot out of sight",
                       f"aim the unit at a matte wall {lo:g}–{hi:g} m away ([rangefinder] pan_deg, tilt_deg; now "
                       f"pan {aim[0]:+g}°, tilt {aim[1]:+g}°) and run the doctor again")
+    from edge.doctor.spots import placed_to_px
+
+    unsure = placed_to_px(report.snr)
+    if tolerance < own <= tolerance + unsure:
+        # (Past ranging's reach by less than the doctor places such a spot to: no word on the build.)
+        lo, hi = config.rig.range_limits_m
+        then = (f"aim at a nearer or paler wall ({lo:g}–{hi:g} m) and run the doctor again to be sure"
+                if report.snr < TIMING_MIN_SNR else "if ranging loses this laser's spots, calibrate (`edge calibrate`)")
+        return (f"{where}, {own:.2f} px from its path where ranging keeps {tolerance:g} px: within what a spot of "
+                f"SNR {report.snr:.0f} is placed to here (± {unsure:.1f} px), no sign that the rig is built "
+                f"otherwise; {then}")
     if own > tolerance:
         calibrated = config.rig.calibration or "a calibration"
         raise Problem(f"{where} is {own:.1f} px from where the rig says it can be (ranging keeps spots within "
