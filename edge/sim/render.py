@@ -547,13 +547,14 @@ class Renderer:
         return float(jolt * np.cos(direction)), float(jolt * np.sin(direction))
 
     def turned_pixels(self, pan_deg: float, tilt_deg: float, turn_deg: tuple[float, float], pixels: np.ndarray,
-                      t_s: float = 0.0) -> np.ndarray:
+                      t_s: float = 0.0, rays: np.ndarray | None = None) -> np.ndarray:
         """Where the room seen at `pixels` (..., 2) of the view at (pan, tilt) shows in the view
         turned by `turn_deg` (pan, tilt): along each pixel's ray to the surface it meets, then into
         the turned camera. By the room's depth, not by the turn alone: a camera mounted off the
         unit's axes moves what is near more than what is far as it turns. Nothing hit counts as far
         away; movers are left out (the room's depth behind them), and so is `sim.sway.deg`'s
-        turning. (The sensor's pixels, as `spot_model`'s.)"""
+        turning. (The sensor's pixels, as `spot_model`'s; `rays`: theirs, `CameraModel.rays`, where
+        the caller keeps them.)"""
         self._no_isp("a view's depth")
         key = (round(pan_deg, 9), round(tilt_deg, 9), None)
         view = self._cached(key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
@@ -564,7 +565,7 @@ class Renderer:
         iv = np.clip(np.rint(px[..., 1]).astype(np.intp), 0, cam.height - 1)
         depth = view.depth[iv, iu]
         depth = np.where(np.isfinite(depth), depth, _FAR_M)
-        world = view.camera_to_world.apply(cam.rays(px) * depth[..., None])
+        world = view.camera_to_world.apply((cam.rays(px) if rays is None else rays) * depth[..., None])
         turned = self.camera_to_world(pan_deg + turn_deg[0], tilt_deg + turn_deg[1]).inverse().apply(world)
         return cam.project(turned)
 
