@@ -139,12 +139,6 @@ class Steadier:
         xn = cam.undistort(np.column_stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy]))
         return np.column_stack([xn, np.ones(len(xn))])
 
-    def _project(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixels (u, v) of camera-frame rays `q` (n, 3), through the lens."""
-        cam = self.cam
-        xy = cam.distort(q[:, :2] / q[:, 2:3])
-        return cam.fx * xy[:, 0] + cam.cx, cam.fy * xy[:, 1] + cam.cy
-
     # --- the gate ---------------------------------------------------------------------------------
 
     def _gather(self, image: np.ndarray, neighbours: bool = True) -> np.ndarray:
@@ -228,7 +222,7 @@ class Steadier:
             h = self._homography(rotation)
             p = uv @ h[:, :2].T + h[:, 2]
             return p[:, :2] / p[:, 2:3]
-        return np.column_stack(self._project(self._rays(uv[:, 0], uv[:, 1]) @ rotation.T))
+        return self.cam.project(self._rays(uv[:, 0], uv[:, 1]) @ rotation.T)
 
     def _shift_px(self, rotation: np.ndarray) -> float:
         """How far `rotation` moves the picture's centre or corners, whichever most (px)."""
@@ -364,7 +358,7 @@ class Steadier:
             # ∂x/∂δ = (−x·y, 1 + x², −y) and ∂y/∂δ = (−1 − y², x·y, x); then the light's gain and offset.
             gu, gv = sx * cam.fx, sy * cam.fy
             if distorted:  # (through the lens: the chain rule, its 2 × 2 Jacobian at (x, y))
-                dxx, dxy, dyx, dyy = _distortion_jacobian(cam.dist, x, y)
+                dxx, dxy, dyx, dyy = cam.distortion_jacobian(x, y)
                 gu, gv = gu * dxx + gv * dyx, gu * dxy + gv * dyy
             xy = x * y
             jacobian = np.empty((5, r.size))
@@ -393,8 +387,7 @@ class Steadier:
         if self._map_grid is None:
             return cv2.warpPerspective(dark, self._homography(turn.rotation), (self.cam.width, self.cam.height),
                                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
-        mu, mv = self._project(self._map_rays @ turn.rotation.T)
-        coarse = np.dstack([mu, mv]).reshape(*self._map_shape, 2).astype(np.float32)
+        coarse = self.cam.project(self._map_rays @ turn.rotation.T).reshape(*self._map_shape, 2).astype(np.float32)
         where = cv2.remap(coarse, *self._map_grid, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return cv2.remap(dark, where[..., 0], where[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
@@ -431,19 +424,6 @@ class Steadier:
         energy, explained = before
         energy_back, explained_back = self._score(lit, back)
         return energy_back < energy and explained_back < max(explained, GATE_CHI2)
-
-
-def _distortion_jacobian(dist: Sequence[float], x: np.ndarray, y: np.ndarray
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """∂(xd, yd)/∂(x, y) of CameraModel.distort (radial k1, k2, k3 and tangential p1, p2) at
-    normalised points (x, y): its four entries, xd by x, xd by y, yd by x, yd by y."""
-    k1, k2, p1, p2, k3 = dist
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    slope = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # ∂radial/∂r²
-    cross = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y
-    return (radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x, cross,
-            cross, radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x)
 
 
 def _median(values: np.ndarray) -> float:

@@ -144,6 +144,18 @@ class CameraModel:
         yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
         return np.stack([xd, yd], axis=-1)
 
+    def distortion_jacobian(self, x: np.ndarray, y: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """∂(xd, yd)/∂(x, y) of :meth:`distort` at normalised points (`x`, `y`): its four entries,
+        xd by x, xd by y, yd by x, yd by y (radial k1, k2, k3 and tangential p1, p2)."""
+        k1, k2, p1, p2, k3 = self.dist
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        slope = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # ∂radial/∂r²
+        cross = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y
+        return (radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x, cross,
+                cross, radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x)
+
     def undistort(self, xd: np.ndarray, iterations: int = 20) -> np.ndarray:
         """Invert :meth:`distort` by fixed-point iteration (as OpenCV's undistortPoints)."""
         if not self.distorted:

@@ -148,3 +148,19 @@ def test_rig_validation() -> None:
         Rig(CAMERA_MODELS["picam-v2"], ())
     unflagged = tuple(Laser(x.name, x.origin_m, x.direction) for x in lasers)
     assert Rig(CAMERA_MODELS["picam-v2"], unflagged).reference.name == "center"  # first one
+
+
+def test_the_distortions_jacobian_is_its_derivative() -> None:
+    """`CameraModel.distortion_jacobian` (what a turn fitted through the lens steps by, edge.motion)
+    against central differences of `distort`, radial and tangential terms all given."""
+    cam = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0, (-0.21, 0.05, 0.001, -0.002, 0.01))
+    x, y = np.array([0.3, -0.5, 0.1, 0.0]), np.array([-0.2, 0.4, 0.6, 0.0])
+    h = 1e-6
+
+    def at(dx: float, dy: float) -> np.ndarray:
+        return cam.distort(np.column_stack([x + dx, y + dy]))
+
+    by_x, by_y = (at(h, 0) - at(-h, 0)) / (2 * h), (at(0, h) - at(0, -h)) / (2 * h)
+    expected = (by_x[:, 0], by_y[:, 0], by_x[:, 1], by_y[:, 1])
+    for got, want in zip(cam.distortion_jacobian(x, y), expected):
+        assert np.allclose(got, want, atol=1e-8)
