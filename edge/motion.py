@@ -405,15 +405,22 @@ class Steadier:
             return None
         out, taken = [], False
         for on, off, score in zip(lit, paired, scores):
-            t = self.turn(on, off)
-            if t.shift_px >= LEAST_SHIFT_PX:
-                back = self.turned_back(off, t)
-                if self._steadier(on, back, score):
-                    out.append(back)
-                    taken = True
-                    continue
-            out.append(off)
+            back = self.steadied(on, off, score)[1]
+            out.append(off if back is None else back)
+            taken = taken or back is not None
         return out if taken else None  # (no turn taken: every off frame as it came, not one per on frame)
+
+    def steadied(self, lit: np.ndarray, dark: np.ndarray, score: tuple[float, float] | None = None
+                 ) -> tuple[Turn, np.ndarray | None]:
+        """The turn from `lit` to `dark`, and `dark` turned back by it where the turn is taken (it
+        moves the picture by LEAST_SHIFT_PX or more and leaves the pair steadier, `_steadier`,
+        against the pair's `_score`: `score`, where the caller has it); else None."""
+        t = self.turn(lit, dark)
+        if t.shift_px < LEAST_SHIFT_PX:
+            return t, None
+        back = self.turned_back(dark, t)
+        before = score if score is not None else self._score(lit, dark)
+        return t, back if self._steadier(lit, back, before) else None
 
     def _steadier(self, lit: np.ndarray, back: np.ndarray, before: tuple[float, float]) -> bool:
         """Is `back` (an off frame turned back) steadier against `lit` than the off frame was, whose

@@ -32,7 +32,6 @@ def condition_pairs(folder: str, doc: dict, zones: int) -> list[dict]:
     from edge.accuracy.conditions import Condition
     from edge.accuracy.oracle import ZoneOracle
     from edge.accuracy.unturned import TURNS_KEY
-    from edge.motion import LEAST_SHIFT_PX
     from edge.ranging import Ranger
     from edge.recording import read_recording
 
@@ -63,9 +62,8 @@ def condition_pairs(folder: str, doc: dict, zones: int) -> list[dict]:
             seen = renderer.turned_pixels(pan, zone.tilt_deg, (turn[0], turn[1]), np.array([[u, v]]))[0]
             if cond.isp:
                 seen = np.array(isp.scaled_pixel(seen[0], seen[1]))
-            found = steadier.turn(on, off)
-            taken = bool(found.shift_px >= LEAST_SHIFT_PX
-                         and steadier._steadier(on, steadier.turned_back(off, found), steadier._score(on, off)))
+            found, back = steadier.steadied(on, off)
+            taken = back is not None
             mapped = steadier._mapped(found.rotation, np.array([pixel], np.float64))[0]
             rows.append({"condition": cond.name, "zone": zone.index, "frames": cond.frames,
                          "true_px": float(np.hypot(*(seen - pixel))), "fit_px": float(np.hypot(*(mapped - seen))),
