@@ -73,7 +73,7 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
     False (it takes about as long as the recording). Recordings go to `folder`."""
     from edge.accuracy.oracle import ZoneOracle
     from edge.accuracy.truth import floor_truth
-    from edge.accuracy.unturned import unturned_groups
+    from edge.accuracy.unturned import truth_time_s, unturned_groups
     from edge.recording import read_recording
     from edge.sim.record import record_sweep
 
@@ -99,9 +99,8 @@ def run_condition(config_path: str | None, overrides: Sequence[str], cond: Condi
         if cond.jolt_deg:
             assert zone_oracle is not None  # (its renderer made the frames)
             groups = unturned_groups(recording, zone, zone_oracle.renderer, scaled=cond.isp)
-        t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # as the recorder's truth
         return (_frame_snr(groups, zone, reference),
-                zone_oracle.error_m(groups, zone.truth or {}, t_s) if zone_oracle and oracle else None)
+                zone_oracle.error_m(groups, zone.truth or {}, truth_time_s(zone)) if zone_oracle and oracle else None)
 
     return _ranged(cond, config, recording, ranging_rig, said, began, seen)
 

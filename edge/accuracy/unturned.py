@@ -50,7 +50,7 @@ def unturned_groups(recording: Recording, zone: ZoneRecord, renderer: Renderer,
         raise RecordingError(f"{recording.path}: zone {zone.index}: truth.{TURNS_KEY} has {len(turns)} turns "
                              f"for {len(dark)} laser-off frames")
     turn_of = {id(frame): (float(turn[0]), float(turn[1])) for frame, turn in zip(dark, turns)}
-    t_s = (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0  # (as the recorder's truth)
+    t_s = truth_time_s(zone)
 
     def image(zone: ZoneRecord, frame: FrameRecord) -> np.ndarray:
         picture = recording.load_image(zone, frame)
@@ -62,6 +62,12 @@ def unturned_groups(recording: Recording, zone: ZoneRecord, renderer: Renderer,
         return turned_back(picture, renderer, view, turn, t_s, scaled)
 
     return zone_groups(recording, zone, image)[0]
+
+
+def truth_time_s(zone: ZoneRecord) -> float:
+    """The rig's time (s) a simulated zone's truth is taken at: its first frame's start, as the
+    recorder takes it (0 for a zone without frames)."""
+    return (zone.frames[0].t_start_ns or 0) / 1e9 if zone.frames else 0.0
 
 
 def turned_back(picture: np.ndarray, renderer: Renderer, view: tuple[float, float], turn: tuple[float, float],
