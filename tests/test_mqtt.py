@@ -278,7 +278,9 @@ def test_a_state_whose_health_changed_goes_out_at_once_and_is_not_replaced(broke
     link.publish_state({"camera": "ok", "n": 4}, at_once=True)
     got = subscriber.wait_for(T.state, lambda m: json.loads(m.payload)["n"] == 4, since=mark, timeout=5)
     numbers = [json.loads(m.payload)["n"] for m in subscriber.messages(T.state, since=mark)]
-    assert numbers == [1, 3, 4] and got.qos == 1
+    # (2 is held back by the pacing and replaced by 3, unless this machine stalled for 0.6 s between
+    # them: then it went out in its turn. Either way 3 and 4 follow, in order.)
+    assert [n for n in numbers if n != 2] == [1, 3, 4] and got.qos == 1
 
 
 def test_snapshots_are_retained_sent_again_at_every_connect_and_the_last_before_offline(broker, subscriber,
