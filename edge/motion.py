@@ -67,6 +67,7 @@ TURN_CHI2 = 50.0
 TURN_EXPLAINS = 0.85  # ... and leaves at most this share of the unturned difference's RMS
 TURN_SURE = 0.5  # a turn that leaves less than this share is taken without trying the other starts
 MAX_SHIFT = 0.25
+RAY_TOLERANCE_PX = 0.01  # a pixel's ray leads back to it within this, or it has none (Steadier._rays)
 MAP_STEP_PX = 8  # (a distorted lens's turn is mapped on a grid of this step: Steadier.turned_back)
 
 
@@ -111,11 +112,13 @@ class Steadier:
         self._gate_pixels = np.concatenate([(v + dv) * cam.width + (u + du) for du, dv in offsets])
         self._gate_index: dict[int, np.ndarray] = {}
         fv, fu = _grid(cam, self._clear, FIT_STEP_PX, 2)
-        self._fit_v, self._fit_u = fv, fu
-        self._coarse = ((fv - 2) // FIT_STEP_PX % COARSE_EVERY == 0) & ((fu - 2) // FIT_STEP_PX % COARSE_EVERY == 0)
         # (their rays, through the lens: a wide webcam's barrel makes a turn of 6 px move the
-        # picture's corners a pixel less than its centre, which no homography follows)
-        self._fit_rays = self._rays(fu, fv)
+        # picture's corners a pixel less than its centre, which no homography follows; pixels
+        # without one are not read)
+        rays, through = self._rays(fu, fv)
+        self._fit_v, self._fit_u, self._fit_rays = fv[through], fu[through], rays[through]
+        fv, fu = self._fit_v, self._fit_u
+        self._coarse = ((fv - 2) // FIT_STEP_PX % COARSE_EVERY == 0) & ((fu - 2) // FIT_STEP_PX % COARSE_EVERY == 0)
         self._coarse_rays = self._fit_rays[self._coarse]
         self._k = np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
         self._k_inv = np.linalg.inv(self._k)
@@ -130,14 +133,30 @@ class Steadier:
             self._map_grid = (gu / MAP_STEP_PX, gv / MAP_STEP_PX)
             nv, nu = (cam.height - 1) // MAP_STEP_PX + 2, (cam.width - 1) // MAP_STEP_PX + 2
             cv_, cu_ = np.mgrid[0:nv, 0:nu].astype(np.float64) * MAP_STEP_PX
-            self._map_rays = self._rays(cu_.ravel(), cv_.ravel())
+            self._map_pixels = np.column_stack([cu_.ravel(), cv_.ravel()])
+            self._map_rays, self._map_through = self._rays(cu_.ravel(), cv_.ravel())
             self._map_shape = (nv, nu)
 
-    def _rays(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The rays (n, 3) (x, y, 1) through pixels (`u`, `v`), their lens's distortion undone."""
+    def _rays(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The rays (n, 3) (x, y, 1) through pixels (`u`, `v`), their lens's distortion undone, and
+        which of them have one (n,): a strong barrel's distorted radius peaks and folds back, and a
+        picture's corners may lie past the peak (800 px at f = 538 px with k1 = −0.2), where no ray
+        leads and the undoing wanders off (RAY_TOLERANCE_PX)."""
         cam = self.cam
-        xn = cam.undistort(np.column_stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy]))
-        return np.column_stack([xn, np.ones(len(xn))])
+        xd = np.column_stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy])
+        xn = cam.undistort(xd)
+        with np.errstate(invalid="ignore", over="ignore"):
+            through = np.abs(cam.distort(xn) - xd).max(axis=1) * max(cam.fx, cam.fy) < RAY_TOLERANCE_PX
+        return np.column_stack([xn, np.ones(len(xn))]), through
+
+    def _through_lens(self, rotation: np.ndarray, uv: np.ndarray, rays: np.ndarray, through: np.ndarray
+                      ) -> np.ndarray:
+        """Where `rotation` carries pixels `uv` (n, 2), whose `_rays` are `rays` and `through`: through
+        the lens, and as by the homography where no ray leads."""
+        out = self.cam.project(rays @ rotation.T)
+        if not through.all():
+            out[~through] = self._by_homography(rotation, uv[~through])
+        return out
 
     # --- the gate ---------------------------------------------------------------------------------
 
@@ -219,10 +238,13 @@ class Steadier:
     def _mapped(self, rotation: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Where `rotation` carries the on frame's pixels `uv` (n, 2) in the off frame."""
         if not self.cam.distorted:
-            h = self._homography(rotation)
-            p = uv @ h[:, :2].T + h[:, 2]
-            return p[:, :2] / p[:, 2:3]
-        return self.cam.project(self._rays(uv[:, 0], uv[:, 1]) @ rotation.T)
+            return self._by_homography(rotation, uv)
+        return self._through_lens(rotation, uv, *self._rays(uv[:, 0], uv[:, 1]))
+
+    def _by_homography(self, rotation: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        h = self._homography(rotation)
+        p = uv @ h[:, :2].T + h[:, 2]
+        return p[:, :2] / p[:, 2:3]
 
     def _shift_px(self, rotation: np.ndarray) -> float:
         """How far `rotation` moves the picture's centre or corners, whichever most (px)."""
@@ -387,7 +409,8 @@ class Steadier:
         if self._map_grid is None:
             return cv2.warpPerspective(dark, self._homography(turn.rotation), (self.cam.width, self.cam.height),
                                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
-        coarse = self.cam.project(self._map_rays @ turn.rotation.T).reshape(*self._map_shape, 2).astype(np.float32)
+        mapped = self._through_lens(turn.rotation, self._map_pixels, self._map_rays, self._map_through)
+        coarse = mapped.reshape(*self._map_shape, 2).astype(np.float32)
         where = cv2.remap(coarse, *self._map_grid, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return cv2.remap(dark, where[..., 0], where[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
