@@ -203,3 +203,27 @@ def test_a_turn_seen_through_a_wide_lens_is_followed_to_the_corners() -> None:
         before = np.abs(lit[rows, left, 2].astype(float) - dark[rows, left, 2]).mean()
         after = np.abs(lit[rows, left, 2].astype(float) - back[rows, left, 2]).mean()
         assert after < 0.5 * before, (pan, before, after)
+
+
+def test_a_lens_that_folds_back_at_the_corners_is_fitted_on_the_pixels_that_have_rays() -> None:
+    """A strong barrel's distorted radius peaks and folds back: an 800 × 600 camera at f = 538 px
+    with k1 = −0.2 has corners past the peak, where no ray leads (the accuracy family draws such
+    lenses). Those pixels are left out of the fit and mapped as by the homography; every sample the
+    fit reads has a ray that leads back to it, and a frame turned back holds no wild values."""
+    from edge.motion import RAY_TOLERANCE_PX, Steadier
+    from edge.rig import CameraModel
+
+    cam = CameraModel(800, 600, 538.0, 538.0, 399.5, 299.5, (-0.2, 0.0, 0.0, 0.0, 0.0))
+    steadier = Steadier(cam, [])
+    corners = np.array([[0.0, 0.0], [799.0, 599.0]])
+    centre = np.array([[399.5, 299.5], [600.0, 300.0]])
+    assert not steadier._rays(corners[:, 0], corners[:, 1])[1].any()
+    assert steadier._rays(centre[:, 0], centre[:, 1])[1].all()
+    assert np.isfinite(steadier._fit_rays).all() and len(steadier._fit_rays) > 6000
+    rays, _ = steadier._rays(steadier._fit_u, steadier._fit_v)
+    back = cam.project(rays)  # (each read sample's ray leads back to its pixel)
+    assert np.abs(back - np.column_stack([steadier._fit_u, steadier._fit_v])).max() < RAY_TOLERANCE_PX
+    rotation = cv2.Rodrigues(np.array([0.003, 0.008, 0.0]))[0]
+    assert np.allclose(steadier._mapped(rotation, corners), steadier._by_homography(rotation, corners))
+    room = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 255, (600, 800), dtype=np.uint8), (0, 0), 2.0)
+    assert np.isfinite(steadier.turned_back(room, Turn(rotation, 5.0, 1.0)).astype(float)).all()
