@@ -462,6 +462,66 @@ def test_a_lasers_own_spot_is_taken_before_a_brighter_reflection():
     assert judge("center", at_edge(off), off, rig, (at_edge(dark), dark)).pixel is None
 
 
+def test_a_spot_off_every_path_has_to_show_lit_all_through_too():
+    """A change off every path blames the build: it has to show a third time, in a frame lit all
+    through. The second pair's check alone let flukes of dim JPEG frames through (tuning-2398: SNR
+    11, 136 px from every path, "not built as configured"); a knocked laser's spot shows in all."""
+    from edge.sim.record import scene_for, true_rig
+    from edge.sim.render import Renderer
+
+    config = load_config()
+    rig = config.rig.build()
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+    rng = np.random.default_rng(5)
+    # No laser lit: its spot out of sight, and a change at (120, 400) in some frames only.
+    off, dark, on, again, through = (renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(5))
+    gv, gu = np.mgrid[0:480, 0:640]
+    blob = 60.0 * np.exp(-((gu - 120.0) ** 2 + (gv - 400.0) ** 2) / (2 * 1.5**2))
+
+    def with_blob(image: np.ndarray) -> np.ndarray:
+        out = image.astype(np.float64)
+        out[..., 2] += blob
+        return np.clip(out, 0, 255).astype(np.uint8)
+
+    on, again = with_blob(on), with_blob(again)
+    assert judge("center", on, off, rig, (again, dark)).pixel == pytest.approx((120.0, 400.0), abs=0.3)
+    fluke = judge("center", on, off, rig, (again, dark), through=through)
+    assert fluke.pixel is None
+    knocked = judge("center", on, off, rig, (again, dark), through=with_blob(through))
+    assert knocked.pixel == pytest.approx((120.0, 400.0), abs=0.3)
+    assert knocked.from_path_px["center"] > 50.0
+
+
+def test_a_jpeg_blocks_stripe_off_every_path_is_no_spot() -> None:
+    """A dim JPEG frame's block flips between two quantised states, and every lit frame can hold
+    the same flip: a stripe flat along a block's rows (tuning-2381: 8 rows, 50 px from every
+    path, "not built as configured"). It repeats and is held lit all through, but is no spot; a
+    round spot of the same light there is one."""
+    from edge.sim.record import scene_for, true_rig
+    from edge.sim.render import Renderer
+
+    config = load_config()
+    rig = config.rig.build()
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+    rng = np.random.default_rng(6)
+    off, dark, on, again, through = (renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(5))
+    gv, gu = np.mgrid[0:480, 0:640]
+    # A block's lowest horizontal frequency (its DCT basis): half a cosine across its 8 columns,
+    # flat down its 8 rows.
+    block = ((gv >= 400) & (gv < 408) & (gu >= 120) & (gu < 128)) * 40.0 * np.cos(np.pi * (2 * (gu - 120) + 1) / 16)
+    spot = 60.0 * np.exp(-((gu - 121.5) ** 2 + (gv - 403.5) ** 2) / (2 * 1.5**2))
+
+    def with_(image: np.ndarray, change: np.ndarray) -> np.ndarray:
+        out = image.astype(np.float64)
+        out[..., 2] += change
+        return np.clip(out, 0, 255).astype(np.uint8)
+
+    stripe = judge("center", with_(on, block), off, rig, (with_(again, block), dark), through=with_(through, block))
+    assert stripe.pixel is None
+    real = judge("center", with_(on, spot), off, rig, (with_(again, spot), dark), through=with_(through, spot))
+    assert real.pixel == pytest.approx((121.5, 403.5), abs=0.3)
+
+
 def _family_aim(index: int, pose: int) -> list[str]:
     """The settings of the accuracy family's tuning condition `index`, aimed at its pose `pose`
     (as tools/doctor_family.py runs the doctor over them), its rig built as configured."""

@@ -305,7 +305,7 @@ class RigChecks:
         first = self._switch(name, config)
         second = (first.again.image, first.dark.frame.image)  # shares no frame with either pair below
         off = first.off.frame.image
-        report = judge(name, first.on.frame.image, off, rig, second)
+        report = judge(name, first.on.frame.image, off, rig, second, through=first.full.image)
         later = judge(name, first.full.image, off, rig, second)  # lit all through: the spot's whole light
         if report.lit_when_off and report.pixel is not None and self._room_lit(report.pixel, rig):
             report = dataclasses.replace(report, lit_when_off=False)

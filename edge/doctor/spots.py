@@ -38,6 +38,19 @@ MIN_SNR = 8.0  # a spot's (3 × 3 mean) peak over the difference image's noise
 # over the noise there. (Its SNR there is its first one, give or take one: a spot of 8 shows at
 # 7-9, well over 3.5; a fluke of 8 shows at 0 ± 1.)
 REPEAT_PX, REPEAT_SNR = 2, 3.5
+# A spot off its own path has to show a third time, in a frame lit all through, against the second
+# pair's laser-off frame: at HELD_SHARE of its first SNR or more (lit all through, a spot is at least
+# as bright as in the frame taken as lit). A fluke of the first pair's shows there only by chance; the
+# second pair's REPEAT_SNR, anywhere in 25 pixels, let some through: tuning-2381, a JPEG fluke of
+# SNR 10 50 px from every path, and tuning-2398, 136 px, each said "not built as configured".
+HELD_SHARE = 0.5
+# Nor is a change off its path a spot where it runs on at half its peak or more for STRIPE_PX or
+# more along a row or a column, and STRIPE_RATIO × farther than across: a pointer's spot (σ up to
+# 2.8 px, as `_broad` allows, in the 3 × 3 mean) is at half its peak for 7 px at most. A dim JPEG
+# frame's block flips between two quantised states from frame to frame, and every lit frame can
+# hold the same flip: tuning-2381, 8 rows flat across one block, 50 px from every path; tuning-2415,
+# 16 columns of a 4:2:0 block, 123 px from it, each "not built as configured".
+STRIPE_PX, STRIPE_RATIO = 8, 1.5
 OWN_PATH_PX = 3.0  # a peak this near a laser's path is taken for its spot first
 EDGE_PX = 4  # peaks this near the picture's edge are not looked at
 MAX_PEAKS, PEAK_APART = 5, 6  # peaks tried in turn, and how far apart (px) they are told apart
@@ -172,14 +185,15 @@ def _local_noise(null: np.ndarray) -> np.ndarray:
 
 
 def _repeats(again: tuple[np.ndarray, float] | None, v: int, u: int, sign: float,
-             local: np.ndarray | None) -> bool:
-    """Whether the change at (v, u) shows again, with the same sign, in the difference `again`."""
+             local: np.ndarray | None, snr: float = REPEAT_SNR) -> bool:
+    """Whether the change at (v, u) shows again, with the same sign, in the difference `again`
+    (`snr` over the noise there, within REPEAT_PX)."""
     if again is None:
         return True
     diff, noise = again
     near = (slice(max(v - REPEAT_PX, 0), v + REPEAT_PX + 1), slice(max(u - REPEAT_PX, 0), u + REPEAT_PX + 1))
     floor = noise if local is None else np.maximum(local[near], noise)
-    return bool(((sign * diff[near]) >= REPEAT_SNR * floor).any())
+    return bool(((sign * diff[near]) >= snr * floor).any())
 
 
 def _noise_at(local: np.ndarray | None, noise: float, v: int, u: int) -> float:
@@ -195,20 +209,51 @@ def _clear(local: np.ndarray | None, v: int, u: int, value: float, snr: float = 
     return local is None or value >= snr * float(local[v, u])
 
 
+def _run(line: np.ndarray, at: int, least: float) -> int:
+    """How many pixels of `line`, through `at`, lie at `least` or more without a break."""
+    below = np.flatnonzero(line < least)
+    before, after = below[below < at], below[below > at]
+    return int((after[0] if after.size else line.size) - (before[-1] + 1 if before.size else 0))
+
+
+def _stripe(diff: np.ndarray, v: int, u: int, peak: float) -> bool:
+    """Whether the change of `peak` at (v, u) is a stripe along a row or a column, not a spot (see
+    STRIPE_PX)."""
+    half = 0.5 * peak
+    along_u = _run(diff[v, max(u - 3 * STRIPE_PX, 0):u + 3 * STRIPE_PX + 1], min(u, 3 * STRIPE_PX), half)
+    along_v = _run(diff[max(v - 3 * STRIPE_PX, 0):v + 3 * STRIPE_PX + 1, u], min(v, 3 * STRIPE_PX), half)
+    longer, shorter = max(along_u, along_v), min(along_u, along_v)
+    return longer >= STRIPE_PX and longer >= STRIPE_RATIO * shorter
+
+
+def _held(through: tuple[np.ndarray, float] | None, v: int, u: int, snr: float, local: np.ndarray | None) -> bool:
+    """Whether a spot of `snr` at (v, u) shows in `through`, the difference of a frame lit all
+    through and a laser-off frame, at HELD_SHARE of that SNR (and REPEAT_SNR) or more."""
+    if through is None:
+        return True
+    return _repeats(through, v, u, 1.0, local, max(REPEAT_SNR, HELD_SHARE * snr))
+
+
 def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
-          again: tuple[np.ndarray, np.ndarray] | None = None) -> SpotReport:
+          again: tuple[np.ndarray, np.ndarray] | None = None, through: np.ndarray | None = None) -> SpotReport:
     """Where `laser`'s spot is in the difference of `on` (it alone lit) and `off` (all off).
 
     A spot (or a dark spot) has to stand out of its surroundings, and where `again` (lit, dark),
     another pair of the same, is given, show again where it is. A noisy camera's difference (a
     webcam's JPEG at 352 × 288) holds peaks of 8–14 × its robust noise anywhere in the picture; a
     laser's spot repeats, they do not. The strongest peaks are tried in turn, so a dim spot beside
-    a brighter fluke is found."""
+    a brighter fluke is found.
+
+    `through`, where given, is a third frame with the laser lit all through: a spot off the
+    laser's own path, which would blame the build or the wiring, has to show in it too (less
+    `again`'s laser-off frame, else `off`; `_held`)."""
     diff, noise = _difference(on, off)
-    second = local = None
+    second = local = held = None
     if again is not None:
         second = _difference(*again)
         local = _local_noise(_difference(off, again[1])[0])
+    if through is not None:
+        held = _difference(through, off if again is None else again[1])
     lit = _peaks(diff, MIN_SNR * noise)
     dim = _peaks(-diff, MIN_SNR * noise)
     finder = SpotFinder(rig, lasers=[laser])
@@ -224,7 +269,9 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
     # has to clear MIN_SNR over the noise beside it, not LOCAL_SNR.
     spots = [(v, u, p) for v, u, p in lit if _clear(local, v, u, p) and _repeats(second, v, u, 1.0, local)]
     spot = next(((v, u, p) for v, u, p in spots if mine(v, u)),
-                next(((v, u, p) for v, u, p in spots if _clear(local, v, u, p, MIN_SNR)), None))
+                next(((v, u, p) for v, u, p in spots if _clear(local, v, u, p, MIN_SNR)
+                      and _held(held, v, u, p / _noise_at(local, noise, v, u), local)
+                      and not _stripe(diff, v, u, p)), None))
     if spot is None:
         # Lit while "off" puts its spot on its own path: a dark patch elsewhere (flicker bands
         # under a rolling shutter, in step with the frames) is not its doing.
