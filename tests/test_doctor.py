@@ -20,6 +20,7 @@ from edge.doctor.broker import check_broker
 from edge.doctor.checklist import Problem
 from edge.doctor.rig import _verdict
 from edge.doctor.spots import judge
+from edge.rig import Rig
 
 REPO = Path(__file__).resolve().parents[1]
 ACL = (REPO / "config" / "mosquitto-acl.conf").read_text()
@@ -462,32 +463,38 @@ def test_a_lasers_own_spot_is_taken_before_a_brighter_reflection():
     assert judge("center", at_edge(off), off, rig, (at_edge(dark), dark)).pixel is None
 
 
-def test_a_spot_off_every_path_has_to_show_lit_all_through_too():
-    """A change off every path blames the build: it has to show a third time, in a frame lit all
-    through. The second pair's check alone let flukes of dim JPEG frames through (tuning-2398: SNR
-    11, 136 px from every path, "not built as configured"); a knocked laser's spot shows in all."""
+def _unlit_frames(seed: int) -> tuple[Rig, list[np.ndarray]]:
+    """The default rig, and five frames of the office with no laser lit (its spot out of sight):
+    off, dark, on, again and through, as the doctor names them."""
     from edge.sim.record import scene_for, true_rig
     from edge.sim.render import Renderer
 
     config = load_config()
-    rig = config.rig.build()
     renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
-    rng = np.random.default_rng(5)
-    # No laser lit: its spot out of sight, and a change at (120, 400) in some frames only.
-    off, dark, on, again, through = (renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(5))
-    gv, gu = np.mgrid[0:480, 0:640]
-    blob = 60.0 * np.exp(-((gu - 120.0) ** 2 + (gv - 400.0) ** 2) / (2 * 1.5**2))
+    rng = np.random.default_rng(seed)
+    return config.rig.build(), [renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(5)]
 
-    def with_blob(image: np.ndarray) -> np.ndarray:
-        out = image.astype(np.float64)
-        out[..., 2] += blob
-        return np.clip(out, 0, 255).astype(np.uint8)
 
-    on, again = with_blob(on), with_blob(again)
+def _with_red(image: np.ndarray, change: np.ndarray) -> np.ndarray:
+    out = image.astype(np.float64)
+    out[..., 2] += change
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+_GV, _GU = np.mgrid[0:480, 0:640]
+
+
+def test_a_spot_off_every_path_has_to_show_lit_all_through_too():
+    """A change off every path blames the build: it has to show a third time, in a frame lit all
+    through. The second pair's check alone let flukes of dim JPEG frames through (tuning-2398: SNR
+    11, 136 px from every path, "not built as configured"); a knocked laser's spot shows in all."""
+    rig, (off, dark, on, again, through) = _unlit_frames(5)
+    blob = 60.0 * np.exp(-((_GU - 120.0) ** 2 + (_GV - 400.0) ** 2) / (2 * 1.5**2))
+    on, again = _with_red(on, blob), _with_red(again, blob)  # (in some frames only)
     assert judge("center", on, off, rig, (again, dark)).pixel == pytest.approx((120.0, 400.0), abs=0.3)
     fluke = judge("center", on, off, rig, (again, dark), through=through)
     assert fluke.pixel is None
-    knocked = judge("center", on, off, rig, (again, dark), through=with_blob(through))
+    knocked = judge("center", on, off, rig, (again, dark), through=_with_red(through, blob))
     assert knocked.pixel == pytest.approx((120.0, 400.0), abs=0.3)
     assert knocked.from_path_px["center"] > 50.0
 
@@ -497,29 +504,16 @@ def test_a_jpeg_blocks_stripe_off_every_path_is_no_spot() -> None:
     the same flip: a stripe flat along a block's rows (tuning-2381: 8 rows, 50 px from every
     path, "not built as configured"). It repeats and is held lit all through, but is no spot; a
     round spot of the same light there is one."""
-    from edge.sim.record import scene_for, true_rig
-    from edge.sim.render import Renderer
-
-    config = load_config()
-    rig = config.rig.build()
-    renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
-    rng = np.random.default_rng(6)
-    off, dark, on, again, through = (renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(5))
-    gv, gu = np.mgrid[0:480, 0:640]
+    rig, (off, dark, on, again, through) = _unlit_frames(6)
     # A block's lowest horizontal frequency (its DCT basis): half a cosine across its 8 columns,
     # flat down its 8 rows.
-    block = ((gv >= 400) & (gv < 408) & (gu >= 120) & (gu < 128)) * 40.0 * np.cos(np.pi * (2 * (gu - 120) + 1) / 16)
-    spot = 60.0 * np.exp(-((gu - 121.5) ** 2 + (gv - 403.5) ** 2) / (2 * 1.5**2))
-
-    def with_(image: np.ndarray, change: np.ndarray) -> np.ndarray:
-        out = image.astype(np.float64)
-        out[..., 2] += change
-        return np.clip(out, 0, 255).astype(np.uint8)
-
-    stripe = judge("center", with_(on, block), off, rig, (with_(again, block), dark), through=with_(through, block))
-    assert stripe.pixel is None
-    real = judge("center", with_(on, spot), off, rig, (with_(again, spot), dark), through=with_(through, spot))
-    assert real.pixel == pytest.approx((121.5, 403.5), abs=0.3)
+    block = (((_GV >= 400) & (_GV < 408) & (_GU >= 120) & (_GU < 128))
+             * 40.0 * np.cos(np.pi * (2 * (_GU - 120) + 1) / 16))
+    spot = 60.0 * np.exp(-((_GU - 121.5) ** 2 + (_GV - 403.5) ** 2) / (2 * 1.5**2))
+    for change, found in ((block, None), (spot, pytest.approx((121.5, 403.5), abs=0.3))):
+        report = judge("center", _with_red(on, change), off, rig, (_with_red(again, change), dark),
+                       through=_with_red(through, change))
+        assert report.pixel == found
 
 
 def _family_aim(index: int, pose: int) -> list[str]:
