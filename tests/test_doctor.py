@@ -516,6 +516,24 @@ def test_a_jpeg_blocks_stripe_off_every_path_is_no_spot() -> None:
         assert report.pixel == found
 
 
+def test_a_blob_off_every_path_no_stronger_than_what_the_dark_frames_do_is_no_spot() -> None:
+    """JPEG flips a dim frame's blocks between two quantised states: sparse changes, each as strong as
+    a faint spot, in the laser-off frames as in the lit ones (tuning-2377: 5.0 DN 200 px from every
+    path, where the laser-off frames flipped 3.8 DN within 64 px). Off every path, a blob has to
+    stand 1.5 × above what the two laser-off frames change near it."""
+    rig, (off, dark, on, again, through) = _unlit_frames(7)
+
+    def blob(u: float, v: float, height: float) -> np.ndarray:
+        return height * np.exp(-((_GU - u) ** 2 + (_GV - v) ** 2) / (2 * 1.5**2))
+
+    lit = blob(120.0, 400.0, 40.0)
+    frames = ("center", _with_red(on, lit), off, rig, (_with_red(again, lit), dark))
+    assert judge(*frames, through=_with_red(through, lit)).pixel == pytest.approx((120.0, 400.0), abs=0.3)
+    flipped = _with_red(dark, blob(160.0, 400.0, 35.0))  # (the same change, 40 px away, with no laser)
+    frames = ("center", _with_red(on, lit), off, rig, (_with_red(again, lit), flipped))
+    assert judge(*frames, through=_with_red(through, lit)).pixel is None
+
+
 def _family_aim(index: int, pose: int) -> list[str]:
     """The settings of the accuracy family's tuning condition `index`, aimed at its pose `pose`
     (as tools/doctor_family.py runs the doctor over them), its rig built as configured."""

@@ -51,6 +51,13 @@ HELD_SHARE = 0.5
 # hold the same flip: tuning-2381, 8 rows flat across one block, 50 px from every path; tuning-2415,
 # 16 columns of a 4:2:0 block, 123 px from it, each "not built as configured".
 STRIPE_PX, STRIPE_RATIO = 8, 1.5
+# And it has to stand NULL_MARGIN × above the largest change that the two laser-off frames show
+# within NULL_REACH px of it: what the picture does with no laser at all. In white noise that
+# change is about 3.5 σ, and a spot of MIN_SNR clears it; a dim JPEG frame's flipped blocks are
+# sparse (the noise beside them, an RMS, is nearly 0) and as strong as the flips the lit frames
+# hold (tuning-2377: a cluster 200 px from every path, 5.0 DN where the laser-off frames flipped
+# 3.8 DN within 64 px).
+NULL_MARGIN, NULL_REACH = 1.5, 64
 OWN_PATH_PX = 3.0  # a peak this near a laser's path is taken for its spot first
 EDGE_PX = 4  # peaks this near the picture's edge are not looked at
 MAX_PEAKS, PEAK_APART = 5, 6  # peaks tried in turn, and how far apart (px) they are told apart
@@ -226,6 +233,15 @@ def _stripe(diff: np.ndarray, v: int, u: int, peak: float) -> bool:
     return longer >= STRIPE_PX and longer >= STRIPE_RATIO * shorter
 
 
+def _above_null(null: np.ndarray | None, v: int, u: int, peak: float) -> bool:
+    """Whether a peak of `peak` at (v, u) stands NULL_MARGIN × above the largest change of `null`
+    (two laser-off frames' difference) within NULL_REACH px."""
+    if null is None:
+        return True
+    near = null[max(v - NULL_REACH, 0):v + NULL_REACH + 1, max(u - NULL_REACH, 0):u + NULL_REACH + 1]
+    return peak >= NULL_MARGIN * max(float(near.max()), -float(near.min()))
+
+
 def _held(through: tuple[np.ndarray, float] | None, v: int, u: int, snr: float, local: np.ndarray | None) -> bool:
     """Whether a spot of `snr` at (v, u) shows in `through`, the difference of a frame lit all
     through and a laser-off frame, at HELD_SHARE of that SNR (and REPEAT_SNR) or more."""
@@ -248,10 +264,11 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
     laser's own path, which would blame the build or the wiring, has to show in it too (less
     `again`'s laser-off frame, else `off`; `_held`)."""
     diff, noise = _difference(on, off)
-    second = local = held = None
+    second = local = held = null = None
     if again is not None:
         second = _difference(*again)
-        local = _local_noise(_difference(off, again[1])[0])
+        null = _difference(off, again[1])[0]
+        local = _local_noise(null)
     if through is not None:
         held = _difference(through, off if again is None else again[1])
     lit = _peaks(diff, MIN_SNR * noise)
@@ -271,7 +288,7 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
     spot = next(((v, u, p) for v, u, p in spots if mine(v, u)),
                 next(((v, u, p) for v, u, p in spots if _clear(local, v, u, p, MIN_SNR)
                       and _held(held, v, u, p / _noise_at(local, noise, v, u), local)
-                      and not _stripe(diff, v, u, p)), None))
+                      and not _stripe(diff, v, u, p) and _above_null(null, v, u, p)), None))
     if spot is None:
         # Lit while "off" puts its spot on its own path: a dark patch elsewhere (flicker bands
         # under a rolling shutter, in step with the frames) is not its doing.
