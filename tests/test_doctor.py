@@ -463,13 +463,13 @@ def test_a_lasers_own_spot_is_taken_before_a_brighter_reflection():
     assert judge("center", at_edge(off), off, rig, (at_edge(dark), dark)).pixel is None
 
 
-def _unlit_frames(seed: int) -> tuple[Rig, list[np.ndarray]]:
+def _unlit_frames(seed: int, *overrides: str) -> tuple[Rig, list[np.ndarray]]:
     """The default rig, and five frames of the office with no laser lit (its spot out of sight):
     off, dark, on, again and through, as the doctor names them."""
     from edge.sim.record import scene_for, true_rig
     from edge.sim.render import Renderer
 
-    config = load_config()
+    config = load_config(None, list(overrides))
     renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
     rng = np.random.default_rng(seed)
     return config.rig.build(), [renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(5)]
@@ -516,12 +516,15 @@ def test_a_jpeg_blocks_stripe_off_every_path_is_no_spot() -> None:
         assert report.pixel == found
 
 
-def test_a_blob_off_every_path_no_stronger_than_what_the_dark_frames_do_is_no_spot() -> None:
+@pytest.mark.parametrize("jpeg", [True, False])
+def test_a_blob_off_every_path_no_stronger_than_what_the_dark_frames_do_is_no_spot(jpeg: bool) -> None:
     """JPEG flips a dim frame's blocks between two quantised states: sparse changes, each as strong as
     a faint spot, in the laser-off frames as in the lit ones (tuning-2377: 5.0 DN 200 px from every
-    path, where the laser-off frames flipped 3.8 DN within 64 px). Off every path, a blob has to
-    stand 1.5 × above what the two laser-off frames change near it."""
-    rig, (off, dark, on, again, through) = _unlit_frames(7)
+    path, where the laser-off frames flipped 3.8 DN within 64 px). Off every path, in JPEG frames,
+    a blob has to stand 1.5 × above what the two laser-off frames change near it. In lossless
+    frames the largest change is the noise's tail, which the other rules judge: a knocked laser's
+    faint spot is still found there (tuning-2369, the Pi camera's frames, its lasers 1° off)."""
+    rig, (off, dark, on, again, through) = _unlit_frames(7, *(["sim.sensor.jpeg_quality=75"] if jpeg else []))
 
     def blob(u: float, v: float, height: float) -> np.ndarray:
         return height * np.exp(-((_GU - u) ** 2 + (_GV - v) ** 2) / (2 * 1.5**2))
@@ -531,7 +534,8 @@ def test_a_blob_off_every_path_no_stronger_than_what_the_dark_frames_do_is_no_sp
     assert judge(*frames, through=_with_red(through, lit)).pixel == pytest.approx((120.0, 400.0), abs=0.3)
     flipped = _with_red(dark, blob(160.0, 400.0, 35.0))  # (the same change, 40 px away, with no laser)
     frames = ("center", _with_red(on, lit), off, rig, (_with_red(again, lit), flipped))
-    assert judge(*frames, through=_with_red(through, lit)).pixel is None
+    found = judge(*frames, through=_with_red(through, lit)).pixel
+    assert found is None if jpeg else found == pytest.approx((120.0, 400.0), abs=0.3)
 
 
 def _family_aim(index: int, pose: int) -> list[str]:

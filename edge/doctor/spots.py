@@ -29,9 +29,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edge.framenoise import jpeg_blockiness
 from edge.paths import FAR_FACTOR, NEAR_FACTOR
 from edge.rig import Rig
-from edge.vision import SpotFinder
+from edge.vision import JPEG_BLOCKINESS, SpotFinder
 
 MIN_SNR = 8.0  # a spot's (3 × 3 mean) peak over the difference image's noise
 # A spot shows again in a second pair of frames: within REPEAT_PX of where it was, at REPEAT_SNR
@@ -51,12 +52,14 @@ HELD_SHARE = 0.5
 # hold the same flip: tuning-2381, 8 rows flat across one block, 50 px from every path; tuning-2415,
 # 16 columns of a 4:2:0 block, 123 px from it, each "not built as configured".
 STRIPE_PX, STRIPE_RATIO = 8, 1.5
-# And it has to stand NULL_MARGIN × above the largest change that the two laser-off frames show
-# within NULL_REACH px of it: what the picture does with no laser at all. In white noise that
-# change is about 3.5 σ, and a spot of MIN_SNR clears it; a dim JPEG frame's flipped blocks are
-# sparse (the noise beside them, an RMS, is nearly 0) and as strong as the flips the lit frames
-# hold (tuning-2377: a cluster 200 px from every path, 5.0 DN where the laser-off frames flipped
-# 3.8 DN within 64 px).
+# And in JPEG frames (`jpeg_blockiness`) it has to stand NULL_MARGIN × above the largest change
+# that the two laser-off frames show within NULL_REACH px of it: what the picture does with no
+# laser at all. A dim JPEG frame's flipped blocks are sparse (the noise beside them, an RMS, is
+# nearly 0) and as strong as the flips the lit frames hold (tuning-2377: a cluster 200 px from
+# every path, 5.0 DN where the laser-off frames flipped 3.8 DN within 64 px). Not in lossless
+# frames: there the largest change is the noise's tail, which MIN_SNR and the repeats already
+# judge, and a knocked laser's spot of SNR 9 on the Pi camera's frames stood only 1.46 × above it
+# (tuning-2369, its lasers 1° off).
 NULL_MARGIN, NULL_REACH = 1.5, 64
 OWN_PATH_PX = 3.0  # a peak this near a laser's path is taken for its spot first
 EDGE_PX = 4  # peaks this near the picture's edge are not looked at
@@ -269,6 +272,8 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
         second = _difference(*again)
         null = _difference(off, again[1])[0]
         local = _local_noise(null)
+        if jpeg_blockiness(off) <= JPEG_BLOCKINESS:
+            null = None  # (lossless: see NULL_MARGIN)
     if through is not None:
         held = _difference(through, off if again is None else again[1])
     lit = _peaks(diff, MIN_SNR * noise)
