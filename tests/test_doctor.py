@@ -591,3 +591,20 @@ def test_a_head_that_did_not_turn_the_camera_blames_no_laser(office):
     off = frames[""]
     again = np.clip(off + np.random.default_rng(2).normal(0.0, 1.5, off.shape), 0, 255).astype(off.dtype)
     assert turn(off, again, rig, here, turned) is None  # a second frame of the same aim: nothing judged
+
+
+def test_a_spot_that_jpeg_rounded_away_is_said_to_be_so_not_only_that_it_does_not_light():
+    """Tuning-2381 aimed at its pose 4: a dim office in JPEG 61, where the lasers' spots (1-2 px
+    wide, 26 DN before JPEG) leave 0 DN in the difference and three quarters of the frames'
+    pixels are equal. Every laser lights; the lines say that JPEG may have rounded the spot away,
+    and how to see it, before the wiring. Lossless frames of a spot out of sight say no such thing."""
+    from edge.doctor.spots import rounded_share
+
+    result = examine(None, _family_aim(2381, 4))
+    lines = [x for x in result.checks.lines if x.check.startswith("laser ")]
+    assert len(lines) == 3
+    for line in lines:
+        assert line.detail.startswith("no spot: it does not light, or JPEG rounded its spot away"), line
+        assert 'camera.pixel_format = "YUYV"' in line.remedy and "nearer or paler" in line.remedy
+    _, (off, _, on, _, _) = _unlit_frames(8)
+    assert rounded_share(on, off) is None  # (the default camera's frames are lossless)

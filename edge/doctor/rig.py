@@ -572,6 +572,19 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
             raise Problem("does not go off: its spot shows with every laser switched off",
                           _stuck_remedy(wiring[name].pin))
         lo, hi = config.rig.range_limits_m
+        from edge.doctor.spots import ROUNDED_SHARE
+
+        if report.rounded is not None and report.rounded >= ROUNDED_SHARE:
+            # (JPEG's rounding leaves most of the difference exactly 0: its noise, and so the
+            # strongest change's SNR, says little; the spot may be gone with it.)
+            raise Problem(f"no spot: it does not light, or JPEG rounded its spot away ({100 * report.rounded:.0f} % "
+                          "of the laser-on and laser-off frames' pixels are equal: a faint or small spot goes "
+                          "with the rest of their difference)",
+                          f"aim the unit at a nearer or paler matte wall ({lo:g}–{hi:g} m; [rangefinder] pan_deg, "
+                          f"tilt_deg; now pan {aim[0]:+g}°, tilt {aim[1]:+g}°), or have the camera deliver frames "
+                          'that are not JPEG (a webcam: camera.pixel_format = "YUYV"), and run the doctor again; '
+                          f"if it still shows no spot, check its supply, its MOSFET and the wire from "
+                          f"GPIO{wiring[name].pin} ({key}.pin)")
         once = ", where the frames are that noisy, or once and not again: no spot" if report.fleeting else ""
         raise Problem(f"no spot: it does not light (strongest change {report.snr:.1f}× the noise{once})",
                       f"check its supply, its MOSFET and the wire from GPIO{wiring[name].pin} ({key}.pin); or "

@@ -69,6 +69,13 @@ LOCAL_SNR = 4.0  # a spot's peak over that noise (its RMS, not a robust spread: 
 _SAMPLE = 4  # every 4th pixel each way is enough for the noise and the flicker gain
 
 
+# JPEG frames whose laser-on and laser-off pictures hold this share of their pixels equal, or more,
+# had their difference rounded away, and a faint or small spot with it. (Tuning-2381, a dim room in
+# JPEG 61: 76 % equal, and the laser's spot, 1-2 px wide and 26 DN before JPEG, left 0 DN. Lossless
+# frames of the Pi camera in a dim room: 13 %.)
+ROUNDED_SHARE = 0.5
+
+
 @dataclass(frozen=True)
 class SpotReport:
     laser: str
@@ -80,6 +87,7 @@ class SpotReport:
     lit_when_off: bool  # its spot shows in the laser-off frame
     fleeting: bool = False  # no spot, but changes over MIN_SNR: none clear of the noise there, or none again
     broad: bool = False  # the spot fills its window: a glow (a reflection), or a defocused near spot
+    rounded: float | None = None  # no spot, in JPEG frames: the share of pixels the two frames hold equal
 
     @property
     def nearest(self) -> str | None:
@@ -89,6 +97,16 @@ class SpotReport:
 def _channel(image: np.ndarray) -> np.ndarray:
     plane = image[..., 2] if image.ndim == 3 else image  # a red laser: the red of BGR
     return plane.astype(np.float32) / np.float32(SpotFinder.full_scale(image))
+
+
+def rounded_share(on: np.ndarray, off: np.ndarray) -> float | None:
+    """The share of pixels (every _SAMPLE-th each way) that `on` and `off` hold equal in the
+    laser's channel, where the frames are JPEG (`jpeg_blockiness`); None where they are not."""
+    if jpeg_blockiness(off) <= JPEG_BLOCKINESS:
+        return None
+    sample = (slice(None, None, _SAMPLE), slice(None, None, _SAMPLE))
+    plane = (lambda f: f[..., 2]) if on.ndim == 3 else (lambda f: f)
+    return float(np.count_nonzero(plane(on)[sample] == plane(off)[sample])) / plane(on)[sample].size
 
 
 def _box3(a: np.ndarray) -> np.ndarray:
@@ -302,7 +320,8 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
         strongest = max([p / _noise_at(local, noise, v, u) for v, u, p in lit + dim],
                         default=max(float(diff.max()), float(-diff.min())) / noise)
         return SpotReport(laser, None, strongest, {}, None, inverted=inverted,
-                          lit_when_off=finder.lit_in_off(off, laser), fleeting=bool(lit or dim) and not inverted)
+                          lit_when_off=finder.lit_in_off(off, laser), fleeting=bool(lit or dim) and not inverted,
+                          rounded=rounded_share(on, off))
     v, u, peak = spot
     pixel = np.array(_centroid(diff, v, u, peak))
     # It lit, so only its own spot left in the off frame says it does not (wholly) go off; a red
