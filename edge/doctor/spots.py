@@ -6,12 +6,15 @@ path, as ranging looks: the point is to find it where it should not be). Where i
 
 - on its own path (within ``ranging.path_tolerance_px``, as ranging keeps spots): all is well;
 - on another laser's path: the two lasers' pins are swapped;
-- on no path: the rig is not built as configured (not calibrated, or a laser knocked since);
+- on no path: the rig is not built as configured (not calibrated, or a laser knocked since). Such
+  a spot has to show a third time (lit all through), be no stripe and, in JPEG frames, stand above
+  what the laser-off frames change near it (dim JPEG frames flip blocks, whatever the lasers do);
 - a spot *darker* in the laser-on frame: the laser lights while its pin is at the "off" level, so
   its driver is active-low and ``active_high`` says otherwise;
 - no spot, but one in the laser-off frame on its path: it does not go off (a shorted driver);
   too faint for that frame alone, it is told by turning the head (:func:`stays_put`);
-- no spot at all: it does not light (wiring, driver, supply), or nothing in range to light;
+- no spot at all: it does not light (wiring, driver, supply), or nothing in range to light, or (in
+  JPEG frames that hold most pixels equal) JPEG rounded a faint or small spot away;
 - only a broad glow far from every path: its light reflected (glass, a glossy surface) or
   scattered, its spot out of range or out of sight.
 
@@ -42,8 +45,8 @@ REPEAT_PX, REPEAT_SNR = 2, 3.5
 # A spot off its own path has to show a third time, in a frame lit all through, against the second
 # pair's laser-off frame: at HELD_SHARE of its first SNR or more (lit all through, a spot is at least
 # as bright as in the frame taken as lit). A fluke of the first pair's shows there only by chance; the
-# second pair's REPEAT_SNR, anywhere in 25 pixels, let some through: tuning-2381, a JPEG fluke of
-# SNR 10 50 px from every path, and tuning-2398, 136 px, each said "not built as configured".
+# second pair's REPEAT_SNR, anywhere in 25 pixels, let some through (tuning-2398: a JPEG fluke of
+# SNR 11, 136 px from every path, said "not built as configured").
 HELD_SHARE = 0.5
 # Nor is a change off its path a spot where it runs on at half its peak or more for STRIPE_PX or
 # more along a row or a column, and STRIPE_RATIO × farther than across: a pointer's spot (σ up to
@@ -104,9 +107,8 @@ def rounded_share(on: np.ndarray, off: np.ndarray) -> float | None:
     laser's channel, where the frames are JPEG (`jpeg_blockiness`); None where they are not."""
     if jpeg_blockiness(off) <= JPEG_BLOCKINESS:
         return None
-    sample = (slice(None, None, _SAMPLE), slice(None, None, _SAMPLE))
-    plane = (lambda f: f[..., 2]) if on.ndim == 3 else (lambda f: f)
-    return float(np.count_nonzero(plane(on)[sample] == plane(off)[sample])) / plane(on)[sample].size
+    a, b = ((f[..., 2] if f.ndim == 3 else f)[::_SAMPLE, ::_SAMPLE] for f in (on, off))
+    return float(np.count_nonzero(a == b)) / a.size
 
 
 def _box3(a: np.ndarray) -> np.ndarray:
