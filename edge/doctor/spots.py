@@ -7,8 +7,9 @@ path, as ranging looks: the point is to find it where it should not be). Where i
 - on its own path (within ``ranging.path_tolerance_px``, as ranging keeps spots): all is well;
 - on another laser's path: the two lasers' pins are swapped;
 - on no path: the rig is not built as configured (not calibrated, or a laser knocked since). Such
-  a spot has to show a third time (lit all through), be no stripe and, in JPEG frames, stand above
-  what the laser-off frames change near it (dim JPEG frames flip blocks, whatever the lasers do);
+  a spot has to show a third time (lit all through), be no stripe and, in JPEG frames that rounded
+  most of their difference away, stand above what the laser-off frames change near it (such frames
+  flip blocks, whatever the lasers do);
 - a spot *darker* in the laser-on frame: the laser lights while its pin is at the "off" level, so
   its driver is active-low and ``active_high`` says otherwise;
 - no spot, but one in the laser-off frame on its path: it does not go off (a shorted driver);
@@ -55,14 +56,15 @@ HELD_SHARE = 0.5
 # hold the same flip: tuning-2381, 8 rows flat across one block, 50 px from every path; tuning-2415,
 # 16 columns of a 4:2:0 block, 123 px from it, each "not built as configured".
 STRIPE_PX, STRIPE_RATIO = 8, 1.5
-# And in JPEG frames (`jpeg_blockiness`) it has to stand NULL_MARGIN × above the largest change
-# that the two laser-off frames show within NULL_REACH px of it: what the picture does with no
-# laser at all. A dim JPEG frame's flipped blocks are sparse (the noise beside them, an RMS, is
-# nearly 0) and as strong as the flips the lit frames hold (tuning-2377: a cluster 200 px from
-# every path, 5.0 DN where the laser-off frames flipped 3.8 DN within 64 px). Not in lossless
-# frames: there the largest change is the noise's tail, which MIN_SNR and the repeats already
-# judge, and a knocked laser's spot of SNR 9 on the Pi camera's frames stood only 1.46 × above it
-# (tuning-2369, its lasers 1° off).
+# And in JPEG frames that rounded their difference away (`rounded_share`: most pixels equal in the
+# two frames) it has to stand NULL_MARGIN × above the largest change that the two laser-off frames
+# show within NULL_REACH px of it: what the picture does with no laser at all. Such frames' flipped
+# blocks are sparse (the noise beside them, an RMS, is nearly 0) and as strong as the flips the lit
+# frames hold (tuning-2377: a cluster 200 px from every path, 5.0 DN where the laser-off frames
+# flipped 3.8 DN within 64 px). Not where the frames keep their noise: the largest change is then
+# its tail, which MIN_SNR and the repeats already judge, and a knocked laser's spot of SNR 9 stood
+# only 1.46 × above it in the Pi camera's lossless frames (tuning-2369), 1.15 × in a noisy webcam's
+# JPEG 76 (tuning-2448; 1° off, each).
 NULL_MARGIN, NULL_REACH = 1.5, 64
 OWN_PATH_PX = 3.0  # a peak this near a laser's path is taken for its spot first
 EDGE_PX = 4  # peaks this near the picture's edge are not looked at
@@ -292,8 +294,9 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
         second = _difference(*again)
         null = _difference(off, again[1])[0]
         local = _local_noise(null)
-        if jpeg_blockiness(off) <= JPEG_BLOCKINESS:
-            null = None  # (lossless: see NULL_MARGIN)
+    rounded = rounded_share(on, off)
+    if rounded is None or rounded < ROUNDED_SHARE:
+        null = None  # (the frames keep their noise: see NULL_MARGIN)
     if through is not None:
         held = _difference(through, off if again is None else again[1])
     lit = _peaks(diff, MIN_SNR * noise)
@@ -323,7 +326,7 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
                         default=max(float(diff.max()), float(-diff.min())) / noise)
         return SpotReport(laser, None, strongest, {}, None, inverted=inverted,
                           lit_when_off=finder.lit_in_off(off, laser), fleeting=bool(lit or dim) and not inverted,
-                          rounded=rounded_share(on, off))
+                          rounded=rounded)
     v, u, peak = spot
     pixel = np.array(_centroid(diff, v, u, peak))
     # It lit, so only its own spot left in the off frame says it does not (wholly) go off; a red
