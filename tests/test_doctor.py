@@ -617,3 +617,27 @@ def test_a_spot_that_jpeg_rounded_away_is_said_to_be_so_not_only_that_it_does_no
         assert 'camera.pixel_format = "YUYV"' in line.remedy and "nearer or paler" in line.remedy
     _, (off, _, on, _, _) = _unlit_frames(8)
     assert rounded_share(on, off) is None  # (the default camera's frames are lossless)
+
+
+def test_a_laser_that_shows_no_spot_where_no_laser_does_may_be_one_that_never_goes_off():
+    """A laser stuck on leaves nothing in the laser-on minus laser-off difference, as a dead one
+    does; where its spot is too faint to show (tuning-130 aimed at its pose 4: no laser's spot
+    shows), the head's turn cannot tell it either, and "does not light" must not be the last word
+    (eye safety). Where other lasers' spots show, a dead laser's line stays as it was."""
+    from edge.doctor.checklist import Line
+    from edge.doctor.rig import unseen_lasers
+
+    stuck = examine(None, [*_family_aim(130, 4), 'sim.laser_faults=[{laser="center", kind="stuck"}]'])
+    center = next(x for x in stuck.checks.lines if x.check == "laser center")
+    assert center.detail.startswith("no spot: it does not light")
+    assert "a laser that never goes off would look the same" in center.detail
+    assert center.remedy.startswith("first aim the unit at a nearer matte wall") and "eye safety" in center.remedy
+    dead = examine(None, [*NO_BROKER, 'sim.laser_faults=[{laser="sloped", kind="dead"}]'])
+    sloped = next(x for x in dead.checks.lines if x.check == "laser sloped")
+    assert "does not light" in sloped.detail and "never goes off" not in sloped.detail
+    # (A spot off its path is a spot seen: the others' lines stay too.)
+    lines = [Line("laser a", "fail", "no spot: it does not light (strongest change 3.0× the noise)", "check it"),
+             Line("laser b", "fail", "spot at (10.0, 20.0) is 9.0 px from where the rig says it can be", "calibrate")]
+    assert unseen_lasers(lines, ["laser a", "laser b"]) == lines
+    amended = unseen_lasers(lines[:1], ["laser a"])[0]
+    assert amended.check == "laser a" and amended.remedy.endswith("then: check it")

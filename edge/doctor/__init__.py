@@ -75,7 +75,7 @@ def examine(path: str | None = None, overrides: list[str] | tuple[str, ...] = ()
     checks.run("groups & devices", lambda: check_devices(settings))
     checks.run("state folder", lambda: check_state_dir(settings))
     checks.run("clock", lambda: check_clock(settings))
-    from edge.doctor.rig import RigChecks
+    from edge.doctor.rig import RigChecks, unseen_lasers
 
     with contextlib.ExitStack() as stack:
         rig = RigChecks(config, settings, stack, missing)
@@ -84,6 +84,7 @@ def examine(path: str | None = None, overrides: list[str] | tuple[str, ...] = ()
         checks.run("camera", rig.camera_check)
         for index, wire in enumerate(settings.wiring):
             checks.run(f"laser {wire.name}", lambda name=wire.name, i=index: rig.laser(name, i))  # type: ignore[misc]
+        checks.lines[:] = unseen_lasers(checks.lines, [f"laser {wire.name}" for wire in settings.wiring])
         # (After the lasers, whose frames it would otherwise shift in the simulator's noise; before
         # the tone curve, which leaves the camera at other settings.)
         checks.run("frames", rig.frames_check)

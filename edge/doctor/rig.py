@@ -14,7 +14,7 @@ import dataclasses
 import statistics
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from edge.doctor.checklist import NotRun, Problem
+from edge.doctor.checklist import Line, NotRun, Problem
 from edge.doctor.settings import Settings
 from edge.errors import EdgeError
 
@@ -550,6 +550,25 @@ def _mean(images: list[Any]) -> Any:
     import numpy as np
 
     return (np.mean(images, axis=0) + 0.5).astype(images[0].dtype)
+
+
+def unseen_lasers(lines: list[Line], lasers: list[str]) -> list[Line]:
+    """`lines` with the `lasers`' "does not light" lines amended where no laser's line found a spot
+    at this aim (ok, or a spot off its path): a laser that never goes off leaves nothing in the
+    laser-on minus laser-off difference either, and a spot too faint to show is too faint for the
+    head's turn to tell (`edge.doctor.spots.stays_put`). Where another laser's spot shows, one that
+    never went off would show as well. (The stuck-laser set, tuning 128-143: 11 of 32 stuck lasers
+    read "does not light", 9 of them where no laser's spot showed.)"""
+    mine = [line for line in lines if line.check in lasers]
+    if any(line.status == "ok" or line.detail.startswith("spot at") for line in mine):
+        return lines
+    return [dataclasses.replace(
+        line,
+        detail=f"{line.detail}; no laser's spot shows at this aim, so a laser that never goes off would look the same",
+        remedy="first aim the unit at a nearer matte wall and run the doctor again: a laser that never goes off "
+               f"shows its spot there with every laser switched off (eye safety); then: {line.remedy}",
+    ) if line in mine and line.status == "fail" and line.detail.startswith("no spot: it does not light") else line
+        for line in lines]
 
 
 def _stuck_remedy(pin: int | None) -> str:
