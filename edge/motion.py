@@ -136,6 +136,10 @@ class Steadier:
             self._map_pixels = np.column_stack([cu_.ravel(), cv_.ravel()])
             self._map_rays, self._map_through = self._rays(cu_.ravel(), cv_.ravel())
             self._map_shape = (nv, nu)
+        # The picture's centre and corners, whose move is a turn's size (`_shift_px`), and their rays.
+        w, h = cam.width - 1, cam.height - 1
+        self._shift_points = np.array([[cam.cx, cam.cy], [0, 0], [w, 0], [0, h], [w, h]], np.float64)
+        self._shift_rays = self._rays(self._shift_points[:, 0], self._shift_points[:, 1]) if cam.distorted else None
 
     def _rays(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The rays (n, 3) (x, y, 1) through pixels (`u`, `v`), their lens's distortion undone, and
@@ -247,10 +251,12 @@ class Steadier:
         return p[:, :2] / p[:, 2:3]
 
     def _shift_px(self, rotation: np.ndarray) -> float:
-        """How far `rotation` moves the picture's centre or corners, whichever most (px)."""
-        w, h = self.cam.width - 1, self.cam.height - 1
-        points = np.array([[self.cam.cx, self.cam.cy], [0, 0], [w, 0], [0, h], [w, h]], np.float64)
-        return float(np.hypot(*(self._mapped(rotation, points) - points).T).max())
+        """How far `rotation` moves the picture's centre or corners, whichever most (px): through the
+        lens, where it is distorted."""
+        points = self._shift_points
+        moved = (self._by_homography(rotation, points) if self._shift_rays is None
+                 else self._through_lens(rotation, points, *self._shift_rays))
+        return float(np.hypot(*(moved - points).T).max())
 
     def turn(self, lit: np.ndarray, dark: np.ndarray) -> Turn:
         """How the camera turned from `lit` to `dark`: by Gauss–Newton on the room's pixels (three

@@ -172,22 +172,22 @@ class Renderer:
         if self.sim.sway.deg:
             turned = self.sim.sway.turn(t_s)
             pan_deg, tilt_deg = pan_deg + turned[0], tilt_deg + turned[1]
-        static_key = (round(pan_deg, 9), round(tilt_deg, 9), None)
-
-        def static_view() -> _View:
-            return self._cached(static_key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
-
         poses = self.scene.mover_poses(t_s) if self.scene.movers else ()
+        static = self._static_view(pan_deg, tilt_deg)
         if not poses:
-            return static_view()  # no mover present
-        static = static_view()
+            return static  # no mover present
         box = self._mover_box(static.camera_to_world, t_s)
         if box is None:
             return static  # no mover in the picture (and the beams only go where the camera looks)
         # By where the movers are, not by instant: a standing person is cast once, not every frame
         # (and the scene with its movers is only put together when a view is cast).
-        key = (static_key[0], static_key[1], poses)
+        key = (round(pan_deg, 9), round(tilt_deg, 9), poses)
         return self._cached(key, lambda: self._patched_view(static, t_s, self.scene.at(t_s), box), self._patched)
+
+    def _static_view(self, pan_deg: float, tilt_deg: float) -> _View:
+        """The view at (pan, tilt) without the scene's movers, rendered once per pose and cached."""
+        key = (round(pan_deg, 9), round(tilt_deg, 9), None)
+        return self._cached(key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
 
     def _cached(self, key: tuple, render: Callable[[], _View], cache: dict | None = None) -> _View:
         cache = self._views if cache is None else cache
@@ -556,8 +556,7 @@ class Renderer:
         turning. (The sensor's pixels, as `spot_model`'s; `rays`: theirs, `CameraModel.rays`, where
         the caller keeps them.)"""
         self._no_isp("a view's depth")
-        key = (round(pan_deg, 9), round(tilt_deg, 9), None)
-        view = self._cached(key, lambda: self._render_view(pan_deg, tilt_deg, self.scene.static))
+        view = self._static_view(pan_deg, tilt_deg)
         assert view.depth is not None  # (static views are rendered with their depth)
         cam = self.rig.camera
         px = np.asarray(pixels, dtype=np.float64)
