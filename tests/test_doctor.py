@@ -532,7 +532,7 @@ def test_a_blob_off_every_path_no_stronger_than_what_the_dark_frames_do_is_no_sp
     from edge.doctor.spots import ROUNDED_SHARE, rounded_share
 
     rig, (off, dark, on, again, through) = _unlit_frames(7, *frames)
-    assert (rounded_share(on, off) or 0.0) >= ROUNDED_SHARE if rounded else (rounded_share(on, off) or 0.0) < 0.5
+    assert ((rounded_share(on, off) or 0.0) >= ROUNDED_SHARE) == rounded
 
     def blob(u: float, v: float, height: float) -> np.ndarray:
         return height * np.exp(-((_GU - u) ** 2 + (_GV - v) ** 2) / (2 * 1.5**2))

@@ -567,8 +567,8 @@ def unseen_lasers(lines: list[Line], lasers: list[str]) -> list[Line]:
         detail=f"{line.detail}; no laser's spot shows at this aim, so a laser that never goes off would look the same",
         remedy="first aim the unit at a nearer matte wall and run the doctor again: a laser that never goes off "
                f"shows its spot there with every laser switched off (eye safety); then: {line.remedy}",
-    ) if line in mine and line.status == "fail" and line.detail.startswith("no spot: it does not light") else line
-        for line in lines]
+    ) if line.check in lasers and line.status == "fail" and line.detail.startswith("no spot: it does not light")
+        else line for line in lines]
 
 
 def _stuck_remedy(pin: int | None) -> str:
