@@ -16,35 +16,50 @@ from edge.paths import Band, full_scale
 
 
 def lit_in_off(band: Band, off: np.ndarray, max_spot_px: float, near: tuple[float, float] | None = None) -> bool:
-    """Whether the spot of `band`'s laser shows in a laser-off frame: a compact peak of red excess
-    (red over the mean of green and blue; grey frames: brightness) along its path, well above the
-    path's level and above the path a few spot widths (`max_spot_px`) either side of it. `near`
-    (u, v): only a peak there counts (where the laser-on frames put its spot).
+    """Whether the spot of `band`'s laser shows in a laser-off frame (`lit_spots`: any)."""
+    return bool(lit_spots(band, off, max_spot_px, near))
+
+
+def lit_spots(band: Band, off: np.ndarray, max_spot_px: float, near: tuple[float, float] | None = None
+              ) -> list[tuple[float, float]]:
+    """Where the spot of `band`'s laser may show in a laser-off frame: the pixels (u, v) of compact
+    peaks of red excess (red over the mean of green and blue; grey frames: brightness) along its
+    path, well above the path's level and above the path a few spot widths (`max_spot_px`) either
+    side of it; one per run of such path samples, at its brightest. `near` (u, v): only a peak
+    there counts (where the laser-on frames put its spot).
 
     Compact, against the room: a warm wall, a worktop or a red curtain on the path stands above
     the rest of the path as a plateau, and JPEG and a display gamma lift it further; a spot
-    stands above the path beside it too."""
+    stands above the path beside it too. What is left may still be the room's (a bright fleck of
+    a textured cloth in a grey frame): the doctor tells them apart by turning the head."""
     if off.ndim == 3:
         img = off.astype(np.float32)
         excess = img[..., 2] - 0.5 * (img[..., 0] + img[..., 1])
     else:
         excess = off.astype(np.float32)
-    profile = excess[band.v, band.u].max(axis=1).astype(np.float64)  # (L,) along the path
+    across = excess[band.v, band.u]  # (L, strip width) along the path
+    column = across.argmax(axis=1)
+    profile = across[np.arange(column.size), column].astype(np.float64)
     level = float(np.median(profile))
     spread = 1.4826 * float(np.median(np.abs(profile - level)))
     beside = _beside(profile, band.step, level, max_spot_px)
+    samples = np.arange(profile.size)
     if near is not None:
         reach = max(3.0, max_spot_px)
         close = np.hypot(band.path[:, 0] - near[0], band.path[:, 1] - near[1]) <= reach
         if not close.any():
-            return False
-        profile, beside = profile[close], beside[close]
+            return []
+        samples, profile, beside = samples[close], profile[close], beside[close]
     # Both: well above the path's own level, and well above the path beside it. (A stuck
     # spot's red excess, smeared by JPEG's half-resolution chroma, stood 0.13 of full scale
     # above a warm wall that it lay on, and the wall 0.04 above the path beside it.)
     full = full_scale(off)
-    above = (profile - level > max(8.0 * spread, 0.15 * full)) & (profile - beside > 0.08 * full)
-    return bool(above.any())
+    above = ((profile - level > max(8.0 * spread, 0.15 * full)) & (profile - beside > 0.08 * full)).nonzero()[0]
+    out = []
+    for run in np.split(above, (np.diff(above) > 1).nonzero()[0] + 1) if above.size else []:
+        k = samples[run[int(np.argmax(profile[run]))]]
+        out.append((float(band.u[k, column[k]]), float(band.v[k, column[k]])))
+    return out
 
 
 def _beside(profile: np.ndarray, step_px: float, level: float, max_spot_px: float) -> np.ndarray:

@@ -53,7 +53,7 @@ from edge.spoterror import (
     misfit_grow,
 )
 from edge.spotshape import border_index, border_level, fit_gaussian, fit_round, fit_sites, fit_unsaturated, window_kit
-from edge.stuck import lit_in_off
+from edge.stuck import lit_in_off, lit_spots
 
 # What a colour frame's spot is read from, as weights of its B, G, R channels. `red` suits raw or
 # lossless frames of a red pointer; `luma` suits JPEG (MJPEG webcams), which keeps only luminance
@@ -236,6 +236,10 @@ class SpotFinder:
     def lit_in_off(self, off: np.ndarray, laser: str, near: tuple[float, float] | None = None) -> bool:
         """Whether `laser`'s spot shows in a laser-off frame (`edge.stuck.lit_in_off` along its strip)."""
         return lit_in_off(self.bands[laser], off, self.max_spot_px, near)
+
+    def lit_spots(self, off: np.ndarray, laser: str) -> list[tuple[float, float]]:
+        """Where `laser`'s spot may show in a laser-off frame (`edge.stuck.lit_spots` along its strip)."""
+        return lit_spots(self.bands[laser], off, self.max_spot_px)
 
     def delivered(self, frame: np.ndarray) -> None:
         """Told, before the first frames of a sweep are found in, a frame as the camera delivered

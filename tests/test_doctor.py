@@ -589,6 +589,24 @@ def test_a_red_thing_where_the_spots_fall_is_told_from_a_stuck_laser_by_turning_
     assert lines["laser parallel"].status == "ok", lines["laser parallel"].detail
 
 
+@pytest.mark.parametrize("stuck", [False, True])
+def test_a_bright_fleck_of_the_room_on_a_path_with_no_spot_is_told_from_a_stuck_laser_by_turning(stuck):
+    """Tuning-2453 aimed at its pose 8 (an office, a 320-px colour camera): the sloped laser's spot
+    is out of sight, and in the laser-off frame an orange pot's edge stands on its path as a
+    compact red excess: the line said 'does not go off' of a healthy laser. Turned, the edge moves
+    with the room: no spot, it does not light. Stuck on, the laser's spot stays put and its line
+    says so. (Also tuning-2455, a textured cloth in a dim grey frame, and tuning-17.)"""
+    faults = ['sim.laser_faults=[{laser="sloped", kind="stuck"}]'] if stuck else []
+    result = examine(None, [*_family_aim(2453, 8), *faults])
+    sloped = next(x for x in result.checks.lines if x.check == "laser sloped")
+    if stuck:
+        assert sloped.detail.startswith("does not go off"), sloped.detail
+        assert "eye safety" in sloped.remedy
+    else:
+        assert sloped.detail.startswith("no spot: it does not light"), sloped.detail
+    assert not any("does not go off" in x.detail for x in result.checks.lines if x.check != "laser sloped")
+
+
 def test_a_head_that_did_not_turn_the_camera_blames_no_laser(office):
     """Told the head turned when the picture did not move (an emulated head beside a real camera),
     every bright thing on a path would 'stay put': the room's edges, which should have cancelled

@@ -307,7 +307,8 @@ class RigChecks:
         off = first.off.frame.image
         report = judge(name, first.on.frame.image, off, rig, second, through=first.full.image)
         later = judge(name, first.full.image, off, rig, second)  # lit all through: the spot's whole light
-        if report.lit_when_off and report.pixel is not None and self._room_lit(report.pixel, rig):
+        seen_off = (report.pixel,) if report.pixel is not None else report.lit_off_at
+        if report.lit_when_off and seen_off and all(self._room_lit(p, rig) for p in seen_off):
             report = dataclasses.replace(report, lit_when_off=False)
         if report.pixel is None and not report.inverted and not report.lit_when_off:
             if later.pixel is not None and later.from_path_px[name] <= config.ranging.path_tolerance_px:
@@ -340,7 +341,9 @@ class RigChecks:
         laser's: does it move with the room when the head turns (`moves_with_room`)? A red thing
         on the path where the spot falls (a colour webcam's matrix makes a warm object's red
         stand out) read as a spot that does not go off: tuning-2325, the centre and parallel
-        lasers both. Where the head cannot turn the picture, it is not told: the laser's."""
+        lasers both. So, where no spot lit, did a bright fleck of the room on the path (a textured
+        cloth in a dim grey frame: tuning-2455; an orange pot's edge: tuning-2453). Where the head
+        cannot turn the picture, it is not told: the laser's."""
         from edge.doctor.spots import moves_with_room
 
         turned = self._the_turn(rig)

@@ -93,6 +93,9 @@ class SpotReport:
     fleeting: bool = False  # no spot, but changes over MIN_SNR: none clear of the noise there, or none again
     broad: bool = False  # the spot fills its window: a glow (a reflection), or a defocused near spot
     rounded: float | None = None  # no spot, in JPEG frames: the share of pixels the two frames hold equal
+    # No spot, but `lit_when_off`: where on its path the laser-off frame showed what may be its spot
+    # (u, v; one a peak). The room's own bright flecks show there too: turning the head tells.
+    lit_off_at: tuple[tuple[float, float], ...] = ()
 
     @property
     def nearest(self) -> str | None:
@@ -324,9 +327,10 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
                        for v, u, p in dim)
         strongest = max([p / _noise_at(local, noise, v, u) for v, u, p in lit + dim],
                         default=max(float(diff.max()), float(-diff.min())) / noise)
+        lit_off_at = tuple(finder.lit_spots(off, laser))
         return SpotReport(laser, None, strongest, {}, None, inverted=inverted,
-                          lit_when_off=finder.lit_in_off(off, laser), fleeting=bool(lit or dim) and not inverted,
-                          rounded=rounded)
+                          lit_when_off=bool(lit_off_at), fleeting=bool(lit or dim) and not inverted,
+                          rounded=rounded, lit_off_at=lit_off_at)
     v, u, peak = spot
     pixel = np.array(_centroid(diff, v, u, peak))
     # It lit, so only its own spot left in the off frame says it does not (wholly) go off; a red
