@@ -653,6 +653,10 @@ def test_a_laser_that_shows_no_spot_where_no_laser_does_may_be_one_that_never_go
     dead = examine(None, [*NO_BROKER, 'sim.laser_faults=[{laser="sloped", kind="dead"}]'])
     sloped = next(x for x in dead.checks.lines if x.check == "laser sloped")
     assert "does not light" in sloped.detail and "never goes off" not in sloped.detail
+    # Its remedy still says how to tell, safely, where the doctor could not (a stuck laser's spot too
+    # faint for the laser-off frames and the turn, the others' spots showing: tuning 2432-2447).
+    assert "card held in front of it now, with every laser switched off" in sloped.remedy
+    assert "eye safety" in sloped.remedy
     # (A spot off its path is a spot seen: the others' lines stay too.)
     lines = [Line("laser a", "fail", "no spot: it does not light (strongest change 3.0× the noise)", "check it"),
              Line("laser b", "fail", "spot at (10.0, 20.0) is 9.0 px from where the rig says it can be", "calibrate")]

@@ -574,6 +574,14 @@ def unseen_lasers(lines: list[Line], lasers: list[str]) -> list[Line]:
         else line for line in lines]
 
 
+# A laser that never goes off leaves no spot in the difference of laser-on and laser-off frames, as
+# a dead one does; where its spot is too faint for the laser-off frames and the head's turn to show
+# (tuning 2432-2447 with the sloped laser stuck: 8 of 32 aims, the other lasers' spots showing),
+# the doctor cannot tell the two apart. The user can, safely, with every laser switched off.
+_CARD_CHECK = ("a spot on a card held in front of it now, with every laser switched off, means instead that it "
+               "never goes off (a shorted MOSFET: power the lasers down; eye safety)")
+
+
 def _stuck_remedy(pin: int | None) -> str:
     return ("a shorted MOSFET or a pin driven by something else: power the lasers down and "
             f"check its driver on GPIO{pin} before running the service (eye safety)")
@@ -606,12 +614,12 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
                           f"tilt_deg; now pan {aim[0]:+g}°, tilt {aim[1]:+g}°), or have the camera deliver frames "
                           'that are not JPEG (a webcam: camera.pixel_format = "YUYV"), and run the doctor again; '
                           f"if it still shows no spot, check its supply, its MOSFET and the wire from "
-                          f"GPIO{wiring[name].pin} ({key}.pin)")
+                          f"GPIO{wiring[name].pin} ({key}.pin); {_CARD_CHECK}")
         once = ", where the frames are that noisy, or once and not again: no spot" if report.fleeting else ""
         raise Problem(f"no spot: it does not light (strongest change {report.snr:.1f}× the noise{once})",
-                      f"check its supply, its MOSFET and the wire from GPIO{wiring[name].pin} ({key}.pin); or "
-                      f"nothing lies {lo:g}–{hi:g} m in front of it at pan {aim[0]:+g}°, tilt {aim[1]:+g}°: "
-                      "aim the unit at a matte wall ([rangefinder] pan_deg, tilt_deg)")
+                      f"check its supply, its MOSFET and the wire from GPIO{wiring[name].pin} ({key}.pin); "
+                      f"{_CARD_CHECK}; or nothing lies {lo:g}–{hi:g} m in front of it at pan {aim[0]:+g}°, "
+                      f"tilt {aim[1]:+g}°: aim the unit at a matte wall ([rangefinder] pan_deg, tilt_deg)")
     u, v = report.pixel
     own = report.from_path_px[name]
     where = f"spot at ({u:.1f}, {v:.1f})"
