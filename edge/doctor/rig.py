@@ -305,7 +305,8 @@ class RigChecks:
         first = self._switch(name, config)
         second = (first.again.image, first.dark.frame.image)  # shares no frame with either pair below
         off = first.off.frame.image
-        report = judge(name, first.on.frame.image, off, rig, second, through=first.full.image)
+        report = judge(name, first.on.frame.image, off, rig, second, through=first.full.image,
+                       blame_px=config.ranging.path_tolerance_px)
         later = judge(name, first.full.image, off, rig, second)  # lit all through: the spot's whole light
         seen_off = (report.pixel,) if report.pixel is not None else report.lit_off_at
         if report.lit_when_off and seen_off and all(self._room_lit(p, rig) for p in seen_off):
