@@ -530,6 +530,17 @@ def test_a_spot_by_its_path_that_blames_the_build_is_held_lit_all_through(index,
     assert ("from where the rig says it can be" in line.detail) == knocked, line.detail
 
 
+def test_a_knocked_lasers_jpeg_ringing_on_its_path_is_not_an_active_low_driver():
+    """Tuning-2544 aimed at its pose 4, the lasers knocked 1° (a 320-px colour camera, JPEG that
+    leaves 88 % of the laser-on and laser-off pixels equal): the centre laser's spot, 5 px off its
+    path, rang dark onto the path, 2.8 DN where the laser-off frames flipped 2.3 DN, and the line
+    said "active-low", whose remedy would light the laser whenever it is meant to be off."""
+    knock = ["sim.rig_error.laser_angle_deg=1.0", "sim.rig_error.seed=6"]
+    result = examine(None, [*_family_aim(2544, 4), *knock])
+    center = next(x for x in result.checks.lines if x.check == "laser center")
+    assert "active-low" not in center.detail and "active_high" not in center.remedy, center.detail
+
+
 def test_a_jpeg_blocks_stripe_off_every_path_is_no_spot() -> None:
     """A dim JPEG frame's block flips between two quantised states, and every lit frame can hold
     the same flip: a stripe flat along a block's rows (tuning-2381: 8 rows, 50 px from every

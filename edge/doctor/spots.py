@@ -344,9 +344,13 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
                       and not _stripe(diff, v, u, p) and _above_null(null, v, u, p)), None))
     if spot is None:
         # Lit while "off" puts its spot on its own path: a dark patch elsewhere (flicker bands
-        # under a rolling shutter, in step with the frames) is not its doing.
+        # under a rolling shutter, in step with the frames) is not its doing. Where JPEG rounded
+        # the difference away it has to stand above what the laser-off frames do alone, as a spot
+        # off its path has: a knocked laser's spot 5 px off its path rang dark onto it, 2.8 DN in
+        # a 320-px JPEG where the laser-off frames flipped 2.3 DN ("active-low", whose remedy
+        # lights a laser while it is off: tuning-2544, knocked 1°).
         inverted = any(mine(v, u) and _clear(local, v, u, p) and _repeats(second, v, u, -1.0, local)
-                       for v, u, p in dim)
+                       and _above_null(null, v, u, p) for v, u, p in dim)
         strongest = max([p / _noise_at(local, noise, v, u) for v, u, p in lit + dim],
                         default=max(float(diff.max()), float(-diff.min())) / noise)
         lit_off_at = tuple(finder.lit_spots(off, laser))
