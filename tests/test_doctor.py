@@ -355,6 +355,25 @@ def test_a_spot_on_another_lasers_path_tells_swapped_pins(office):
     with pytest.raises(Problem, match="lies on laser parallel's path") as swapped:
         _verdict(report, 0, load_config(), (0.0, 0.0))
     assert "GPIO17 and GPIO27 are swapped" in swapped.value.remedy
+    # Where the parallel laser, switched alone, lit its own spot elsewhere (not on the centre's path),
+    # the wires are not swapped: the centre laser is off its path.
+    with pytest.raises(Problem, match="not swapped wires") as knocked:
+        _verdict(report, 0, load_config(), (0.0, 0.0), ("parallel", 6.6))
+    assert "laser parallel switched alone lit its own spot 6.6 px from it" in str(knocked.value)
+    assert "not built as configured" in knocked.value.remedy and "swapped" not in knocked.value.remedy
+
+
+def test_a_knocked_laser_whose_spot_lies_on_anothers_path_is_not_said_to_have_swapped_wires():
+    """Tuning-2560 aimed at its pose 4, the lasers knocked 1°: the centre laser's spot lies 2.2 px
+    from its path, on the parallel's, and its line said the wires were swapped. The parallel laser,
+    switched alone, lit its own spot 6.6 px from it, on its own path: wires swapped would have put
+    it on the centre's. The line says the rig is not built as configured."""
+    knock = ["sim.rig_error.laser_angle_deg=1.0", "sim.rig_error.seed=7"]
+    result = examine(None, [*_family_aim(2560, 4), *knock])
+    lines = {x.check: x for x in result.checks.lines}
+    center = lines["laser center"]
+    assert "not swapped wires" in center.detail and "not built as configured" in center.remedy, center.detail
+    assert lines["laser parallel"].status == "ok", lines["laser parallel"].detail
 
 
 def test_a_spot_lit_while_off_tells_an_active_low_driver(office):

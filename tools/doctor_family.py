@@ -3,9 +3,9 @@
 Each condition's camera, sensor, JPEG, light and room, with its rig built as configured (no
 mounting errors: every line should be ok or, where the room hides the spot, "no spot"), aimed at
 two of the condition's poses. A line that blames the wiring or the build ("active-low", "not built
-as configured", "does not go off", "swapped") or the timing is a false alarm there; with a fault
-given (`--set 'sim.laser_faults=[{laser="center", kind="stuck"}]'`) the faulty laser's line should
-name it.
+as configured", "does not go off", "lies on laser …'s path": swapped wires) or the timing is a false
+alarm there; with a fault given (`--set 'sim.laser_faults=[{laser="center", kind="stuck"}]'`) the
+faulty laser's line should name it.
 
     .venv/bin/python tools/doctor_family.py --first 128 --conditions 32            # after ./dev
     .venv/bin/python tools/doctor_family.py --first 128 --conditions 16 --json out.json \\
@@ -29,7 +29,7 @@ from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 
 POSES = (4, 8)  # which of a condition's poses the unit is aimed at
-KINDS = ("does not go off", "active-low", "swapped", "from where the rig says", "broad glow", "no spot",
+KINDS = ("does not go off", "active-low", "lies on laser", "from where the rig says", "broad glow", "no spot",
          "holds", "comes about", "goes off later")
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import statistics
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -109,6 +110,8 @@ class RigChecks:
         self._sim: dict[str, Any] = {}  # what the simulated camera is opened with
         self._turn: Turn | None = None  # the head's turn, every laser off (`_take_turn`)
         self._turn_taken = False
+        self.spots: dict[str, SpotReport] = {}  # each laser's, as its line judged it (`_not_swapped`)
+        self._spotted: dict[str, tuple[_Switching, SpotReport, SpotReport]] = {}  # (`_spot`, taken ahead)
 
     def _typed(self) -> Config:
         if self.config is None:
@@ -298,16 +301,10 @@ class RigChecks:
             raise NotRun("needs frames from the camera (see camera)")
         if self.capture is None:
             raise NotRun(f"needs the lasers' pins ({self.lasers_problem}; see pin factory)")
-        from edge.doctor.spots import judge
         from edge.doctor.timing import Shares, judge_timing, light_shares
 
         rig = self.rig if self.rig is not None else config.rig.build()
-        first = self._switch(name, config)
-        second = (first.again.image, first.dark.frame.image)  # shares no frame with either pair below
-        off = first.off.frame.image
-        report = judge(name, first.on.frame.image, off, rig, second, through=first.full.image,
-                       blame_px=config.ranging.path_tolerance_px)
-        later = judge(name, first.full.image, off, rig, second)  # lit all through: the spot's whole light
+        first, report, later = self._spotted.pop(name) if name in self._spotted else self._spot(name, rig, config)
         seen_off = (report.pixel,) if report.pixel is not None else report.lit_off_at
         if report.lit_when_off and seen_off and all(self._room_lit(p, rig) for p in seen_off):
             report = dataclasses.replace(report, lit_when_off=False)
@@ -316,7 +313,8 @@ class RigChecks:
                 report = later  # it lights, but late: the timing below says by how much
         if report.pixel is None and not report.inverted and not report.lit_when_off:
             self._stays_put(name, rig, config)  # (raises where the laser does not go off)
-        line = _verdict(report, index, config, self._aim())
+        self.spots[name] = report
+        line = _verdict(report, index, config, self._aim(), self._not_swapped(report, rig, config))
         assert report.pixel is not None  # (_verdict raised otherwise)
         if later.snr < TIMING_MIN_SNR:  # (lit all through: a late laser's first frame is fainter)
             return (f"{line}; its timing not judged: the spot is too faint to weigh to a few percent (SNR "
@@ -336,6 +334,39 @@ class RigChecks:
         row_ns = frame.t_start_ns + int(report.pixel[1] * frame.readout_ns / max(rig.camera.height - 1, 1))
         slack_ms = (row_ns - (first.on.laser_switch_ns + settle_ns)) / 1e6
         return f"{line}; {judge_timing(shares, slack_ms, frame.exposure_us / 1e3, config.lasers.settle_ms)}"
+
+    def _spot(self, name: str, rig: Rig, config: Config) -> tuple[_Switching, SpotReport, SpotReport]:
+        """Laser `name` switched alone (`_switch`), and where its spot was: in the frame taken as
+        lit, and in one lit all through (`edge.doctor.spots.judge`)."""
+        from edge.doctor.spots import judge
+
+        first = self._switch(name, config)
+        second = (first.again.image, first.dark.frame.image)  # shares no frame with either pair below
+        off = first.off.frame.image
+        report = judge(name, first.on.frame.image, off, rig, second, through=first.full.image,
+                       blame_px=config.ranging.path_tolerance_px)
+        later = judge(name, first.full.image, off, rig, second)  # lit all through: the spot's whole light
+        return first, report, later
+
+    def _not_swapped(self, report: SpotReport, rig: Rig, config: Config) -> tuple[str, float] | None:
+        """Where `report`'s spot lies on another laser's path (as swapped wires put it), that laser
+        and how far from this spot its own lay, switched alone, where that says the wires are not
+        swapped: swapped, its spot would lie on this laser's path; a laser knocked off its path
+        puts its own spot on the other's. (Knocked 1°, tuning 2560-2591: 3 of 192 lines said
+        'swapped' of a centre laser whose spot lay 2.2-5.6 px off its path, on the parallel's,
+        4.6-9 px from the parallel's own spot.) None otherwise."""
+        name, other_name, tolerance = report.laser, report.nearest, config.ranging.path_tolerance_px
+        if (report.pixel is None or other_name is None or other_name == name
+                or report.from_path_px[other_name] > tolerance or report.from_path_px[name] <= tolerance):
+            return None
+        other = self.spots.get(other_name)
+        if other is None:  # (not judged yet: its own line takes these frames when it comes)
+            self._spotted[other_name] = self._spot(other_name, rig, config)
+            other = self._spotted[other_name][1]
+        if other.pixel is None or other.nearest == name:
+            return None
+        gap = math.dist(report.pixel, other.pixel)
+        return (other_name, gap) if gap > SAME_SPOT_PX else None
 
     def _room_lit(self, pixel: tuple[float, float], rig: Rig) -> bool:
         """Is what the laser-off frame showed at a laser's spot (`pixel`) the room's, not the
@@ -583,13 +614,29 @@ _CARD_CHECK = ("a spot on a card held in front of it now, with every laser switc
                "never goes off (a shorted MOSFET: power the lasers down; eye safety)")
 
 
+def _not_built_remedy(config: Config) -> str:
+    calibrated = config.rig.calibration or "a calibration"
+    return ("the rig is not built as configured: calibrate it (`edge calibrate`, or cmd/calibrate), "
+            f"or, if it had {calibrated}, a laser moved since: fix it and calibrate again")
+
+
+# Two lasers' spots this near each other may be one spot (see `swaps_told_apart`).
+SAME_SPOT_PX = 2.0
+
+
+# Two lasers' spots this near each other may be one spot (`RigChecks._not_swapped`).
+SAME_SPOT_PX = 2.0
+
+
 def _stuck_remedy(pin: int | None) -> str:
     return ("a shorted MOSFET or a pin driven by something else: power the lasers down and "
             f"check its driver on GPIO{pin} before running the service (eye safety)")
 
 
-def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, float]) -> str:
-    """The laser's line from where its spot was (see :mod:`edge.doctor.spots`)."""
+def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, float],
+             not_swapped: tuple[str, float] | None = None) -> str:
+    """The laser's line from where its spot was (see :mod:`edge.doctor.spots`). `not_swapped`:
+    the laser on whose path the spot lies, and how far its own spot lay (`RigChecks._not_swapped`)."""
     name = report.laser
     wiring = {w.name: w for w in config.rig.wiring()}
     key = f"rig.lasers[{index}]"
@@ -628,7 +675,7 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
         raise Problem(f"{where}, but it also shows with every laser switched off: it does not go off",
                       f"check its driver on GPIO{wiring[name].pin} (a shorted MOSFET?) before running the service")
     nearest = report.nearest or name
-    if nearest != name and report.from_path_px[nearest] <= tolerance < own:
+    if nearest != name and report.from_path_px[nearest] <= tolerance < own and not_swapped is None:
         raise Problem(f"{where} lies on laser {nearest}'s path, {own:.1f} px from its own: switching {name} "
                       f"lights {nearest}", f"the wires of GPIO{wiring[name].pin} and GPIO{wiring[nearest].pin} are "
                       f"swapped: swap them, or swap the pins in {key}.pin and the other laser's pin")
@@ -651,9 +698,8 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
                 f"SNR {report.snr:.0f} is placed to here (± {unsure:.1f} px), no sign that the rig is built "
                 f"otherwise; {then}")
     if own > tolerance:
-        calibrated = config.rig.calibration or "a calibration"
+        beside = ("" if not_swapped is None else f", on laser {not_swapped[0]}'s path, but laser {not_swapped[0]} "
+                  f"switched alone lit its own spot {not_swapped[1]:.1f} px from it: not swapped wires")
         raise Problem(f"{where} is {own:.1f} px from where the rig says it can be (ranging keeps spots within "
-                      f"{tolerance:g} px, ranging.path_tolerance_px)",
-                      "the rig is not built as configured: calibrate it (`edge calibrate`, or cmd/calibrate), "
-                      f"or, if it had {calibrated}, a laser moved since: fix it and calibrate again")
+                      f"{tolerance:g} px, ranging.path_tolerance_px){beside}", _not_built_remedy(config))
     return f"{where}, {own:.2f} px from its path (at about {report.depth_m:.1f} m), SNR {report.snr:.0f}; off: dark"
