@@ -110,7 +110,7 @@ class RigChecks:
         self._sim: dict[str, Any] = {}  # what the simulated camera is opened with
         self._turn: Turn | None = None  # the head's turn, every laser off (`_take_turn`)
         self._turn_taken = False
-        self.spots: dict[str, SpotReport] = {}  # each laser's, as its line judged it (`_not_swapped`)
+        self._spots: dict[str, SpotReport] = {}  # each laser's, as its line judged it (`_not_swapped`)
         self._spotted: dict[str, tuple[_Switching, SpotReport, SpotReport]] = {}  # (`_spot`, taken ahead)
 
     def _typed(self) -> Config:
@@ -313,7 +313,7 @@ class RigChecks:
                 report = later  # it lights, but late: the timing below says by how much
         if report.pixel is None and not report.inverted and not report.lit_when_off:
             self._stays_put(name, rig, config)  # (raises where the laser does not go off)
-        self.spots[name] = report
+        self._spots[name] = report
         line = _verdict(report, index, config, self._aim(), self._not_swapped(report, rig, config))
         assert report.pixel is not None  # (_verdict raised otherwise)
         if later.snr < TIMING_MIN_SNR:  # (lit all through: a late laser's first frame is fainter)
@@ -354,12 +354,12 @@ class RigChecks:
         swapped: swapped, its spot would lie on this laser's path; a laser knocked off its path
         puts its own spot on the other's. (Knocked 1°, tuning 2560-2591: 3 of 192 lines said
         'swapped' of a centre laser whose spot lay 2.2-5.6 px off its path, on the parallel's,
-        4.6-9 px from the parallel's own spot.) None otherwise."""
+        4.5-9 px from the parallel's own spot.) None otherwise."""
         name, other_name, tolerance = report.laser, report.nearest, config.ranging.path_tolerance_px
         if (report.pixel is None or other_name is None or other_name == name
                 or report.from_path_px[other_name] > tolerance or report.from_path_px[name] <= tolerance):
             return None
-        other = self.spots.get(other_name)
+        other = self._spots.get(other_name)
         if other is None:  # (not judged yet: its own line takes these frames when it comes)
             self._spotted[other_name] = self._spot(other_name, rig, config)
             other = self._spotted[other_name][1]
@@ -618,10 +618,6 @@ def _not_built_remedy(config: Config) -> str:
     calibrated = config.rig.calibration or "a calibration"
     return ("the rig is not built as configured: calibrate it (`edge calibrate`, or cmd/calibrate), "
             f"or, if it had {calibrated}, a laser moved since: fix it and calibrate again")
-
-
-# Two lasers' spots this near each other may be one spot (see `swaps_told_apart`).
-SAME_SPOT_PX = 2.0
 
 
 # Two lasers' spots this near each other may be one spot (`RigChecks._not_swapped`).

@@ -319,7 +319,8 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
     def mine(v: int, u: int) -> bool:
         return distance_to_path(own, np.array([u, v], float))[0] <= OWN_PATH_PX
 
-    def held_through(v: int, u: int, p: float, frames: tuple = (held, second)) -> bool:  # (`_held`)
+    def held_through(v: int, u: int, p: float,
+                     frames: tuple[tuple[np.ndarray, float] | None, ...] = (held, second)) -> bool:  # (`_held`)
         snr = p / _noise_at(local, noise, v, u)
         return all(_held(lit_through, v, u, snr, local) for lit_through in frames)
 
