@@ -558,6 +558,7 @@ def test_a_knocked_lasers_jpeg_ringing_on_its_path_is_not_an_active_low_driver()
     result = examine(None, [*_family_aim(2544, 4), *knock])
     center = next(x for x in result.checks.lines if x.check == "laser center")
     assert "active-low" not in center.detail and "active_high" not in center.remedy, center.detail
+    assert center.detail.startswith("no spot: it does not light, or JPEG rounded its spot away"), center.detail
 
 
 def test_a_jpeg_blocks_stripe_off_every_path_is_no_spot() -> None:

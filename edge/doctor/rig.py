@@ -355,9 +355,8 @@ class RigChecks:
         puts its own spot on the other's. (Knocked 1°, tuning 2560-2591: 3 of 192 lines said
         'swapped' of a centre laser whose spot lay 2.2-5.6 px off its path, on the parallel's,
         4.5-9 px from the parallel's own spot.) None otherwise."""
-        name, other_name, tolerance = report.laser, report.nearest, config.ranging.path_tolerance_px
-        if (report.pixel is None or other_name is None or other_name == name
-                or report.from_path_px[other_name] > tolerance or report.from_path_px[name] <= tolerance):
+        name, other_name = report.laser, _on_others_path(report, config.ranging.path_tolerance_px)
+        if other_name is None or report.pixel is None:  # (_on_others_path: only where it has a spot)
             return None
         other = self._spots.get(other_name)
         if other is None:  # (not judged yet: its own line takes these frames when it comes)
@@ -626,6 +625,16 @@ def _not_built_remedy(config: Config) -> str:
 SAME_SPOT_PX = 2.0
 
 
+def _on_others_path(report: SpotReport, tolerance: float) -> str | None:
+    """The laser on whose path `report`'s spot lies, within `tolerance`, where it lies off its own
+    by more (as swapped wires put it); None otherwise."""
+    nearest = report.nearest
+    if report.pixel is None or nearest is None or nearest == report.laser:
+        return None
+    own = report.from_path_px[report.laser]
+    return nearest if report.from_path_px[nearest] <= tolerance < own else None
+
+
 def _stuck_remedy(pin: int | None) -> str:
     return ("a shorted MOSFET or a pin driven by something else: power the lasers down and "
             f"check its driver on GPIO{pin} before running the service (eye safety)")
@@ -672,8 +681,8 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
     if report.lit_when_off:
         raise Problem(f"{where}, but it also shows with every laser switched off: it does not go off",
                       f"check its driver on GPIO{wiring[name].pin} (a shorted MOSFET?) before running the service")
-    nearest = report.nearest or name
-    if nearest != name and report.from_path_px[nearest] <= tolerance < own and not_swapped is None:
+    nearest = _on_others_path(report, tolerance)
+    if nearest is not None and not_swapped is None:
         raise Problem(f"{where} lies on laser {nearest}'s path, {own:.1f} px from its own: switching {name} "
                       f"lights {nearest}", f"the wires of GPIO{wiring[name].pin} and GPIO{wiring[nearest].pin} are "
                       f"swapped: swap them, or swap the pins in {key}.pin and the other laser's pin")

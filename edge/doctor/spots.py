@@ -107,9 +107,13 @@ class SpotReport:
         return min(self.from_path_px, key=self.from_path_px.__getitem__) if self.from_path_px else None
 
 
+def _plane(image: np.ndarray) -> np.ndarray:
+    """The laser's plane of a frame, as delivered: a red laser, the red of BGR (grey as it is)."""
+    return image[..., 2] if image.ndim == 3 else image
+
+
 def _channel(image: np.ndarray) -> np.ndarray:
-    plane = image[..., 2] if image.ndim == 3 else image  # a red laser: the red of BGR
-    return plane.astype(np.float32) / np.float32(SpotFinder.full_scale(image))
+    return _plane(image).astype(np.float32) / np.float32(SpotFinder.full_scale(image))
 
 
 def rounded_share(on: np.ndarray, off: np.ndarray) -> float | None:
@@ -117,7 +121,7 @@ def rounded_share(on: np.ndarray, off: np.ndarray) -> float | None:
     laser's channel, where the frames are JPEG (`jpeg_blockiness`); None where they are not."""
     if jpeg_blockiness(off) <= JPEG_BLOCKINESS:
         return None
-    a, b = ((f[..., 2] if f.ndim == 3 else f)[::_SAMPLE, ::_SAMPLE] for f in (on, off))
+    a, b = (_plane(f)[::_SAMPLE, ::_SAMPLE] for f in (on, off))
     return float(np.count_nonzero(a == b)) / a.size
 
 
