@@ -1,5 +1,5 @@
 """Ranging with the room turned between the laser-on and laser-off frames, with and without
-`edge.motion`'s steadier: the README's table ("The room moving between the frames").
+`edge.motion`'s steadier: the table of docs/ranging.md ("The room moving between the frames").
 
 One pair a zone over the simulated scene's 64 zones; the laser-off frame rendered with the camera
 turned by each given angle in pan and 0.4 × that in tilt. Prints, per angle, the `ok` zones, the

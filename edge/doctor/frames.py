@@ -45,7 +45,7 @@ if TYPE_CHECKING:
 # reads 1.25-1.68 and is left alone: it grows a spot's σ by a fifth at most.)
 SMOOTHED_AREA = 1.8
 
-# What the frames line adds for a webcam's JPEG frames: the accuracy family's figures (README, "A
+# What the frames line adds for a webcam's JPEG frames: the accuracy family's figures (docs/ranging.md, "A
 # sixth evaluation set" and the table by kind of frames) and the setting that mends it.
 WEBCAM_JPEG = ("ranging places spots in JPEG frames worse (of the observable zones in the simulated family's "
                "colour frames, 77 % ranged in JPEG frames, 94 % in uncompressed ones): ask the webcam for "
