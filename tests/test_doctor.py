@@ -145,6 +145,9 @@ def test_a_noisy_webcam_aimed_where_no_spot_shows_says_so_and_blames_no_wiring()
         assert line.status == "fail"
         assert line.detail.startswith(("no spot: it does not light", "no spot on its path, only a broad glow")), line
         assert "aim the unit at a matte wall" in line.remedy
+        # Its spot out of sight, a laser that never goes off would read the same: the user is told
+        # how to tell, safely.
+        assert "with every laser switched off, means instead that it never goes off" in line.remedy
     # (Which of the two a line says depends on the frames: the sloped beam's glow, thrown back at
     # this aim, is near the threshold, and showed in this seed's frames only until the doctor took
     # more of them, turning the head to tell a laser that does not go off.)
@@ -407,6 +410,21 @@ def test_a_faint_spot_just_past_the_paths_reach_does_not_say_the_rig_is_built_wr
     line = _verdict(report, 0, load_config(), (0.0, 0.0))
     assert ("no sign that the rig is built otherwise" in line) == (built is None)
     assert ("nearer or paler wall" in line) == (built is None)
+
+
+def test_a_broad_glow_off_every_path_says_how_to_tell_a_laser_that_never_goes_off():
+    """Only a broad glow off every path: the laser's own spot is out of sight, so a laser stuck on,
+    whose spot leaves the difference, reads the same (evaluation 1153, the parallel laser stuck:
+    a dark JPEG block flipped in step with the switching, 383 px from its path). The remedy ends
+    with the card check, as every line that finds no spot of the laser's own does."""
+    from edge.doctor.spots import SpotReport
+
+    report = SpotReport("parallel", (1210.0, 74.0), 9.0, {"center": 474.0, "parallel": 383.0, "sloped": 613.0}, 0.2,
+                        inverted=False, lit_when_off=False, broad=True)
+    with pytest.raises(Problem, match="only a broad glow") as glow:
+        _verdict(report, 1, load_config(), (0.0, 0.0))
+    assert "aim the unit at a matte wall" in glow.value.remedy
+    assert "with every laser switched off, means instead that it never goes off" in glow.value.remedy
 
 
 def test_the_device_configuration_is_accepted_here_and_its_doctor_says_what_to_do():

@@ -687,12 +687,16 @@ def _verdict(report: SpotReport, index: int, config: Config, aim: tuple[float, f
                       f"lights {nearest}", f"the wires of GPIO{wiring[name].pin} and GPIO{wiring[nearest].pin} are "
                       f"swapped: swap them, or swap the pins in {key}.pin and the other laser's pin")
     if own > tolerance and report.broad and min(report.from_path_px.values()) > tolerance:
+        # (Its own spot out of sight, the laser may as well never go off: its spot then leaves the
+        # difference, and a JPEG block of a dark room that flipped in step with the switching took
+        # its place, 383 px from its path: evaluation 1153, the parallel laser stuck. Hence the
+        # card check here too.)
         lo, hi = config.rig.range_limits_m
         raise Problem(f"no spot on its path, only a broad glow at ({u:.0f}, {v:.0f}), SNR {report.snr:.0f}, "
                       f"{own:.0f} px from it: its light reflected or scattered there (glass, a glossy surface), "
                       "its spot out of sight",
                       f"aim the unit at a matte wall {lo:g}–{hi:g} m away ([rangefinder] pan_deg, tilt_deg; now "
-                      f"pan {aim[0]:+g}°, tilt {aim[1]:+g}°) and run the doctor again")
+                      f"pan {aim[0]:+g}°, tilt {aim[1]:+g}°) and run the doctor again; {_CARD_CHECK}")
     from edge.doctor.spots import placed_to_px
 
     unsure = placed_to_px(report.snr)
