@@ -219,6 +219,27 @@ def test_a_spots_light_is_weighed_in_frames_lit_for_part_of_their_exposure(offic
     assert judge_timing(Shares(0.78, 0.18, 0.1), 4.0, 10.0, 1.0).startswith("lit frames wholly lit")
 
 
+def test_the_timing_is_as_sure_as_its_switchings_agree():
+    """JPEG rounds a small spot's blocks anew in every frame: its light scatters from switching to
+    switching by far more than the pixels' noise says. Two switchings that both read 0.76 with
+    ±0.05 of noise say the light came late; four that scatter 0.76-1.13 say only that it is known
+    to ±0.09 (evaluation-1142, a knocked rig's 320 × 240 JPEG). A slow laser's switchings agree."""
+    from edge.doctor.timing import Shares, judge_timing
+
+    two = Shares.mean([Shares(0.768, -0.005, 0.055), Shares(0.758, -0.031, 0.045)])
+    assert two.sigma == pytest.approx((0.055**2 + 0.045**2) ** 0.5 / 2)  # (the noise: they agree)
+    with pytest.raises(Problem, match="holds 76 %"):
+        judge_timing(two, 5.6, 22.4, 1.0)
+    four = Shares.mean([Shares(0.768, -0.005, 0.055), Shares(0.758, -0.031, 0.045), Shares(0.805, -0.003, 0.046),
+                        Shares(1.125, 0.058, 0.054)])
+    assert four.lit == pytest.approx(0.864, abs=0.001) and four.sigma == pytest.approx(0.0876, abs=0.001)
+    assert judge_timing(four, 5.6, 22.4, 1.0).startswith("lit frames wholly lit (86 %")
+    slow = Shares.mean([Shares(0.48, 0.0, 0.03), Shares(0.52, 0.01, 0.03), Shares(0.5, 0.0, 0.03),
+                        Shares(0.47, 0.0, 0.03)])
+    with pytest.raises(Problem, match="holds 49 %"):
+        judge_timing(slow, 5.6, 22.4, 1.0)
+
+
 def test_the_tone_curve_is_not_judged_in_the_dark():
     result = examine(None, [*NO_BROKER, "sim.ambient.white_e_per_ms=10"])
     assert _by_status(result, "not run") == ["tone curve"]
@@ -625,6 +646,16 @@ def test_a_blob_off_every_path_no_stronger_than_what_the_dark_frames_do_is_no_sp
     found = judge("center", _with_red(on, lit), off, rig, (_with_red(again, lit), flipped),
                   through=_with_red(through, lit))
     assert found.pixel is None if rounded else found.pixel == pytest.approx((120.0, 400.0), abs=0.3)
+
+
+def test_a_healthy_lasers_spot_in_jpeg_frames_is_not_said_to_light_late():
+    """Tuning-2497 aimed at its pose 4 (800 × 600, JPEG 4:2:0): the sloped laser's spot, SNR 39,
+    read 84 % lit in the frame taken as lit over two switchings, and its line said the light came
+    6.9 ms late. JPEG rounds its blocks anew in every frame; four switchings, and their scatter,
+    say it is wholly lit."""
+    result = examine(None, _family_aim(2497, 4))
+    sloped = next(x for x in result.checks.lines if x.check == "laser sloped")
+    assert sloped.status == "ok" and "lit frames wholly lit" in sloped.detail, sloped.detail
 
 
 def _family_aim(index: int, pose: int) -> list[str]:

@@ -40,6 +40,12 @@ LIT_AFTER_FRAMES = 3  # a frame this many after the first lit one saw the laser 
 # frames (a webcam's at quality 60, the simulator's at 50) spots of SNR 16-21 read 82-121 % lit.
 TIMING_MIN_SNR = 30.0
 TIMING_SWITCHES = 2  # switchings whose light is averaged for the timing (see RigChecks.laser)
+# In JPEG frames more: JPEG rounds a small spot's blocks anew in every frame, and a spot of SNR 30-50
+# read 0.76-1.85 of its light, switching to switching, where the pixels' noise said ±0.05 (a
+# rig knocked 1°, evaluation 1142, 320 × 240 at quality 52: two switchings both near 0.76, and a
+# false "the light comes 10.9 ms late"; tuning-2497 at 84 %). Their scatter then says how well
+# the mean is known (`Shares.mean`), which two cannot tell.
+TIMING_SWITCHES_JPEG = 4
 LENS_TOLERANCE = 0.05  # dioptres: a focus motor reports back where it is, to its step
 # An identity colour matrix comes back within 0.001 of it (libcamera's saturation step rounds);
 # a camera's own mixes by 0.4-1.5.
@@ -323,7 +329,8 @@ class RigChecks:
         # needed, on a bright band of a textured wall behind a Bayer filter, read a healthy
         # laser's dark frame at 0 ± 6 % in one, and 16 % (a false 'goes off later') one time in
         # about a hundred lines.
-        cycles = [first] + [self._switch(name, config) for _ in range(TIMING_SWITCHES - 1)]
+        switchings = TIMING_SWITCHES_JPEG if _jpeg(first.off.frame.image) else TIMING_SWITCHES
+        cycles = [first] + [self._switch(name, config) for _ in range(switchings - 1)]
         each = [light_shares(c.on.frame.image, c.full.image, c.again.image, c.after.frame.image, c.off.frame.image,
                              report.pixel, config.ranging.frame_gamma) for c in cycles]
         if any(s is None for s in each):
@@ -633,6 +640,14 @@ def _on_others_path(report: SpotReport, tolerance: float) -> str | None:
         return None
     own = report.from_path_px[report.laser]
     return nearest if report.from_path_px[nearest] <= tolerance < own else None
+
+
+def _jpeg(frame: Any) -> bool:
+    """Are the camera's frames JPEG's (its 8 × 8 blocks' edges: as ranging tells them)?"""
+    from edge.framenoise import jpeg_blockiness
+    from edge.vision import JPEG_BLOCKINESS
+
+    return bool(jpeg_blockiness(frame) > JPEG_BLOCKINESS)
 
 
 def _stuck_remedy(pin: int | None) -> str:

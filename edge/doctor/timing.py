@@ -16,6 +16,7 @@ Pure: frames in, a line or a Problem out.
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,10 +43,16 @@ class Shares:
 
     @staticmethod
     def mean(each: list[Shares]) -> Shares:
-        """The shares of several switchings, averaged (their noise independent)."""
+        """The shares of several switchings, averaged; their σ the pixels' noise (independent from
+        one switching to the next), or the shares' own scatter where it says more: JPEG rounds a
+        spot's blocks anew in every frame, which no noise beside the spot shows."""
         n = len(each)
-        return Shares(sum(s.lit for s in each) / n, sum(s.left for s in each) / n,
-                      math.sqrt(sum(s.sigma**2 for s in each)) / n)
+        noise = math.sqrt(sum(s.sigma**2 for s in each)) / n
+        scatter = 0.0
+        if n > 1:
+            spread = max(statistics.stdev([s.lit for s in each]), statistics.stdev([s.left for s in each]))
+            scatter = spread / math.sqrt(n)
+        return Shares(sum(s.lit for s in each) / n, sum(s.left for s in each) / n, max(noise, scatter))
 
 
 def _linear(frame: np.ndarray, gamma: float) -> tuple[np.ndarray, float]:
@@ -134,7 +141,7 @@ def judge_timing(shares: Shares, slack_ms: float, exposure_ms: float, settle_ms:
             f"spot's light: it goes off later than lasers.settle_ms ({settle_ms:g} ms) says",
             "raise lasers.settle_ms until this line is ok (a slow laser module or driver)")
     return (f"lit frames wholly lit ({_pct(share)} % of the light {slack_ms:.1f} ms after the switch), "
-            f"dark ones dark ({_pct(left)} %; ±{_pct(sigma)} % the noise)")
+            f"dark ones dark ({_pct(left)} %; ±{_pct(sigma)} % as measured)")
 
 
 def _pct(share: float) -> int:
