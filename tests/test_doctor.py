@@ -411,6 +411,34 @@ def test_a_spot_lit_while_off_tells_an_active_low_driver(office):
     assert ok.nearest == "center" and ok.from_path_px["center"] < 0.5 and not ok.lit_when_off
 
 
+@pytest.mark.parametrize("shape", ["spot", "stripe"])
+def test_a_dark_stripe_on_the_path_is_no_active_low_driver(office, shape):
+    """An active-low driver lights its spot while "off": the difference holds it dark, a spot's
+    shape. A dim JPEG's band that every lit frame held in its lower quantised state (tuning-2628:
+    19 → 14 DN across 10 px, the lit frames' flicker 3 % darker by chance) is a dark stripe on the
+    path, and no such driver."""
+    from edge.sim.record import scene_for, true_rig
+    from edge.sim.render import Renderer
+
+    rig, frames = office
+    u, v = (int(round(x)) for x in judge("center", frames["center"], frames[""], rig).pixel)
+    config = load_config()
+    renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
+    rng = np.random.default_rng(3)
+    dark_off, lit, full, again = (renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(4))
+    rows, cols = np.mgrid[-8:9, -12:13]
+    if shape == "spot":
+        dip = 30.0 * np.exp(-(rows**2 + cols**2) / (2 * 1.2**2))
+    else:  # 5 rows, 17 columns: a block's band
+        dip = 30.0 * ((np.abs(rows) <= 2) & (np.abs(cols) <= 8))
+    for frame in (lit, full, again):  # (every frame taken as lit: the "on" pin leaves it dark)
+        patch = frame[v - 8:v + 9, u - 12:u + 13, 2].astype(float) - dip
+        frame[v - 8:v + 9, u - 12:u + 13, 2] = np.clip(patch, 0, 255).astype(frame.dtype)
+    report = judge("center", lit, frames[""], rig, (again, dark_off), through=full)
+    assert report.pixel is None
+    assert report.inverted == (shape == "spot"), report
+
+
 @pytest.mark.parametrize(("snr", "off_px", "built"), [(9.0, 1.6, None), (9.0, 2.5, False), (100.0, 1.8, False),
                                                     (100.0, 1.2, True)])
 def test_a_faint_spot_just_past_the_paths_reach_does_not_say_the_rig_is_built_wrong(snr, off_px, built):

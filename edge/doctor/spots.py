@@ -354,8 +354,11 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
         # off its path has: a knocked laser's spot 5 px off its path rang dark onto it, 2.8 DN in
         # a 320-px JPEG where the laser-off frames flipped 2.3 DN ("active-low", whose remedy
         # lights a laser while it is off: tuning-2544, knocked 1°).
+        # Nor is a dark stripe a laser's spot, which is a spot's shape, dark or lit: the lit frames'
+        # flicker (3 % darker, by chance) tipped one band of a dim 320-px JPEG into its lower
+        # quantised state in all three, 19 → 14 DN across 10 px (tuning-2628, its pose 4: "active-low").
         inverted = any(mine(v, u) and _clear(local, v, u, p) and _repeats(second, v, u, -1.0, local)
-                       and _above_null(null, v, u, p) for v, u, p in dim)
+                       and _above_null(null, v, u, p) and not _stripe(-diff, v, u, p) for v, u, p in dim)
         strongest = max([p / _noise_at(local, noise, v, u) for v, u, p in lit + dim],
                         default=max(float(diff.max()), float(-diff.min())) / noise)
         lit_off_at = tuple(finder.lit_spots(off, laser))
