@@ -411,12 +411,14 @@ def test_a_spot_lit_while_off_tells_an_active_low_driver(office):
     assert ok.nearest == "center" and ok.from_path_px["center"] < 0.5 and not ok.lit_when_off
 
 
-@pytest.mark.parametrize("shape", ["spot", "stripe"])
-def test_a_dark_stripe_on_the_path_is_no_active_low_driver(office, shape):
-    """An active-low driver lights its spot while "off": the difference holds it dark, a spot's
-    shape. A dim JPEG's band that every lit frame held in its lower quantised state (tuning-2628:
-    19 → 14 DN across 10 px, the lit frames' flicker 3 % darker by chance) is a dark stripe on the
-    path, and no such driver."""
+@pytest.mark.parametrize("case", ["active-low", "stripe", "stuck"])
+def test_only_a_spot_gone_from_the_lit_frames_tells_an_active_low_driver(office, case):
+    """An active-low driver lights its spot while "off" and not while "on": the difference holds
+    it dark, a spot's shape, as deep as the laser-off frames' spot is bright. Not so:
+    - a dim JPEG's band that every lit frame held in its lower quantised state (tuning-2628: 19 →
+      14 DN across 10 px, the lit frames' flicker 3 % darker by chance), a dark stripe;
+    - a laser that never goes off, whose clipped spot the lit frames held a few percent dimmer, 10 σ
+      of the difference's noise (evaluation-1269): that is "does not go off"."""
     from edge.sim.record import scene_for, true_rig
     from edge.sim.render import Renderer
 
@@ -425,18 +427,22 @@ def test_a_dark_stripe_on_the_path_is_no_active_low_driver(office, shape):
     config = load_config()
     renderer = Renderer(scene_for(config), true_rig(config), config.sim, config.camera)
     rng = np.random.default_rng(3)
-    dark_off, lit, full, again = (renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(4))
+    off, dark_off, lit, full, again = (renderer.render(0.0, 0.0, {}, 0.0, rng) for _ in range(5))
     rows, cols = np.mgrid[-8:9, -12:13]
-    if shape == "spot":
-        dip = 30.0 * np.exp(-(rows**2 + cols**2) / (2 * 1.2**2))
-    else:  # 5 rows, 17 columns: a block's band
-        dip = 30.0 * ((np.abs(rows) <= 2) & (np.abs(cols) <= 8))
-    for frame in (lit, full, again):  # (every frame taken as lit: the "on" pin leaves it dark)
-        patch = frame[v - 8:v + 9, u - 12:u + 13, 2].astype(float) - dip
+    spot = 120.0 * np.exp(-(rows**2 + cols**2) / (2 * 1.2**2))
+    band = 30.0 * ((np.abs(rows) <= 2) & (np.abs(cols) <= 8))  # 5 rows, 17 columns: a block's band
+    change = {"active-low": ((off, dark_off), spot), "stripe": ((lit, full, again), -band),
+              "stuck": ((off, dark_off), spot)}[case]
+    for frame in (lit, full, again, off, dark_off):
+        add = change[1] if any(frame is f for f in change[0]) else 0.0
+        if case == "stuck" and any(frame is f for f in (lit, full, again)):
+            add = 0.9 * spot  # (lit all along, a little dimmer)
+        patch = frame[v - 8:v + 9, u - 12:u + 13, 2].astype(float) + add
         frame[v - 8:v + 9, u - 12:u + 13, 2] = np.clip(patch, 0, 255).astype(frame.dtype)
-    report = judge("center", lit, frames[""], rig, (again, dark_off), through=full)
+    report = judge("center", lit, off, rig, (again, dark_off), through=full)
     assert report.pixel is None
-    assert report.inverted == (shape == "spot"), report
+    assert report.inverted == (case == "active-low"), report
+    assert report.lit_when_off == (case != "stripe"), report
 
 
 @pytest.mark.parametrize(("snr", "off_px", "built"), [(9.0, 1.6, None), (9.0, 2.5, False), (100.0, 1.8, False),

@@ -71,6 +71,13 @@ STRIPE_PX, STRIPE_RATIO = 8, 1.5
 # only 1.46 × above it in the Pi camera's lossless frames (tuning-2369), 1.15 × in a noisy webcam's
 # JPEG 76 (tuning-2448; 1° off, each).
 NULL_MARGIN, NULL_REACH = 1.5, 64
+# A dark spot says "active-low" only where the laser-off frame holds a spot there, at GONE_SHARE of
+# its depth or more, and the frame taken as lit has lost it, keeping 1 − GONE_SHARE of it at most:
+# lit while "off", such a laser's spot is gone when "on". A laser that never goes off keeps its
+# spot in both (the centre laser stuck, "active-low" where the line is "does not go off": eye
+# safety): evaluation-1269, its clipped spot 10 σ dimmer in the lit frames, which held 0.99 of it;
+# evaluation-1291, JPEG's ringing 6 px beside it, where the laser-off frame holds 0.19 of the depth.
+GONE_SHARE = 0.5
 OWN_PATH_PX = 3.0  # a peak this near a laser's path is taken for its spot first
 EDGE_PX = 4  # peaks this near the picture's edge are not looked at
 MAX_PEAKS, PEAK_APART = 5, 6  # peaks tried in turn, and how far apart (px) they are told apart
@@ -270,6 +277,25 @@ def _stripe(diff: np.ndarray, v: int, u: int, peak: float) -> bool:
     return longer >= STRIPE_PX and longer >= STRIPE_RATIO * shorter
 
 
+def _excess(frame: np.ndarray, v: int, u: int) -> float:
+    """What `frame` shows at (v, u) over the room 4 px around it: its laser plane's 3 × 3 mean
+    there, less the median of the 9 × 9 square's border (`_difference`'s units)."""
+    win = _box3(_channel(frame[v - 5:v + 6, u - 5:u + 6]))[1:-1, 1:-1]
+    ring = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
+    return float(win[4, 4]) - float(np.median(ring))
+
+
+def _gone_when_lit(on: np.ndarray, off: np.ndarray, v: int, u: int, dark: float) -> bool:
+    """Whether a dark spot of depth `dark` at (v, u) is an active-low driver's: its spot lit in the
+    laser-off frame `off` (by GONE_SHARE of that depth or more) and gone from the frame taken as
+    lit, `on` (which keeps no more than 1 − GONE_SHARE of it)."""
+    h, w = off.shape[:2]
+    if not (5 <= v < h - 5 and 5 <= u < w - 5):
+        return True
+    lit_off = _excess(off, v, u)
+    return lit_off >= GONE_SHARE * dark and _excess(on, v, u) <= (1.0 - GONE_SHARE) * lit_off
+
+
 def _above_null(null: np.ndarray | None, v: int, u: int, peak: float) -> bool:
     """Whether a peak of `peak` at (v, u) stands NULL_MARGIN × above the largest change of `null`
     (two laser-off frames' difference) within NULL_REACH px."""
@@ -358,7 +384,8 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
         # flicker (3 % darker, by chance) tipped one band of a dim 320-px JPEG into its lower
         # quantised state in all three, 19 → 14 DN across 10 px (tuning-2628, its pose 4: "active-low").
         inverted = any(mine(v, u) and _clear(local, v, u, p) and _repeats(second, v, u, -1.0, local)
-                       and _above_null(null, v, u, p) and not _stripe(-diff, v, u, p) for v, u, p in dim)
+                       and _above_null(null, v, u, p) and not _stripe(-diff, v, u, p)
+                       and _gone_when_lit(on, off, v, u, p) for v, u, p in dim)
         strongest = max([p / _noise_at(local, noise, v, u) for v, u, p in lit + dim],
                         default=max(float(diff.max()), float(-diff.min())) / noise)
         lit_off_at = tuple(finder.lit_spots(off, laser))
