@@ -307,6 +307,7 @@ class RigChecks:
             raise NotRun("needs frames from the camera (see camera)")
         if self.capture is None:
             raise NotRun(f"needs the lasers' pins ({self.lasers_problem}; see pin factory)")
+        from edge.doctor.spots import is_jpeg
         from edge.doctor.timing import Shares, judge_timing, light_shares
 
         rig = self.rig if self.rig is not None else config.rig.build()
@@ -329,7 +330,7 @@ class RigChecks:
         # needed, on a bright band of a textured wall behind a Bayer filter, read a healthy
         # laser's dark frame at 0 ± 6 % in one, and 16 % (a false 'goes off later') one time in
         # about a hundred lines.
-        switchings = TIMING_SWITCHES_JPEG if _jpeg(first.off.frame.image) else TIMING_SWITCHES
+        switchings = TIMING_SWITCHES_JPEG if is_jpeg(first.off.frame.image) else TIMING_SWITCHES
         cycles = [first] + [self._switch(name, config) for _ in range(switchings - 1)]
         each = [light_shares(c.on.frame.image, c.full.image, c.again.image, c.after.frame.image, c.off.frame.image,
                              report.pixel, config.ranging.frame_gamma) for c in cycles]
@@ -640,14 +641,6 @@ def _on_others_path(report: SpotReport, tolerance: float) -> str | None:
         return None
     own = report.from_path_px[report.laser]
     return nearest if report.from_path_px[nearest] <= tolerance < own else None
-
-
-def _jpeg(frame: Any) -> bool:
-    """Are the camera's frames JPEG's (its 8 × 8 blocks' edges: as ranging tells them)?"""
-    from edge.framenoise import jpeg_blockiness
-    from edge.vision import JPEG_BLOCKINESS
-
-    return bool(jpeg_blockiness(frame) > JPEG_BLOCKINESS)
 
 
 def _stuck_remedy(pin: int | None) -> str:

@@ -123,10 +123,15 @@ def _channel(image: np.ndarray) -> np.ndarray:
     return _plane(image).astype(np.float32) / np.float32(SpotFinder.full_scale(image))
 
 
+def is_jpeg(frame: np.ndarray) -> bool:
+    """Are the camera's frames JPEG's (`frame`'s 8 × 8 blocks' edges, as ranging tells them)?"""
+    return bool(jpeg_blockiness(frame) > JPEG_BLOCKINESS)
+
+
 def rounded_share(on: np.ndarray, off: np.ndarray) -> float | None:
     """The share of pixels (every _SAMPLE-th each way) that `on` and `off` hold equal in the
     laser's channel, where the frames are JPEG (`jpeg_blockiness`); None where they are not."""
-    if jpeg_blockiness(off) <= JPEG_BLOCKINESS:
+    if not is_jpeg(off):
         return None
     a, b = (_plane(f)[::_SAMPLE, ::_SAMPLE] for f in (on, off))
     return float(np.count_nonzero(a == b)) / a.size
@@ -167,9 +172,12 @@ def _broad(diff: np.ndarray, v: int, u: int, peak: float) -> bool:
     h, w = diff.shape
     if not (4 <= v < h - 4 and 4 <= u < w - 4):
         return False
-    win = diff[v - 4:v + 5, u - 4:u + 5]
-    ring = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
-    return float(np.median(ring)) > 0.4 * peak
+    return float(np.median(_border(diff[v - 4:v + 5, u - 4:u + 5]))) > 0.4 * peak
+
+
+def _border(win: np.ndarray) -> np.ndarray:
+    """The pixels of a square window's edge: the room about the spot at its middle."""
+    return np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
 
 
 def path_of(rig: Rig, laser: str, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
@@ -281,8 +289,7 @@ def _excess(frame: np.ndarray, v: int, u: int) -> float:
     """What `frame` shows at (v, u) over the room 4 px around it: its laser plane's 3 × 3 mean
     there, less the median of the 9 × 9 square's border (`_difference`'s units)."""
     win = _box3(_channel(frame[v - 5:v + 6, u - 5:u + 6]))[1:-1, 1:-1]
-    ring = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
-    return float(win[4, 4]) - float(np.median(ring))
+    return float(win[4, 4]) - float(np.median(_border(win)))
 
 
 def _gone_when_lit(on: np.ndarray, off: np.ndarray, v: int, u: int, dark: float) -> bool:
