@@ -349,7 +349,8 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
     if through is not None:
         held = _difference(through, off if again is None else again[1])
     lit = _peaks(diff, MIN_SNR * noise)
-    dim = _peaks(-diff, MIN_SNR * noise)
+    dark = -diff  # (a dark spot: lit while "off")
+    dim = _peaks(dark, MIN_SNR * noise)
     finder = SpotFinder(rig, lasers=[laser])
     own, own_depths = path_of(rig, laser)
 
@@ -391,7 +392,7 @@ def judge(laser: str, on: np.ndarray, off: np.ndarray, rig: Rig,
         # flicker (3 % darker, by chance) tipped one band of a dim 320-px JPEG into its lower
         # quantised state in all three, 19 → 14 DN across 10 px (tuning-2628, its pose 4: "active-low").
         inverted = any(mine(v, u) and _clear(local, v, u, p) and _repeats(second, v, u, -1.0, local)
-                       and _above_null(null, v, u, p) and not _stripe(-diff, v, u, p)
+                       and _above_null(null, v, u, p) and not _stripe(dark, v, u, p)
                        and _gone_when_lit(on, off, v, u, p) for v, u, p in dim)
         strongest = max([p / _noise_at(local, noise, v, u) for v, u, p in lit + dim],
                         default=max(float(diff.max()), float(-diff.min())) / noise)
